@@ -1,0 +1,91 @@
+"""The one recording model every source produces and every later stage consumes.
+
+A :class:`Recording` is one sensor instance (IMU 0, IMU 1, ...) from one source. Its samples are a
+:class:`pandas.DataFrame` with SI columns:
+
+    t                      [s]       time since the source's own epoch (boot or log start)
+    acc_x, acc_y, acc_z    [m/s²]    specific force
+    gyr_x, gyr_y, gyr_z    [rad/s]
+    mag_x, mag_y, mag_z    [mGauss]  (only when the source has a magnetometer on this instance)
+    temp                   [°C]      (only when present)
+
+Columns that the source does not carry are absent, never filled with zeros. ``corrected`` says
+whether the firmware already applied its INS_*/COMPASS_* parameters (ArduPilot's RAW_IMU, IMU and
+MAG log messages are corrected: ../shared/ardupilot-facts.md, "What the telemetry really carries").
+``frame`` is "body" when AHRS_ORIENTATION was applied (ArduPilot's outputs), "sensor" otherwise.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+ACC = ["acc_x", "acc_y", "acc_z"]
+GYR = ["gyr_x", "gyr_y", "gyr_z"]
+MAG = ["mag_x", "mag_y", "mag_z"]
+SENSOR_COLUMNS = {"acc": ACC, "gyr": GYR, "mag": MAG}
+
+
+@dataclass
+class Recording:
+    """Samples of one sensor instance plus what is known about how they were made."""
+
+    data: pd.DataFrame
+    source: str = ""                     # file path or connection string
+    message: str = ""                    # e.g. "RAW_IMU", "IMU", "IMU2", "ACC1", "csv"
+    instance: int = 0
+    vehicle: str | None = None           # e.g. "ArduCopter"
+    firmware: str | None = None          # e.g. "ArduCopter V3.2.1"
+    params: dict[str, float] = field(default_factory=dict)   # in force while recording
+    corrected: bool = False              # firmware offsets/scales already applied
+    frame: str = "sensor"                # "sensor" or "body"
+
+    def has(self, sensor: str) -> bool:
+        """True if all three columns of ``sensor`` ("acc", "gyr", "mag") are present."""
+        return all(c in self.data.columns for c in SENSOR_COLUMNS[sensor])
+
+    @property
+    def sensors(self) -> list[str]:
+        return [s for s in SENSOR_COLUMNS if self.has(s)]
+
+    @property
+    def t(self) -> np.ndarray:
+        """Time [s] as a float64 array."""
+        return self.data["t"].to_numpy(dtype=float)
+
+    def xyz(self, sensor: str) -> np.ndarray:
+        """(n, 3) float64 array of ``sensor`` ("acc" m/s², "gyr" rad/s, "mag" mGauss)."""
+        return self.data[SENSOR_COLUMNS[sensor]].to_numpy(dtype=float)
+
+    @property
+    def duration(self) -> float:
+        t = self.t
+        return float(t[-1] - t[0]) if len(t) > 1 else 0.0
+
+    @property
+    def rate_hz(self) -> float:
+        """Median sample rate [Hz] (0 when fewer than two samples)."""
+        t = self.t
+        if len(t) < 2:
+            return 0.0
+        dt = np.median(np.diff(t))
+        return float(1.0 / dt) if dt > 0 else 0.0
+
+    def __len__(self) -> int:
+        return len(self.data)
+
+
+@dataclass
+class LogContents:
+    """Everything a reader found in one file."""
+
+    path: str
+    format: str                                    # "tlog", "bin", "log", "csv"
+    recordings: list[Recording] = field(default_factory=list)
+    params: dict[str, float] = field(default_factory=dict)   # last value of each parameter
+    vehicle: str | None = None
+    firmware: str | None = None
+    messages: list[str] = field(default_factory=list)        # STATUSTEXT / MSG texts
+    bytes_skipped: int = 0                         # garbage or damaged bytes passed over
+    damaged_at: list[int] = field(default_factory=list)      # byte offsets where damage began

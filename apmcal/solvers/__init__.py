@@ -1,0 +1,1 @@
+"""Calibration solvers. Each returns a :class:`~apmcal.solvers.result.Calibration`."""
