@@ -1,0 +1,381 @@
+"""Ferraris et al. (1995) six-position + three-rotation calibration, the benchmark of seed 002 §4.
+
+Sensor models (seed 002 eq. 1, 2), sensor frame::
+
+    a_s = K_a R_a a_p + b_a          ω_s = K_g R_g ω_p + b_g(t) + K_ga a_p
+
+so the calibration in apmcal's convention (apmcal/solvers/result.py) is
+``matrix = (K R)⁻¹``, ``offset = b``: ``a_p = (K_a R_a)⁻¹ (a_s − b_a)``.
+
+Accelerometer (seed 002 §4.1-4.2): U+ holds the mean accelerometer vectors (as columns) of the
+holds x_p, y_p, z_p (that axis UP, reading +g; imucal's naming), U− those of x_a, y_a, z_a.
+Bias ``b = diag((U+ + U−)/2)`` (eq. 3), ``K_a R_a = (U+ − U−)/(2G)`` with G = Q, the mean column
+norm of U+ (eq. 4), or a known local gravity.
+
+Gyroscope: bias b0 + b1·t (eq. 5) fitted by least squares on all static samples, optionally with
+g-sensitivity K_ga (imucal: (Ug+ − Ug−)/(2g)) and the Earth rate removed; ``K_g R_g`` from the
+bias-corrected integral of each 360° rotation divided by the turned angle (seed 002 §4.4).
+
+Where this differs from imucal (FerrarisCalibration, the peer tool; ardupilot-facts.md "Peer
+tool: imucal"): imucal's gyro bias is the plain mean of the six holds, with no drift and no Earth
+rate. With ``bias_drift=False, earth_rate=False, gravity=9.81`` and the same sections this module
+reproduces imucal to rounding (tests/test_ferraris.py). With drift enabled the gyro bias is
+referred to ``t_ref`` and the rotation integrals use the bias at their own time; on imucal's
+example session the fitted drift is ~1.5e-6 rad/s² (about 1.5 sigma, i.e. barely detectable)
+and changes the gyro matrix by 5e-5 relative; on a simulated session with 2e-4 rad/s² of drift
+the constant-bias (imucal) matrix is off by 7.6e-3, ours by 6e-5 (tests/test_ferraris.py).
+
+Earth rate: with only the latitude known, the component Ω sin φ along "up" (taken from the
+accelerometer) is removed from every static mean; the horizontal component Ω cos φ needs the
+heading, which a hand-held session does not give, so it is left in the bias (≤ 7.3e-5 rad/s,
+reported in ``report["earth_rate"]``).
+
+Identifiability: the vertical Earth rate Ω sin φ · up is parallel to the specific force, so it is
+indistinguishable from a diagonal g-sensitivity Ω sin φ / g · I. Without ``earth_rate`` (or with
+no latitude) it ends up in K_ga, not in the bias; with it, K_ga is the sensor's own.
+
+Uncertainty (``SensorCalibration.sigma``): each hold mean gets std/√n; accelerometer offset and
+matrix sigmas are propagated through the equations above by a numerical Jacobian; gyro bias and
+drift sigmas come from the least-squares covariance; each rotation integral gets
+σ_b·T ⊕ σ_noise·√(Σ Δt²) and goes through the same Jacobian. All assume white noise, so they are
+lower bounds when the noise is correlated (hand tremor, slow thermal drift).
+
+Default scale: without ``gravity`` or ``lat_deg`` the accelerometer is normalised to Q, the
+sensor's own mean reading (seed 002 eq. 4), so calibrated magnitudes come out ≈ Q, not g; a
+warning says so.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from apmcal.constants import EARTH_RATE, normal_gravity
+from apmcal.errors import ApmcalError
+from apmcal.preprocessing.rotations import Rotation, find_rotations, integrate_slice, sample_intervals
+from apmcal.preprocessing.static import (ARDUPILOT_FACE, POSES, StaticSegment, find_static_segments,
+                                         label_poses, make_segment)
+from apmcal.solvers.result import Calibration, SensorCalibration
+
+AXES = "xyz"
+MOTION_FACTOR = 3.0          # a hold noisier than 3 × the median hold is flagged
+ANGLE_WARN_DEG = 20.0        # rotation integral further than this from ±360° is flagged (>5 % scale)
+
+
+# --------------------------------------------------------------------------- pure equations
+def u_matrices(means: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """U+ and U− (seed 002 §4.2): columns are the mean vectors of x_p,y_p,z_p and x_a,y_a,z_a."""
+    up = np.column_stack([means[a + "_p"] for a in AXES])
+    um = np.column_stack([means[a + "_a"] for a in AXES])
+    return up, um
+
+
+def accel_bias(u_plus: np.ndarray, u_minus: np.ndarray) -> np.ndarray:
+    """Seed 002 eq. 3: b_i = (a_{i,p_i} + a_{i,ap_i}) / 2, the diagonal of (U+ + U−)/2."""
+    return np.diag((u_plus + u_minus) / 2.0).copy()
+
+
+def gravity_q(u_plus: np.ndarray) -> float:
+    """Seed 002 eq. 4: Q = mean of the column norms of U+."""
+    return float(np.mean(np.linalg.norm(u_plus, axis=0)))
+
+
+def accel_coupling(u_plus: np.ndarray, u_minus: np.ndarray, g: float) -> np.ndarray:
+    """Seed 002 §4.2: K_a R_a = (U+ − U−) / (2 g) (g = Q or the known local gravity)."""
+    return (u_plus - u_minus) / (2.0 * g)
+
+
+def gyro_g_sensitivity(ug_plus: np.ndarray, ug_minus: np.ndarray, g: float) -> np.ndarray:
+    """imucal's eq. 9: K_ga = (Ug+ − Ug−) / (2 g), gyro units per m/s²."""
+    return (ug_plus - ug_minus) / (2.0 * g)
+
+
+def gyro_coupling(integrals: np.ndarray, angles: np.ndarray) -> np.ndarray:
+    """Seed 002 §4.4: K_g R_g = W · diag(angles)⁻¹, column j = integral of rotation j / its angle."""
+    return np.asarray(integrals, dtype=float) / np.asarray(angles, dtype=float)[None, :]
+
+
+def earth_rate_up(up_axes: np.ndarray, lat_deg: float) -> np.ndarray:
+    """Vertical Earth-rate component [rad/s] seen by a still sensor, along its "up" unit vectors.
+
+    In NED the Earth rate is Ω(cos φ, 0, −sin φ) (ardupilot-facts.md), i.e. +Ω sin φ along up;
+    the horizontal part depends on the heading and is not included.
+    """
+    return EARTH_RATE * np.sin(np.radians(lat_deg)) * np.atleast_2d(up_axes)
+
+
+def jacobian_sigma(fun, x: np.ndarray, sx: np.ndarray, rel_step: float = 1e-6) -> np.ndarray:
+    """First-order propagation of independent input sigmas ``sx`` through ``fun`` (central differences)."""
+    x = np.asarray(x, dtype=float).ravel()
+    y0 = np.asarray(fun(x)).ravel()
+    var = np.zeros_like(y0)
+    for i in range(x.size):
+        h = rel_step * max(abs(x[i]), 1.0)
+        xp, xm = x.copy(), x.copy()
+        xp[i] += h
+        xm[i] -= h
+        d = (np.asarray(fun(xp)).ravel() - np.asarray(fun(xm)).ravel()) / (2 * h)
+        var += (d * sx.ravel()[i]) ** 2
+    return np.sqrt(var)
+
+
+# --------------------------------------------------------------------------- sections
+def regions_from_sections(t, acc, gyr, sections: dict) -> tuple[dict, dict]:
+    """Hand-annotated sample ranges (imucal's section list) → pose segments and rotations.
+
+    ``sections`` maps "x_p" … "z_a", "x_rot", "y_rot", "z_rot" to ``{"start": i0, "end": i1}``
+    or ``(i0, i1)`` (half-open, as imucal slices ``iloc[start:end]``).
+    """
+    t, acc = np.asarray(t, float), np.asarray(acc, float)
+    gyr = None if gyr is None else np.asarray(gyr, float)
+    poses, rots = {}, {}
+    for name, rng in sections.items():
+        i0, i1 = (rng["start"], rng["end"]) if isinstance(rng, dict) else rng
+        if not 0 <= i0 < i1 <= t.size:
+            raise ApmcalError(f"section {name} [{i0}, {i1}) outside the {t.size} samples")
+        if name in POSES:
+            poses[name] = make_segment(t, acc, gyr, i0, i1, max_tilt_deg=90.0)
+        elif name.endswith("_rot") and name[0] in AXES and gyr is not None:
+            ax = AXES.index(name[0])
+            v = integrate_slice(t[i0:i1], gyr[i0:i1])
+            rots[name[0]] = Rotation(axis=ax, angle_deg=float(np.degrees(v[ax])), integrated=v,
+                                     start=float(t[i0]), end=float(t[i1 - 1]), i0=i0, i1=i1,
+                                     n_steps=1, pose=None)
+    return poses, rots
+
+
+def _pick_rotations(rotations) -> dict[str, Rotation]:
+    """The full turn closest to ±360° about each axis."""
+    if isinstance(rotations, dict):
+        return {k[0]: v for k, v in rotations.items()}
+    best: dict[str, Rotation] = {}
+    for r in rotations:
+        if r.is_full_turn() and (r.axis_name not in best or
+                                 abs(abs(r.angle_deg) - 360) < abs(abs(best[r.axis_name].angle_deg) - 360)):
+            best[r.axis_name] = r
+    return best
+
+
+# --------------------------------------------------------------------------- accelerometer
+def _accel_part(poses: dict[str, StaticSegment], gravity: float | None, lat_deg: float | None):
+    up, um = u_matrices({k: s.acc_mean for k, s in poses.items()})
+    sp, sm = u_matrices({k: s.acc_std / np.sqrt(s.n) for k, s in poses.items()})
+    q = gravity_q(up)
+    if gravity is not None:
+        g, source = float(gravity), "given"
+    elif lat_deg is not None:
+        g, source = normal_gravity(lat_deg), f"normal gravity at {lat_deg:.4f} deg"
+    else:
+        g, source = q, "Q (seed 002 eq. 4)"
+
+    def solve(x):
+        u_p, u_m = x[:9].reshape(3, 3), x[9:].reshape(3, 3)
+        gg = gravity_q(u_p) if gravity is None and lat_deg is None else g
+        return np.concatenate([accel_bias(u_p, u_m), np.linalg.inv(accel_coupling(u_p, u_m, gg)).ravel()])
+
+    x = np.concatenate([up.ravel(), um.ravel()])
+    y, sy = solve(x), jacobian_sigma(solve, x, np.concatenate([sp.ravel(), sm.ravel()]))
+    cal = SensorCalibration(offset=y[:3], matrix=y[3:].reshape(3, 3),
+                            sigma={"offset": sy[:3], "matrix": sy[3:].reshape(3, 3)})
+    info = {"U_plus": up, "U_minus": um, "Q": q, "gravity": g, "gravity_source": source}
+    return cal, info, g
+
+
+# --------------------------------------------------------------------------- gyroscope
+def _static_rows(t, gyr, segs, acc_cal, lat_deg, earth_rate):
+    """Per-sample rows (t, gyro − known Earth rate, segment's mean calibrated acc)."""
+    ts, ys, fs = [], [], []
+    for s in segs:
+        y = gyr[s.i0:s.i1]
+        if earth_rate and lat_deg is not None:
+            f = acc_cal[s.i0:s.i1].mean(axis=0)
+            y = y - earth_rate_up(f / np.linalg.norm(f), lat_deg)
+        ts.append(t[s.i0:s.i1])
+        ys.append(y)
+        fs.append(np.repeat(acc_cal[s.i0:s.i1].mean(axis=0)[None, :], s.i1 - s.i0, axis=0))
+    return np.concatenate(ts), np.vstack(ys), np.vstack(fs)
+
+
+def fit_gyro_bias(ts, ys, fs=None, *, drift: bool = True, t_ref: float = 0.0):
+    """Least squares per axis of ``y = b0 + b1 (t − t_ref) + K_ga f`` (seed 002 eq. 5 + g-sensitivity).
+
+    Returns b0 (3,), b1 (3,), K_ga (3, 3) or None, and the one-sigma of b0 and b1 (residual-scaled
+    covariance; white-noise assumption, optimistic for correlated noise).
+    """
+    cols = [np.ones_like(ts)] + ([ts - t_ref] if drift else [])
+    a = np.column_stack(cols + ([fs] if fs is not None else []))
+    if np.linalg.matrix_rank(a) < a.shape[1]:
+        raise ApmcalError("gyro bias not identifiable from these static holds (need holds spread "
+                          "over time for the drift and opposite poses for the g-sensitivity)")
+    coef, *_ = np.linalg.lstsq(a, ys, rcond=None)
+    res = ys - a @ coef
+    dof = max(1, a.shape[0] - a.shape[1])
+    cov = np.linalg.inv(a.T @ a)
+    s2 = (res ** 2).sum(axis=0) / dof
+    sig = np.sqrt(np.outer(np.diag(cov), s2))
+    b0, sb0 = coef[0], sig[0]
+    b1, sb1 = (coef[1], sig[1]) if drift else (np.zeros(3), np.zeros(3))
+    kga = coef[-3:].T if fs is not None else None
+    return b0, b1, kga, sb0, sb1
+
+
+def _gyro_part(t, gyr, acc_cal, poses, segs, rots, g, *, bias_drift, earth_rate, lat_deg,
+               g_sensitivity, expected_angle_deg, warnings):
+    info: dict = {}
+    classic = not bias_drift and not (earth_rate and lat_deg is not None)
+    if classic:
+        # imucal: plain mean of all samples of the six holds; K_ga from the hold differences
+        used = [poses[p] for p in POSES]
+        allg = np.vstack([gyr[s.i0:s.i1] for s in used])
+        b0, b1 = allg.mean(axis=0), np.zeros(3)
+        sb0, sb1 = allg.std(axis=0, ddof=1) / np.sqrt(len(allg)), np.zeros(3)
+        ugp, uga = u_matrices({k: s.gyr_mean for k, s in poses.items()})
+        kga = gyro_g_sensitivity(ugp, uga, g) if g_sensitivity else None
+        t_ref = 0.0
+    else:
+        ts, ys, fs = _static_rows(t, gyr, segs, acc_cal, lat_deg, earth_rate)
+        t_ref = float(ts.mean())
+        b0, b1, kga, sb0, sb1 = fit_gyro_bias(ts, ys, fs if g_sensitivity else None,
+                                              drift=bias_drift, t_ref=t_ref)
+    info.update(t_ref=t_ref, bias_drift=b1, gyr_g_sensitivity=kga)
+    cal = SensorCalibration(offset=b0, drift=b1, t_ref=t_ref,
+                            sigma={"offset": sb0, "drift": sb1} if bias_drift else {"offset": sb0})
+    missing = [a for a in AXES if a not in rots]
+    if missing:
+        warnings.append(f"no 360° rotation about {', '.join(missing)}: gyro matrix not estimated (identity)")
+        return cal, info
+    w = np.zeros((3, 3))
+    angles = np.zeros(3)
+    noise = np.median([s.gyr_std for s in poses.values()], axis=0)
+    sw = np.zeros((3, 3))
+    for j, a in enumerate(AXES):
+        r = rots[a]
+        sl = slice(r.i0, r.i1)
+        cor = gyr[sl] - b0 - np.outer(t[sl] - t_ref, b1)
+        if kga is not None:
+            cor = cor - acc_cal[sl] @ kga.T
+        if earth_rate and lat_deg is not None:
+            f = acc_cal[sl].mean(axis=0)
+            cor = cor - earth_rate_up(f / np.linalg.norm(f), lat_deg)
+        w[:, j] = integrate_slice(t[sl], cor)
+        sign = np.sign(w[j, j]) if expected_angle_deg is None else np.sign(expected_angle_deg)
+        angles[j] = np.radians(360.0 if expected_angle_deg is None else abs(expected_angle_deg)) * sign
+        dur = t[r.i1 - 1] - t[r.i0]
+        sw[:, j] = np.hypot(sb0 * dur, noise * np.sqrt((sample_intervals(t[sl]) ** 2).sum()))
+        err = abs(abs(np.degrees(w[j, j])) - 360.0)
+        if err > ANGLE_WARN_DEG:
+            warnings.append(f"rotation about {a} integrates to {np.degrees(w[j, j]):.1f}°, "
+                            f"{err:.1f}° from a full turn")
+    info.update(rotation_integrals=w, rotation_angles_deg=np.degrees(angles))
+
+    def solve(x):
+        return np.linalg.inv(gyro_coupling(x.reshape(3, 3), angles)).ravel()
+
+    cal.matrix = solve(w.ravel()).reshape(3, 3)
+    cal.sigma["matrix"] = jacobian_sigma(solve, w.ravel(), sw.ravel()).reshape(3, 3)
+    return cal, info
+
+
+# --------------------------------------------------------------------------- driver
+def _quality_warnings(poses: dict[str, StaticSegment], warnings: list[str]) -> None:
+    noise = np.array([np.linalg.norm(s.acc_std) for s in poses.values()])
+    med = np.median(noise)
+    for (name, s), nz in zip(poses.items(), noise):
+        if nz > MOTION_FACTOR * med:
+            warnings.append(f"hold {name} noisy (acc std {nz:.3g} > {MOTION_FACTOR} × median "
+                            f"{med:.3g}): motion?")
+        if s.tilt_deg > 10.0:
+            warnings.append(f"hold {name} tilted {s.tilt_deg:.1f}° from its axis")
+
+
+def ferraris_calibration(t, acc, gyr=None, *, segments=None, rotations=None, sections=None,
+                         lat_deg: float | None = None, gravity: float | None = None,
+                         bias_drift: bool = True, earth_rate: bool = True,
+                         g_sensitivity: bool = True, expected_angle_deg: float | None = None,
+                         min_duration: float = 2.0) -> Calibration:
+    """Ferraris calibration of accelerometer (m/s²) and gyroscope (rad/s), seed 002 §4.
+
+    Parameters
+    ----------
+    t : (n,) array, s
+    acc : (n, 3) array, sensor frame (m/s² for a calibrated output in m/s² when gravity is known)
+    gyr : (n, 3) array, rad/s, optional (accelerometer only when absent)
+    segments : list of StaticSegment or dict pose -> StaticSegment, optional
+        Default: :func:`find_static_segments` then :func:`label_poses` (longest hold per pose).
+    rotations : list of Rotation or dict axis -> Rotation, optional
+        Default: :func:`find_rotations`, the full turn closest to 360° about each axis.
+    sections : dict, optional
+        imucal-style section list (name -> start/end sample); overrides ``segments``/``rotations``.
+    lat_deg : float, optional
+        Latitude [deg]: normal gravity for the accelerometer scale, vertical Earth rate for the gyro.
+    gravity : float, optional
+        Local gravity [m/s²]; default normal_gravity(lat) or Q (eq. 4) when lat is unknown.
+    bias_drift : bool
+        Fit the gyro bias as b0 + b1 (t − t_ref) (seed 002 eq. 5) instead of a constant.
+    earth_rate : bool
+        Remove the vertical Earth rate from the static gyro means (needs ``lat_deg``).
+    g_sensitivity : bool
+        Estimate and remove the gyro g-sensitivity K_ga (reported, not part of SensorCalibration).
+    expected_angle_deg : float, optional
+        Turned angle of each rotation (imucal: −360); default ±360 with the sign of the integral.
+
+    Returns
+    -------
+    Calibration with sensors "acc" (and "gyr"), sigma filled, ``report`` with U+, U−, Q, gravity
+    used, K_ga, drift, rotation integrals and warnings.
+
+    Raises
+    ------
+    ApmcalError
+        When a pose is missing, the gyro bias is not identifiable, or shapes are wrong.
+    """
+    t = np.asarray(t, dtype=float)
+    acc = np.asarray(acc, dtype=float)
+    gyr = None if gyr is None else np.asarray(gyr, dtype=float)
+    all_segs = None
+    if sections is not None:
+        poses, rots = regions_from_sections(t, acc, gyr, sections)
+    else:
+        if segments is None:
+            all_segs = find_static_segments(t, acc, gyr, min_duration=min_duration)
+            poses = label_poses(all_segs)
+        elif isinstance(segments, dict):
+            poses = dict(segments)
+        else:
+            all_segs = list(segments)
+            poses = label_poses(all_segs)
+        if gyr is None:
+            rots = {}
+        elif rotations is None:
+            rots = _pick_rotations(find_rotations(t, gyr, all_segs if all_segs is not None
+                                                  else sorted(poses.values(), key=lambda s: s.i0)))
+        else:
+            rots = _pick_rotations(rotations)
+    missing = [p for p in POSES if p not in poses]
+    if missing:
+        faces = ", ".join(f"{p} ({ARDUPILOT_FACE[p]})" for p in missing)
+        raise ApmcalError(f"Ferraris calibration needs all six holds; missing {faces}")
+    warnings: list[str] = []
+    _quality_warnings(poses, warnings)
+    acc_cal, acc_info, g = _accel_part(poses, gravity, lat_deg)
+    if acc_info["gravity_source"].startswith("Q"):
+        warnings.append(f"accelerometer scaled to Q = {acc_info['Q']:.4f} (its own mean norm), not "
+                        "to local gravity: pass lat_deg or gravity for an absolute scale")
+    report = {"method": "ferraris", "poses": {k: [s.start, s.end, s.n] for k, s in poses.items()},
+              "warnings": warnings, **acc_info}
+    sensors = {"acc": acc_cal}
+    if gyr is not None:
+        if earth_rate and lat_deg is None:
+            warnings.append("latitude unknown: Earth rate not removed from the gyro bias")
+        if earth_rate and lat_deg is not None:
+            report["earth_rate"] = ("vertical component Ω sin φ removed; horizontal Ω cos φ = "
+                                    f"{EARTH_RATE * np.cos(np.radians(lat_deg)):.3g} rad/s needs "
+                                    "the heading and stays in the bias")
+        segs = [poses[p] for p in POSES] if all_segs is None else all_segs
+        a_cal = acc_cal.apply(acc)
+        gcal, ginfo = _gyro_part(t, gyr, a_cal, poses, segs, rots, g, bias_drift=bias_drift,
+                                 earth_rate=earth_rate, lat_deg=lat_deg,
+                                 g_sensitivity=g_sensitivity, expected_angle_deg=expected_angle_deg,
+                                 warnings=warnings)
+        sensors["gyr"] = gcal
+        report.update(ginfo)
+        report["rotations"] = {a: [r.start, r.end, r.angle_deg] for a, r in rots.items()}
+    return Calibration(method="ferraris", sensors=sensors, report=report)
