@@ -1,0 +1,363 @@
+"""CSV (and plain-text column) recordings → :class:`~apmcal.recording.LogContents`.
+
+Layouts (``layout=``):
+
+``"apmcal"``   (alias ``"si"``) header ``t, acc_x, acc_y, acc_z, gyr_x, gyr_y, gyr_z`` [s, m/s², rad/s], optional
+               ``mag_x..z`` [mGauss] and ``temp`` [°C]. The default layout.
+``"imucal"``   imucal's example session (mad-lab-fau/imucal example_data): ``n_samples`` index,
+               ``gyr_x..z`` [deg/s], ``acc_x..z`` [m/s²]; no time column, so t = n / rate,
+               rate 102.4 Hz unless ``rate_hz`` says otherwise (imucal's example sampling rate).
+``"imucal_annotated"``  imucal's ``annotated_session.csv``: ``part, samples`` then acc/gyr in
+               raw sensor counts ("a.u."), 204.8 Hz (imucal's own test uses that rate). The rows are
+               grouped by part, so they are sorted by sample number; ``part`` (x_p, x_a, ..., z_rot)
+               is kept as an extra column.
+``"mpu6050"``  tomisuarez2/ImuCalibration logger output: 4 ``key,value`` lines (Fs, Logging Type,
+               Initialization time, Waiting time), then ``ax..gz`` int16 counts of an MPU-6050 at
+               its power-on ranges ±2 g and ±250 °/s (the logger calls ``mpu.initialize()`` and
+               never changes them): 16384 LSB/g and 131 LSB/(°/s). Converted to m/s² (g = 9.80665)
+               and rad/s; that repo's reference results (ref_params_*.csv) use the same units: acc
+               scale ≈ 6.0e-4 m/s² per count, gyro scale ≈ 1.34e-4 rad/s per count, biases in
+               counts.
+``"imu_tk"``   imu_tk's ``xsens_acc.mat`` / ``xsens_gyro.mat``: ASCII ``t x y z`` (despite the
+               name), accelerometer and gyroscope in two files (see :func:`read_imu_tk`). Values
+               stay raw counts unless a unit/scale is given.
+``"auto"``     picks one of the above from the first lines.
+
+Units: ``acc_unit``/``gyr_unit``/``mag_unit`` take a name ("m/s^2", "g", "mg"; "rad/s", "deg/s",
+"mrad/s"; "mGauss", "Gauss", "uT"), "counts" (keep as is) or a number (SI per file unit,
+e.g. 9.80665/16384). ``None`` means the layout's own unit. Counts are flagged in
+``LogContents.messages``.
+"""
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from apmcal.constants import STANDARD_GRAVITY
+from apmcal.errors import ApmcalError
+from apmcal.recording import ACC, GYR, MAG, LogContents, Recording
+
+LAYOUTS = ("auto", "apmcal", "imucal", "imucal_annotated", "mpu6050", "imu_tk")
+_ALIASES = {"si": "apmcal"}         # the CLI's --layout help calls the default layout "si"
+ACC_UNITS = {"m/s^2": 1.0, "m/s2": 1.0, "m/s²": 1.0, "g": STANDARD_GRAVITY,
+             "mg": STANDARD_GRAVITY / 1000.0}
+GYR_UNITS = {"rad/s": 1.0, "deg/s": math.pi / 180.0, "mrad/s": 1e-3}
+MAG_UNITS = {"mgauss": 1.0, "gauss": 1000.0, "ut": 10.0}
+
+IMUCAL_RATE_HZ = 102.4          # imucal example_ferraris_session.csv
+IMUCAL_ANNOTATED_RATE_HZ = 204.8   # imucal tests/test_ferraris_calibration.py
+MPU6050_ACC_PER_COUNT = STANDARD_GRAVITY / 16384.0     # ±2 g range
+MPU6050_GYR_PER_COUNT = math.radians(1.0) / 131.0      # ±250 °/s range
+
+
+# ----------------------------------------------------------------------------- public API
+def read_csv(path: str | Path, layout: str = "auto", *, acc_unit=None, gyr_unit=None,
+             mag_unit=None, rate_hz: float | None = None) -> LogContents:
+    """Read one CSV recording (see the module doc for layouts and units).
+
+    Returns
+    -------
+    LogContents
+        ``format="csv"`` with one :class:`Recording` (corrected=False, frame="sensor").
+
+    Raises
+    ------
+    ApmcalError
+        Naming the file and line for an unknown layout, bad rows, NaN, non-increasing time.
+    """
+    path = Path(path)
+    layout = _ALIASES.get(layout, layout)
+    if layout not in LAYOUTS:
+        raise ApmcalError(f"unknown CSV layout {layout!r}; choose one of {', '.join(LAYOUTS)}",
+                          path)
+    if layout == "auto":
+        layout = sniff_layout(path)
+    if layout == "imu_tk":
+        acc_path, gyr_path = _imu_tk_pair(path)
+        return read_imu_tk(acc_path, gyr_path, acc_unit=acc_unit, gyr_unit=gyr_unit)
+    units = {"acc": acc_unit, "gyr": gyr_unit, "mag": mag_unit}
+    reader = {"apmcal": _read_apmcal, "imucal": _read_imucal,
+              "imucal_annotated": _read_imucal_annotated, "mpu6050": _read_mpu6050}[layout]
+    data, notes = reader(path, units, rate_hz)
+    _check_time(data["t"].to_numpy(), path, data.index.to_numpy())
+    return _contents(path, data.reset_index(drop=True), notes)
+
+
+def read_imu_tk(acc_path: str | Path, gyr_path: str | Path, *, acc_unit=None,
+                gyr_unit=None) -> LogContents:
+    """Join an imu_tk accelerometer file and gyroscope file (``t x y z`` each) into one recording.
+
+    Both files must carry the same time stamps. Without ``acc_unit``/``gyr_unit`` the values stay
+    raw counts (noted in ``messages``): imu_tk's Xsens test data has no published scale.
+    """
+    acc_path, gyr_path = Path(acc_path), Path(gyr_path)
+    acc = _read_table(acc_path, names=["t", *ACC], sep=r"\s+", header=None)
+    gyr = _read_table(gyr_path, names=["t", *GYR], sep=r"\s+", header=None)
+    for frame, p in ((acc, acc_path), (gyr, gyr_path)):
+        _check_time(frame["t"].to_numpy(), p, frame.index.to_numpy())
+    if len(acc) != len(gyr):
+        raise ApmcalError(f"{len(acc)} accelerometer rows but {len(gyr)} gyroscope rows in "
+                          f"{gyr_path.name}", acc_path)
+    differ = np.flatnonzero(np.abs(acc["t"].to_numpy() - gyr["t"].to_numpy()) > 1e-9)
+    if differ.size:
+        raise ApmcalError(f"time differs from {gyr_path.name} (same line there)", acc_path,
+                          f"line {acc.index[differ[0]]}")
+    notes = []
+    data = acc.copy()
+    for sensor, frame, unit in (("acc", acc, acc_unit), ("gyr", gyr, gyr_unit)):
+        cols = ACC if sensor == "acc" else GYR
+        factor, note = _factor(sensor, unit, "counts", acc_path if sensor == "acc" else gyr_path)
+        data[cols] = frame[cols].to_numpy() * factor
+        notes += [note] if note else []
+    contents = _contents(acc_path, data.reset_index(drop=True), notes)
+    contents.recordings[0].source = f"{acc_path}+{gyr_path}"
+    return contents
+
+
+def sniff_layout(path: str | Path) -> str:
+    """The layout of ``path`` from its first non-empty line(s), or ApmcalError naming line 1."""
+    path = Path(path)
+    first = _first_line(path)
+    header = [f.strip().lower() for f in first.split(",")]
+    if header[0] == "fs" and len(header) == 2:
+        return "mpu6050"
+    if header[:2] == ["part", "samples"]:
+        return "imucal_annotated"
+    if header[0] == "n_samples" and {"gyr_x", "acc_x"} <= set(header):
+        return "imucal"
+    if "t" in header and set(ACC) <= set(header):
+        return "apmcal"
+    fields = first.split()
+    if len(fields) == 4 and all(_is_number(f) for f in fields):
+        return "imu_tk"
+    raise ApmcalError(f"unrecognised CSV layout (header {first[:60]!r}); expected columns "
+                      "t, acc_x..z, gyr_x..z or one of the layouts " + ", ".join(LAYOUTS[1:]),
+                      path, "line 1")
+
+
+# ----------------------------------------------------------------------------- layouts
+def _read_apmcal(path, units, rate_hz):
+    data = _read_table(path, header=0)
+    missing = [c for c in ["t", *ACC, *GYR] if c not in data.columns]
+    if missing:
+        raise ApmcalError(f"missing column(s) {', '.join(missing)}", path, "line 1")
+    notes = []
+    for sensor, cols, default in (("acc", ACC, "m/s^2"), ("gyr", GYR, "rad/s"),
+                                  ("mag", MAG, "mGauss")):
+        if sensor == "mag" and not set(MAG) <= set(data.columns):
+            continue
+        factor, note = _factor(sensor, units[sensor], default, path)
+        data[cols] = data[cols] * factor
+        notes += [note] if note else []
+    keep = ["t", *ACC, *GYR] + [c for c in [*MAG, "temp"] if c in data.columns]
+    if rate_hz:
+        notes.append("rate_hz ignored: the file has a time column")
+    return data[keep], notes
+
+
+def _read_imucal(path, units, rate_hz):
+    data = _read_table(path, header=0)
+    _require(data, ["n_samples", *ACC, *GYR], path)
+    rate = rate_hz or IMUCAL_RATE_HZ
+    notes = [f"imucal layout: no time column, t = n_samples / {rate:g} Hz"
+             + ("" if rate_hz else " (imucal's example rate; pass rate_hz if different)")]
+    out = pd.DataFrame({"t": data["n_samples"].to_numpy(dtype=float) / rate}, index=data.index)
+    out = _scaled(out, data, units, {"acc": "m/s^2", "gyr": "deg/s"}, path, notes)
+    return out, notes
+
+
+def _read_imucal_annotated(path, units, rate_hz):
+    data = _read_table(path, header=0, text_columns=["part"])
+    _require(data, ["part", "samples", *ACC, *GYR], path)
+    data = data.sort_values("samples", kind="stable")
+    rate = rate_hz or IMUCAL_ANNOTATED_RATE_HZ
+    notes = [f"imucal annotated layout: rows sorted by sample number, t = samples / {rate:g} Hz",
+             "column 'part' labels imucal's Ferraris regions (x_p, x_a, ..., z_rot)"]
+    out = pd.DataFrame({"t": data["samples"].to_numpy(dtype=float) / rate}, index=data.index)
+    out = _scaled(out, data, units, {"acc": "counts", "gyr": "counts"}, path, notes)
+    out["part"] = data["part"].to_numpy()
+    return out, notes
+
+
+def _read_mpu6050(path, units, rate_hz):
+    meta = _mpu6050_header(path)
+    data = _read_table(path, header=0, skiprows=4)
+    _require(data, ["ax", "ay", "az", "gx", "gy", "gz"], path, line=5)
+    rate = rate_hz or meta["Fs"]
+    if not rate or rate <= 0:
+        raise ApmcalError(f"sampling rate Fs={meta['Fs']!r} is not positive", path, "line 1")
+    notes = [f"mpu6050 layout: Fs {meta['Fs']:g} Hz, logging type {meta['Logging Type']:g}, "
+             f"initialization time {meta['Initialization time']:g} s, "
+             f"waiting time {meta['Waiting time']:g} s"]
+    if rate_hz and rate_hz != meta["Fs"]:
+        notes.append(f"rate_hz {rate_hz:g} overrides the file's Fs {meta['Fs']:g}")
+    renamed = data.rename(columns=dict(zip(["ax", "ay", "az", "gx", "gy", "gz"], ACC + GYR)))
+    out = pd.DataFrame({"t": np.arange(len(data)) / rate}, index=data.index)
+    out = _scaled(out, renamed, units, {"acc": MPU6050_ACC_PER_COUNT, "gyr": MPU6050_GYR_PER_COUNT},
+                  path, notes)
+    if units["acc"] is None and units["gyr"] is None:
+        notes.append("MPU-6050 counts converted with ±2 g (16384 LSB/g) and ±250 °/s "
+                     "(131 LSB/(°/s)), the ranges the logger leaves at power-on")
+    return out, notes
+
+
+def _mpu6050_header(path):
+    meta = {}
+    with _open(path) as f:
+        for number in range(1, 5):
+            parts = f.readline().strip().split(",")
+            if len(parts) != 2 or not _is_number(parts[1]):
+                raise ApmcalError(f"expected 'key,number' header line, got {','.join(parts)!r}",
+                                  path, f"line {number}")
+            meta[parts[0].strip()] = float(parts[1])
+    for key in ("Fs", "Logging Type", "Initialization time", "Waiting time"):
+        meta.setdefault(key, float("nan"))
+    return meta
+
+
+# ----------------------------------------------------------------------------- helpers
+def _read_table(path: Path, *, text_columns=(), **kwargs):
+    """pandas.read_csv (C parser) with every value numeric and finite; errors name the line.
+
+    The returned frame's index is the file line number of each row.
+    """
+    skip = kwargs.get("skiprows", 0)
+    first_line = skip + (1 if kwargs.get("header", 0) is None else 2)
+    try:
+        data = pd.read_csv(path, skip_blank_lines=False, engine="c", **kwargs)
+    except FileNotFoundError:
+        raise ApmcalError("no such file", path) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ApmcalError(f"cannot read file ({exc})", path) from None
+    except pd.errors.EmptyDataError:
+        raise ApmcalError("file is empty", path) from None
+    except pd.errors.ParserError as exc:
+        m = re.search(r"line (\d+), saw (\d+)", str(exc))
+        where = None
+        if m:
+            where = f"line {int(m.group(1))}"      # pandas counts from the file's first line
+            raise ApmcalError(f"wrong number of fields ({m.group(2)})", path, where) from None
+        raise ApmcalError(f"not a readable CSV table ({exc})", path) from None
+    data.columns = [str(c).strip() for c in data.columns]
+    data.index = np.arange(len(data)) + first_line
+    data = _drop_trailing_blank(data)
+    if data.empty:
+        raise ApmcalError("no data rows", path)
+    for col in data.columns:
+        if col in text_columns:
+            continue
+        values = pd.to_numeric(data[col], errors="coerce").astype(float)
+        bad = ~np.isfinite(values.to_numpy())
+        if bad.any():
+            line = int(data.index[np.argmax(bad)])
+            raw = data[col].iloc[int(np.argmax(bad))]
+            what = ("empty line" if data.loc[line].isna().all()
+                    else f"{col} = {raw!r} is not a finite number")
+            raise ApmcalError(what, path, f"line {line}")
+        data[col] = values
+    return data
+
+
+def _drop_trailing_blank(data: pd.DataFrame) -> pd.DataFrame:
+    blank = data.isna().all(axis=1).to_numpy()
+    end = len(data)
+    while end and blank[end - 1]:
+        end -= 1
+    return data.iloc[:end]
+
+
+def _check_time(t: np.ndarray, path, lines: np.ndarray) -> None:
+    bad = np.flatnonzero(np.diff(t) <= 0)
+    if bad.size:
+        i = bad[0] + 1
+        raise ApmcalError(f"time {t[i]!r} s does not increase (previous {t[i - 1]!r} s)", path,
+                          f"line {int(lines[i])}")
+
+
+def _factor(sensor: str, unit, default, path) -> tuple[float, str | None]:
+    """SI factor for ``unit`` (None → ``default``) and a note when values stay raw counts."""
+    unit = default if unit is None else unit
+    if isinstance(unit, (int, float)) and not isinstance(unit, bool):
+        if not math.isfinite(unit) or unit == 0:
+            raise ApmcalError(f"{sensor} scale {unit!r} must be finite and non-zero", path)
+        return float(unit), None
+    if unit == "counts":
+        return 1.0, (f"{sensor}: raw sensor counts, not SI units (no scale known); "
+                     "calibrate them, or pass a unit or scale")
+    table = {"acc": ACC_UNITS, "gyr": GYR_UNITS, "mag": MAG_UNITS}[sensor]
+    key = unit.lower() if sensor == "mag" else unit
+    if key not in table:
+        raise ApmcalError(f"unknown {sensor} unit {unit!r}; use one of "
+                          f"{', '.join(table)}, 'counts' or a number", path)
+    return table[key], None
+
+
+def _scaled(out, data, units, defaults, path, notes):
+    for sensor, cols in (("acc", ACC), ("gyr", GYR)):
+        factor, note = _factor(sensor, units[sensor], defaults[sensor], path)
+        out[cols] = data[cols].to_numpy(dtype=float) * factor
+        notes += [note] if note else []
+    return out
+
+
+def _require(data, columns, path, line: int = 1):
+    missing = [c for c in columns if c not in data.columns]
+    if missing:
+        raise ApmcalError(f"missing column(s) {', '.join(missing)}", path, f"line {line}")
+
+
+def _contents(path: Path, data: pd.DataFrame, notes: list[str]) -> LogContents:
+    rec = Recording(data=data, source=str(path), message="csv", instance=0,
+                    corrected=False, frame="sensor")
+    return LogContents(path=str(path), format="csv", recordings=[rec], messages=notes)
+
+
+def _imu_tk_pair(path: Path) -> tuple[Path, Path]:
+    """(acc file, gyro file) from either one: xsens_acc.mat <-> xsens_gyro.mat."""
+    name = path.name
+    if "acc" in name:
+        acc, gyr = path, [path.with_name(name.replace("acc", g)) for g in ("gyro", "gyr")]
+    elif "gyr" in name:
+        gyr_name = name
+        acc = path.with_name(re.sub(r"gyro?", "acc", gyr_name, count=1))
+        gyr = [path]
+    else:
+        raise ApmcalError("imu_tk layout: cannot tell the accelerometer file from the gyro file "
+                          "(name them *acc* and *gyro*, or use read_imu_tk)", path)
+    gyr = next((g for g in gyr if g.exists()), gyr[0])
+    for p in (acc, gyr):
+        if not p.exists():
+            raise ApmcalError(f"imu_tk layout needs its partner file {p.name}", path)
+    return acc, gyr
+
+
+def _first_line(path: Path) -> str:
+    with _open(path) as f:
+        for line in f:
+            if line.strip():
+                return line.strip()
+    raise ApmcalError("file is empty", path)
+
+
+def _open(path: Path):
+    try:
+        f = open(path, encoding="utf-8", errors="strict")
+        f.readline()
+        f.seek(0)
+        return f
+    except FileNotFoundError:
+        raise ApmcalError("no such file", path) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ApmcalError(f"not a text file ({exc.__class__.__name__})", path) from None
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+        return True
+    except ValueError:
+        return False
