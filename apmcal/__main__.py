@@ -1,0 +1,5 @@
+import sys
+
+from apmcal.cli import main
+
+sys.exit(main())

@@ -1,0 +1,239 @@
+"""The ``apmcal`` command line.
+
+    apmcal log FILE [--method M] [--lat DEG --lon DEG] [--param-file OUT] [--json OUT]
+    apmcal live CONNECTION [--duration S] [--rate HZ] [--method M] [--upload] ...
+    apmcal upload CONNECTION FILE.param [--backup FILE]
+    apmcal restore CONNECTION BACKUP.param
+
+Every failure the user can cause ends in one line on stderr and a non-zero exit status.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from apmcal.errors import ApmcalError
+
+EXIT_USER_ERROR = 2
+EXIT_INTERNAL_ERROR = 3
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="apmcal", description=__doc__.split("\n")[0])
+    parser.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    log = sub.add_parser("log", help="summarise and calibrate from a .tlog, .bin, .log or .csv file")
+    log.add_argument("file")
+    add_calibration_options(log)
+    log.add_argument("--summary-only", action="store_true", help="only print what the file holds")
+    log.add_argument("--layout", default="auto",
+                     help="CSV layout: auto, si, imucal, imucal_annotated, mpu6050, imu_tk (default auto)")
+
+    live = sub.add_parser("live", help="record from a vehicle over MAVLink and calibrate")
+    live.add_argument("connection", help="pymavlink connection string, e.g. udp:127.0.0.1:14550")
+    live.add_argument("--duration", type=float, default=60.0, help="seconds to record (default 60)")
+    live.add_argument("--rate", type=int, default=50, help="IMU stream rate [Hz] (default 50)")
+    live.add_argument("--save-log", default=None, help="keep the recording as this .tlog")
+    live.add_argument("--upload", action="store_true",
+                      help="write the proposed parameters to the vehicle (backed up, verified)")
+    live.add_argument("--backup", default=None, help="backup file (default apmcal-backup-<time>.param)")
+    add_calibration_options(live)
+
+    upload = sub.add_parser("upload", help="write a .param file to a vehicle, verified")
+    upload.add_argument("connection")
+    upload.add_argument("param_file")
+    upload.add_argument("--backup", default=None)
+
+    restore = sub.add_parser("restore", help="put back the values of a backup .param file")
+    restore.add_argument("connection")
+    restore.add_argument("backup_file")
+    return parser
+
+
+def add_calibration_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--method", default="auto", choices=["auto", "ferraris", "static", "ellipsoid"])
+    p.add_argument("--lat", type=float, default=None, help="latitude [deg] (Earth rate, gravity)")
+    p.add_argument("--lon", type=float, default=None, help="longitude [deg]")
+    p.add_argument("--instance", type=int, default=None, help="IMU instance (default: first)")
+    p.add_argument("--param-file", default=None, help="write proposed parameters (.param)")
+    p.add_argument("--json", default=None, help="write summary and calibration as JSON")
+    p.add_argument("--quiet", action="store_true")
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return {"log": cmd_log, "live": cmd_live, "upload": cmd_upload,
+                "restore": cmd_restore}[args.command](args)
+    except ApmcalError as err:
+        print(f"apmcal: error: {err}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        print("apmcal: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # a bug of ours: still one line unless --debug
+        if args.debug:
+            raise
+        print(f"apmcal: internal error: {type(exc).__name__}: {exc} (rerun with --debug for the "
+              f"traceback and report it)", file=sys.stderr)
+        return EXIT_INTERNAL_ERROR
+
+
+def console_for(args):
+    from rich.console import Console
+
+    return Console(stderr=False, quiet=getattr(args, "quiet", False), highlight=False)
+
+
+def cmd_log(args) -> int:
+    from apmcal.sources import read_log
+
+    if args.layout == "auto":
+        contents = read_log(args.file)
+    else:
+        from apmcal.sources.csv import read_csv
+
+        contents = read_csv(args.file, layout=args.layout)
+    status, _ = summarise_and_calibrate(contents, args)
+    return status
+
+
+def summarise_and_calibrate(contents, args):
+    """Print the summary and (unless --summary-only) the calibration; write the outputs.
+
+    Returns (exit status, parameter proposal or None). The status is 1 when the firmware would
+    reject some proposed value.
+    """
+    from apmcal import report
+
+    console = console_for(args)
+    summary = report.summarize(contents)
+    report.print_summary(summary, console)
+    output = {"summary": summary}
+    proposal = None
+    if not getattr(args, "summary_only", False):
+        calibration, proposal = run_calibration(contents, args)
+        report.print_calibration(calibration, proposal, console)
+        output.update(calibration.to_dict())
+        output["params"] = dict(proposal.values)
+        output["rejected_params"] = dict(proposal.rejected)
+        if args.param_file:
+            from apmcal.vehicle.paramfile import write_param_file
+
+            write_param_file(args.param_file, proposal.values,
+                             f"apmcal {calibration.method} calibration of {contents.path}")
+            console.print(f"wrote {args.param_file}")
+    if args.json:
+        from apmcal.solvers.result import _jsonable
+
+        Path(args.json).write_text(json.dumps(_jsonable(output), indent=2) + "\n")
+        console.print(f"wrote {args.json}")
+    return (0 if proposal is None or not proposal.rejected else 1), proposal
+
+
+def pick_recording(contents, instance):
+    candidates = [r for r in contents.recordings if r.has("acc")]
+    if instance is not None:
+        candidates = [r for r in candidates if r.instance == instance]
+    if not candidates:
+        which = "" if instance is None else f" for instance {instance}"
+        raise ApmcalError(f"no accelerometer recording{which}", contents.path)
+    recording = candidates[0]
+    mags = [r for r in contents.recordings if r.has("mag") and r.instance == recording.instance]
+    return recording, (mags[0] if mags and mags[0] is not recording else None)
+
+
+def run_calibration(contents, args):
+    from apmcal import pipeline
+    from apmcal.preprocessing.firmware import firmware_generation
+    from apmcal.vehicle.params import to_ardupilot_params
+
+    recording, mag_recording = pick_recording(contents, args.instance)
+    calibration = pipeline.calibrate(recording, args.method, args.lat, args.lon)
+    if (mag_recording is not None and "mag" not in calibration.sensors
+            and pipeline.has_live_magnetometer(mag_recording)):
+        pipeline.add_magnetometer(calibration, pipeline.raw_sensor_frame(mag_recording),
+                                  args.lat, args.lon)
+    if not calibration.sensors:
+        raise ApmcalError("nothing could be calibrated: "
+                          + "; ".join(calibration.report.get("warnings", [])), contents.path)
+    generation = firmware_generation(contents.params, contents.firmware)
+    proposal = to_ardupilot_params(calibration, generation, instance=recording.instance,
+                                   current_params=contents.params)
+    withhold_undetermined(proposal, calibration.report.get("undetermined", {}))
+    calibration.params = dict(proposal.values)
+    return calibration, proposal
+
+
+SENSOR_PARAM_PREFIXES = {"acc": ("INS_ACC",), "gyr": ("INS_GYR",), "mag": ("COMPASS_",)}
+
+
+def withhold_undetermined(proposal, undetermined: dict) -> None:
+    """Move parameters of sensors the method could not determine from values to notes."""
+    for sensor, why in undetermined.items():
+        names = [n for n in proposal.values if n.startswith(SENSOR_PARAM_PREFIXES[sensor])]
+        for name in names:
+            del proposal.values[name]
+        if names:
+            proposal.notes.append(f"{', '.join(names)} withheld: {why}")
+
+
+def cmd_live(args) -> int:
+    from apmcal.sources import read_log
+    from apmcal.sources.live import VehicleLink
+
+    console = console_for(args)
+    log_path = args.save_log or f"apmcal-live-{time.strftime('%Y%m%d-%H%M%S')}.tlog"
+    with VehicleLink(args.connection, record_to=log_path) as link:
+        params = link.fetch_params()
+        link.request_imu_stream(args.rate)
+        console.print(f"recording {args.duration:g} s from {args.connection} to {log_path}")
+        n = link.collect(args.duration)
+        if n == 0:
+            raise ApmcalError(f"no IMU messages in {args.duration:g} s (stream request "
+                              "ignored? check SRn_RAW_SENS)", args.connection)
+    contents = read_log(log_path)
+    status, proposal = summarise_and_calibrate(contents, args)
+    if args.upload:
+        if proposal.rejected:
+            raise ApmcalError("not uploading: the firmware would reject "
+                              + ", ".join(proposal.rejected), args.connection)
+        upload_values(args.connection, proposal.values, args.backup, params, console)
+    return status
+
+
+def upload_values(connection, values, backup, vehicle_params, console):
+    from apmcal.sources.live import VehicleLink
+    from apmcal.vehicle.upload import upload_params
+
+    backup = backup or f"apmcal-backup-{time.strftime('%Y%m%d-%H%M%S')}.param"
+    with VehicleLink(connection) as link:
+        result = upload_params(link, values, backup, vehicle_params)
+    console.print(f"wrote and verified {len(result.written)} parameters; backup in {backup} "
+                  f"(undo: apmcal restore {connection} {backup})")
+
+
+def cmd_upload(args) -> int:
+    from apmcal.vehicle.paramfile import read_param_file
+
+    values = read_param_file(args.param_file)
+    upload_values(args.connection, values, args.backup, None, console_for(args))
+    return 0
+
+
+def cmd_restore(args) -> int:
+    from apmcal.sources.live import VehicleLink
+    from apmcal.vehicle.upload import restore_params
+
+    with VehicleLink(args.connection) as link:
+        result = restore_params(link, args.backup_file)
+    console_for(args).print(f"restored {len(result.written)} parameters from {args.backup_file}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

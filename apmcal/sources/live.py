@@ -1,0 +1,190 @@
+"""A live vehicle over MAVLink (pymavlink for the protocol only).
+
+The link records everything it receives to a telemetry log (.tlog, the same byte layout MAVProxy
+and Mission Planner write), and the IMU samples are then read back with the ordinary tlog reader:
+one conversion path for live and logged data, and the user keeps the raw recording.
+"""
+from __future__ import annotations
+
+import math
+import struct
+import time
+from pathlib import Path
+
+import numpy as np
+
+from apmcal.errors import ApmcalError
+
+# ardupilot-facts.md "What the telemetry really carries": stream 1 = RAW_SENSORS carries RAW_IMU,
+# SCALED_IMU2/3 and SCALED_PRESSURE; newer firmware also honours SET_MESSAGE_INTERVAL (511).
+IMU_MESSAGE_IDS = {"RAW_IMU": 27, "SCALED_IMU2": 116, "SCALED_PRESSURE": 29}
+
+
+def float32(value: float) -> float:
+    """``value`` as the vehicle stores it (PARAM_VALUE carries float32)."""
+    return float(np.float32(value))
+
+
+class VehicleLink:
+    """One MAVLink connection to one vehicle.
+
+    Parameters
+    ----------
+    connection : str
+        Any pymavlink connection string ("udp:127.0.0.1:14550", "tcp:...", "/dev/ttyACM0").
+    timeout_s : float
+        How long to wait for the first HEARTBEAT before giving up.
+    record_to : path, optional
+        Every received message is appended there as a .tlog record.
+    """
+
+    def __init__(self, connection: str, timeout_s: float = 10.0, record_to: str | Path | None = None):
+        from pymavlink import mavutil
+
+        self.connection = connection
+        self._mavutil = mavutil
+        try:
+            self.master = mavutil.mavlink_connection(connection, source_system=255,
+                                                     source_component=190, autoreconnect=False)
+        except Exception as exc:  # pymavlink raises many types for a bad connection string
+            raise ApmcalError(f"cannot open connection ({exc})", connection) from None
+        self._tlog = open(record_to, "wb") if record_to else None
+        self.wait_heartbeat(timeout_s)
+
+    # -- receiving --------------------------------------------------------------------------
+    def recv(self, types=None, timeout_s: float = 1.0):
+        """Next message of ``types`` (or any), recorded to the tlog; None on timeout."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return None
+            msg = self.master.recv_match(blocking=True, timeout=min(remaining, 0.2))
+            if msg is None or msg.get_type() == "BAD_DATA":
+                continue
+            self._record(msg)
+            if types is None or msg.get_type() in types:
+                return msg
+
+    def _record(self, msg) -> None:
+        if self._tlog is not None:
+            # .tlog record: 8-byte big-endian time in µs since the Unix epoch, then the packet.
+            self._tlog.write(struct.pack(">Q", int(time.time() * 1e6)) + msg.get_msgbuf())
+
+    def wait_heartbeat(self, timeout_s: float) -> None:
+        msg = self.recv({"HEARTBEAT"}, timeout_s)
+        if msg is None:
+            raise ApmcalError(f"no HEARTBEAT within {timeout_s:g} s: is the vehicle connected?",
+                              self.connection)
+        self.target_system = msg.get_srcSystem()
+        self.target_component = msg.get_srcComponent()
+
+    # -- parameters -------------------------------------------------------------------------
+    def fetch_params(self, timeout_s: float = 20.0, idle_s: float = 2.0) -> dict[str, float]:
+        """All parameters (PARAM_REQUEST_LIST), re-asking by index for any that were lost."""
+        mav = self.master.mav
+        mav.param_request_list_send(self.target_system, self.target_component)
+        params: dict[str, float] = {}
+        seen_index: set[int] = set()
+        count = None
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            msg = self.recv({"PARAM_VALUE"}, idle_s)
+            if msg is None:
+                if count is None:
+                    break
+                missing = sorted(set(range(count)) - seen_index)
+                if not missing:
+                    break
+                for index in missing[:20]:
+                    mav.param_request_read_send(self.target_system, self.target_component,
+                                                b"", index)
+                continue
+            params[_param_name(msg)] = float(msg.param_value)
+            count = msg.param_count
+            seen_index.add(msg.param_index)
+            if count is not None and len(seen_index) >= count:
+                break
+        if not params:
+            raise ApmcalError("vehicle sent no parameters (PARAM_REQUEST_LIST unanswered)",
+                              self.connection)
+        return params
+
+    def read_param(self, name: str, timeout_s: float = 1.0, retries: int = 3) -> float | None:
+        """One parameter by name (PARAM_REQUEST_READ); None if the vehicle does not answer."""
+        for _ in range(retries):
+            self.master.mav.param_request_read_send(self.target_system, self.target_component,
+                                                    name.encode(), -1)
+            value = self._await_param(name, timeout_s)
+            if value is not None:
+                return value
+        return None
+
+    def set_param(self, name: str, value: float, timeout_s: float = 1.0,
+                  retries: int = 3) -> float | None:
+        """PARAM_SET as REAL32; returns the value the vehicle echoes, None when it stays silent.
+
+        ardupilot-facts.md "Writing parameters": unknown names and NaN are dropped silently, so a
+        timeout is the only sign of refusal; the caller compares the echoed value itself.
+        """
+        if not math.isfinite(value):
+            raise ApmcalError(f"refusing to send non-finite value {value!r}", self.connection,
+                              f"param {name}")
+        for _ in range(retries):
+            self.master.mav.param_set_send(self.target_system, self.target_component,
+                                           name.encode(), float(value),
+                                           self._mavutil.mavlink.MAV_PARAM_TYPE_REAL32)
+            echoed = self._await_param(name, timeout_s)
+            if echoed is not None:
+                return echoed
+        return None
+
+    def _await_param(self, name: str, timeout_s: float) -> float | None:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            msg = self.recv({"PARAM_VALUE"}, deadline - time.monotonic())
+            if msg is not None and _param_name(msg) == name:
+                return float(msg.param_value)
+        return None
+
+    # -- IMU streaming ----------------------------------------------------------------------
+    def request_imu_stream(self, rate_hz: int) -> None:
+        """Ask for RAW_SENSORS at ``rate_hz`` both ways (old firmware and MAVLink 2 intervals)."""
+        mav, mavlink = self.master.mav, self._mavutil.mavlink
+        mav.request_data_stream_send(self.target_system, self.target_component,
+                                     mavlink.MAV_DATA_STREAM_RAW_SENSORS, int(rate_hz), 1)
+        for msg_id in IMU_MESSAGE_IDS.values():
+            mav.command_long_send(self.target_system, self.target_component,
+                                  mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                                  msg_id, 1e6 / rate_hz, 0, 0, 0, 0, 0)
+
+    def collect(self, duration_s: float, progress=None) -> int:
+        """Receive (and record) for ``duration_s``; returns the number of IMU messages seen."""
+        n_imu = 0
+        end = time.monotonic() + duration_s
+        while (now := time.monotonic()) < end:
+            msg = self.recv(None, min(1.0, end - now))
+            if msg is not None and msg.get_type() in IMU_MESSAGE_IDS:
+                n_imu += 1
+            if progress is not None:
+                progress(min(duration_s, duration_s - (end - time.monotonic())))
+        return n_imu
+
+    def close(self) -> None:
+        if self._tlog is not None:
+            self._tlog.close()
+            self._tlog = None
+        self.master.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def _param_name(msg) -> str:
+    name = msg.param_id
+    if isinstance(name, bytes):
+        name = name.decode("ascii", "replace")
+    return name.rstrip("\x00")
