@@ -1,0 +1,191 @@
+"""Oppong et al.'s one-minute, one-position static calibration (seed 002 §5), reproduced as written.
+
+The platform is level, x pointing north, z down (seed 002 §3.2), so body = NED.
+
+Sign convention (document of the mapping). The paper writes the accelerometer input as the
+gravity vector ``a_p = (0, 0, g)`` in a z-down frame and fixes the diagonal constants of F at −1
+("the value 1 ... leads to inversion of the x- and y-inputs to the accelerometer, hence they are
+negated", seed 002 §6.2; its Table 4 shows F ≈ −I). ArduPilot's accelerometer measures specific
+force: level and still it reads (0, 0, −g) (ardupilot-facts.md, "Frames and signs"). We use
+``a_p = (0, 0, −g)`` (specific force, FRD) with diagonal constants +1: the same equations with
+F_ours = −F_paper, and the calibrated output stays in ArduPilot's convention.
+Step 2 ("the norm of the mean is subtracted from the z output") removes the gravity reading from
+z: for ArduPilot's z ≈ −g that means adding ‖mean‖ (we subtract sign(mean_z)·‖mean‖).
+
+Degeneracies of the paper's recipe, reported to the user:
+
+* A zero-phase high-pass of a static signal has mean ≈ 0, so ``R_f ≈ 0`` and the bias
+  ``b = R − R_f ≈ R``: x/y bias = the mean itself (a tilt of θ reads as g·sin θ bias, 1° ≈
+  0.17 m/s²), z bias ≈ (m_x² + m_y²)/(2g) ≈ 0 by construction.
+* Read literally (a_s = R of step 3), step 9 gives ``F·a_p = R_f`` → μ = R_fz/g ≈ 0 (singular F).
+  Table 4's μ = −1.000 is only reproduced with a_s = the step-1 mean, which we use; the literal μ
+  is kept in the report. With g := ‖mean‖ (step 7) this makes μ = 1 − R_fz/g ≈ 1 and
+  β, γ = −R_fx/g, −R_fy/g ≈ 0 by construction: F ≈ I whatever the sensor.
+* Gyroscope: ``E·ω_p = R_f`` with ω_p = Ω(cos φ, 0, −sin φ): τ = (R_fx − Ω cos φ)/(−Ω sin φ) ≈
+  cot φ, ξ ≈ R_fy/ω_D, ν ≈ R_fz/ω_D ≈ 0 — Table 2's τ = 8.5258 is cot(6.7°), Kumasi's latitude.
+  The Earth rate (0.073 mrad/s) is below RAW_IMU's 1 mrad/s step (ardupilot-facts.md), so E is
+  not determinable; see :mod:`apmcal.solvers.identifiability`.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from apmcal.constants import EARTH_RATE, MG_TO_MS2, MRAD_TO_RAD
+from apmcal.errors import ApmcalError
+from apmcal.preprocessing.highpass import highpass   # zero-phase Butterworth (seed 002 §5)
+from apmcal.solvers.identifiability import identifiability
+from apmcal.solvers.result import Calibration, SensorCalibration
+
+LEVEL_TOLERANCE_DEG = 5.0
+
+
+def c_ecef_to_ned(lat_deg: float, lon_deg: float) -> np.ndarray:
+    """Direction-cosine matrix ECEF → NED (seed 002 §5.2, 'C_ecef^ned')."""
+    la, lo = np.radians(lat_deg), np.radians(lon_deg)
+    sla, cla, slo, clo = np.sin(la), np.cos(la), np.sin(lo), np.cos(lo)
+    return np.array([[-sla * clo, -sla * slo, cla],
+                     [-slo, clo, 0.0],
+                     [-cla * clo, -cla * slo, -sla]])
+
+
+def _sample_rate(t: np.ndarray) -> float:
+    dt = np.diff(np.asarray(t, dtype=float))
+    if len(dt) == 0 or not np.all(np.isfinite(dt)) or np.median(dt) <= 0:
+        raise ApmcalError("one-position method: sample times must be finite and increasing")
+    return float(1.0 / np.median(dt))
+
+
+def accelerometer_one_position(acc: np.ndarray, fs: float, cutoff_hz: float = 0.5
+                               ) -> tuple[SensorCalibration, dict]:
+    """Seed 002 §5.1 steps 1-9 on level, still specific-force samples (n, 3) [m/s², body FRD].
+
+    Returns the SensorCalibration (offset = b, matrix = F⁻¹) and the intermediate quantities.
+    """
+    m = acc.mean(axis=0)                                   # step 1
+    norm = float(np.linalg.norm(m))
+    sgn = -1.0 if m[2] < 0 else 1.0                        # ArduPilot level: m_z ≈ −g
+    acc2 = acc.copy()
+    acc2[:, 2] -= sgn * norm                               # step 2 (gravity reading removed)
+    R = acc2.mean(axis=0)                                  # step 3
+    Rf = highpass(acc2, fs, cutoff_hz).mean(axis=0)        # steps 4-5
+    b = R - Rf                                             # step 6: eq. (1), F = I, a_p = R_f
+    g = norm                                               # step 7: g := ‖mean‖
+    a_p = np.array([0.0, 0.0, sgn * g])                    # specific force (see module doc)
+    # steps 8-9: F = [[1, 0, β], [0, 1, γ], [0, 0, μ]] (α = 0); a_s − b = F·a_p, a_s = step-1 mean
+    beta, gamma, mu = (m - b) / a_p[2]
+    F = np.array([[1.0, 0.0, beta], [0.0, 1.0, gamma], [0.0, 0.0, mu]])
+    mu_literal = (R - b)[2] / a_p[2]                       # a_s = step-3 R read literally
+    tilt = float(np.degrees(np.arccos(min(1.0, abs(m[2]) / norm)))) if norm > 0 else 90.0
+    sc = SensorCalibration(offset=b, matrix=np.linalg.inv(F))
+    return sc, {"mean": m, "g": g, "R": R, "R_f": Rf, "bias": b, "F": F,
+                "beta_gamma_mu": np.array([beta, gamma, mu]), "mu_literal": mu_literal,
+                "F_paper_convention": -F, "tilt_deg": tilt}
+
+
+def gyroscope_one_position(gyr: np.ndarray, fs: float, cutoff_hz: float = 0.5,
+                           lat_deg: float | None = None, lon_deg: float | None = None
+                           ) -> tuple[SensorCalibration, dict]:
+    """Seed 002 §5.2 on still gyro samples (n, 3) [rad/s], x north, z down.
+
+    Returns SensorCalibration (offset = b, matrix = E⁻¹, or I when E cannot be formed) and the
+    intermediate quantities.
+    """
+    R = gyr.mean(axis=0)                                   # mean
+    Rf = highpass(gyr, fs, cutoff_hz).mean(axis=0)         # high-pass mean
+    b = R - Rf                                             # eq. (2) with E = I
+    out = {"R": R, "R_f": Rf, "bias": b, "notes": []}
+    matrix = np.eye(3)
+    if lat_deg is None:
+        out["notes"].append("no latitude: E not computed (identity)")
+    else:
+        C = c_ecef_to_ned(lat_deg, 0.0 if lon_deg is None else lon_deg)
+        w_p = C @ np.array([0.0, 0.0, EARTH_RATE])         # = Ω(cos φ, 0, −sin φ), any longitude
+        if abs(w_p[2]) < 1e-12:
+            raise ApmcalError("one-position gyro: at the equator the Earth rate has no vertical "
+                              "component, τ, ξ, ν are undefined (seed 002 §5.2)")
+        # E = [[1, 0, τ], [0, 1, ξ], [0, 0, ν]] (σ = 0); ω_s − b = E·ω_p with ω_s = R
+        d = R - b
+        tau = (d[0] - w_p[0]) / w_p[2]
+        xi = (d[1] - w_p[1]) / w_p[2]
+        nu = d[2] / w_p[2]
+        E = np.array([[1.0, 0.0, tau], [0.0, 1.0, xi], [0.0, 0.0, nu]])
+        out.update({"omega_p": w_p, "E": E, "tau_xi_nu": np.array([tau, xi, nu])})
+        if np.linalg.cond(E) < 1e8:
+            matrix = np.linalg.inv(E)
+        else:
+            out["notes"].append(f"E is singular (ν = {nu:.3g}): its inverse cannot be applied, "
+                                "identity used")
+    return SensorCalibration(offset=b, matrix=matrix), out
+
+
+def one_position_calibration(t, acc, gyr, *, lat_deg: float | None = None,
+                             lon_deg: float | None = None, cutoff_hz: float = 0.5,
+                             fs: float | None = None) -> Calibration:
+    """The one-minute static calibration of seed 002 §5 → Calibration (method "static").
+
+    Parameters
+    ----------
+    t : (n,) array [s]
+    acc : (n, 3) array [m/s²], body FRD, vehicle level and still (ArduPilot: z ≈ −g)
+    gyr : (n, 3) array [rad/s], same samples, x pointing north
+    lat_deg, lon_deg : float, optional
+        Position (seed 002 uses GPS); only latitude matters for the Earth-rate vector.
+    cutoff_hz : float
+        High-pass cut-off (seed 002: 0.5 Hz, from Lötters et al.).
+    fs : float, optional
+        Sample rate [Hz]; from ``t`` when omitted.
+    """
+    t = np.asarray(t, dtype=float)
+    acc = np.asarray(acc, dtype=float)
+    gyr = np.asarray(gyr, dtype=float)
+    if acc.ndim != 2 or acc.shape[1] != 3 or gyr.shape != acc.shape or len(t) != len(acc):
+        raise ApmcalError(f"one-position method: t {t.shape}, acc {acc.shape}, gyr {gyr.shape} "
+                          "must be (n,), (n, 3), (n, 3)")
+    if not (np.all(np.isfinite(acc)) and np.all(np.isfinite(gyr))):
+        raise ApmcalError("one-position method: NaN or inf in the samples")
+    fs = _sample_rate(t) if fs is None else float(fs)
+    if len(t) <= 3 * fs / cutoff_hz:      # highpass pads three cut-off periods
+        raise ApmcalError(f"one-position method: {len(t)} samples at {fs:.3g} Hz is too short for "
+                          f"a {cutoff_hz} Hz high-pass (seed 002 records about a minute)")
+    acc_cal, a = accelerometer_one_position(acc, fs, cutoff_hz)
+    gyr_cal, w = gyroscope_one_position(gyr, fs, cutoff_hz, lat_deg, lon_deg)
+    lines = _report_lines(a, w, lat_deg)
+    g_id = identifiability("acc", [[0.0, 0.0, -a["g"]]], matrix="upper",
+                           resolution=MG_TO_MS2)
+    lines += g_id.lines
+    if "omega_p" in w:
+        lines += identifiability("gyr", [w["omega_p"]], matrix="upper",
+                                 resolution=MRAD_TO_RAD).lines
+    return Calibration(method="static", sensors={"acc": acc_cal, "gyr": gyr_cal},
+                       report={"lines": lines, "acc": a, "gyr": w, "fs_hz": fs,
+                               "duration_s": float(t[-1] - t[0]), "cutoff_hz": cutoff_hz})
+
+
+def _e(v: float) -> str:
+    return f"{v:.2e}"
+
+
+def _report_lines(a: dict, w: dict, lat_deg) -> list[str]:
+    """Plain-words notes on what the paper's recipe did determine."""
+    lines = [
+        f"acc: g taken as ‖mean‖ = {a['g']:.4f} m/s² (seed 002 §5.1 step 7), tilt from level "
+        f"{a['tilt_deg']:.2f}°",
+        f"acc: high-pass mean R_f = {np.array2string(a['R_f'], formatter={'float': _e})} m/s² "
+        "≈ 0, so bias = "
+        "R − R_f ≈ R: x/y bias is the mean itself (tilt and bias cannot be told apart: 1° of tilt "
+        "= 0.17 m/s²), z bias ≈ 0 by construction",
+        f"acc: β, γ, μ = {np.array2string(a['beta_gamma_mu'], precision=4)}: μ = 1 − R_fz/g ≈ 1 by "
+        f"construction, β, γ = −R_f/g ≈ 0; read literally (a_s = step-3 R) μ would be "
+        f"{a['mu_literal']:.3g} (singular F)",
+    ]
+    if a["tilt_deg"] > LEVEL_TOLERANCE_DEG:
+        lines.append(f"acc: NOT LEVEL ({a['tilt_deg']:.1f}° > {LEVEL_TOLERANCE_DEG}°): the method "
+                     "assumes a level platform; its bias absorbs the tilt")
+    lines.append(f"gyr: bias = {np.array2string(w['bias'] * 1e3, precision=3)} mrad/s "
+                 "(≈ mean: the high-pass mean is ≈ 0)")
+    if "tau_xi_nu" in w:
+        lines.append(f"gyr: τ, ξ, ν = {np.array2string(w['tau_xi_nu'], precision=4)} at latitude "
+                     f"{lat_deg:.3f}°: τ ≈ cot(latitude) = {1 / np.tan(np.radians(lat_deg)):.4f}, "
+                     "ν ≈ R_fz/ω_D — artefacts of the recipe, not gyro properties")
+    lines += [f"gyr: {n}" for n in w.get("notes", [])]
+    return lines
