@@ -70,6 +70,8 @@ def main(argv: list[str] | None = None) -> int:
         return {"log": cmd_log, "live": cmd_live, "upload": cmd_upload,
                 "restore": cmd_restore}[args.command](args)
     except ApmcalError as err:
+        if err.path is None:   # solvers know no file names: name the input the user gave
+            err.path = getattr(args, "file", None) or getattr(args, "connection", None)
         print(f"apmcal: error: {err}", file=sys.stderr)
         return EXIT_USER_ERROR
     except KeyboardInterrupt:

@@ -9,6 +9,7 @@ import numpy as np
 
 from apmcal.constants import STANDARD_GRAVITY, normal_gravity
 from apmcal.errors import ApmcalError
+from apmcal.preprocessing.timebase import monotonic
 from apmcal.recording import Recording
 from apmcal.solvers.result import Calibration
 
@@ -59,6 +60,7 @@ def calibrate(recording: Recording, method: str = "auto", lat_deg: float | None 
         raise ApmcalError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
     if not recording.has("acc"):
         raise ApmcalError("recording has no accelerometer samples", recording.source)
+    recording, time_warnings = monotonic(recording)
     raw = raw_sensor_frame(recording)
     chosen = choose_method(raw) if method == "auto" else method
     try:
@@ -68,6 +70,7 @@ def calibrate(recording: Recording, method: str = "auto", lat_deg: float | None 
             raise
         cal = Calibration(method="none", report={"warnings": [
             f"accelerometer and gyro not calibrated ({chosen} method): {err.why}"]})
+    cal.report.setdefault("warnings", []).extend(time_warnings)
     if has_live_magnetometer(raw) and "mag" not in cal.sensors:
         add_magnetometer(cal, raw, lat_deg, lon_deg)
     return cal
@@ -99,6 +102,8 @@ def inertial_calibration(raw: Recording, method: str, lat_deg, lon_deg) -> Calib
 
 def add_magnetometer(cal: Calibration, raw: Recording, lat_deg, lon_deg) -> None:
     """Add the magnetometer fit to ``cal``, or a warning saying why it was not possible."""
+    raw, time_warnings = monotonic(raw)
+    cal.report.setdefault("warnings", []).extend(f"mag: {w}" for w in time_warnings)
     try:
         cal.sensors["mag"] = magnetometer_calibration(raw, lat_deg, lon_deg, cal.report)
     except ApmcalError as err:
