@@ -59,7 +59,9 @@ def upload_params(link: VehicleLink, values: dict[str, float], backup_path: str 
     for name, value in values.items():
         echoed = link.set_param(name, value)
         if echoed is None or not same_float32(echoed, value):
-            _roll_back(link, report)
+            # The vehicle may have stored something else (or stored it and lost the answer):
+            # the failing name is put back too.
+            _roll_back(link, report, also=name)
             got = "no answer" if echoed is None else f"read back {echoed!r}"
             raise ApmcalError(f"write of {value!r} not confirmed ({got}); all changes rolled "
                               f"back from {backup_path}", link.connection, f"param {name}")
@@ -67,16 +69,22 @@ def upload_params(link: VehicleLink, values: dict[str, float], backup_path: str 
     return report
 
 
-def _roll_back(link: VehicleLink, report: UploadReport) -> None:
-    failed = []
-    for name in list(report.written):
-        echoed = link.set_param(name, report.previous[name])
-        if echoed is None or not same_float32(echoed, report.previous[name]):
-            failed.append(name)
+def _roll_back(link: VehicleLink, report: UploadReport, also: str) -> None:
+    """Put every written name, and the one that failed, back to its backed-up value."""
+    failed = [name for name in [*report.written, also]
+              if not _put_back(link, name, report.previous[name])]
     if failed:
         raise ApmcalError(f"rollback failed for {', '.join(failed)}: restore with "
                           f"'apmcal restore {link.connection} {report.backup_path}'",
                           link.connection)
+
+
+def _put_back(link: VehicleLink, name: str, value: float) -> bool:
+    """True once the vehicle holds ``value`` for ``name`` (set, or found unchanged)."""
+    echoed = link.set_param(name, value)
+    if echoed is None:      # a write the vehicle ignores may still have left the value as it was
+        echoed = link.read_param(name)
+    return echoed is not None and same_float32(echoed, value)
 
 
 def restore_params(link: VehicleLink, backup_path: str | Path,
