@@ -1,0 +1,56 @@
+"""``python -m sitl [CONNECTION]`` — run the simulated vehicle on a MAVLink connection."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from sitl.errors import SitlError
+from sitl import motion
+from sitl.cli_common import add_truth_args, make_truth
+
+
+def parse_args(argv=None):
+    ap = argparse.ArgumentParser(prog="python -m sitl",
+                                 description="Simulated APM 2.8 (ArduCopter 3.2/3.3) on MAVLink.")
+    ap.add_argument("connection", nargs="?", default="udpout:127.0.0.1:14550",
+                    help="pymavlink connection string (default udpout:127.0.0.1:14550)")
+    ap.add_argument("--write-truth", metavar="FILE.json", help="write the injected errors used")
+    ap.add_argument("--speedup", type=float, default=1.0, help="simulated s per wall-clock s")
+    ap.add_argument("--script", default="onepos", choices=motion.SCRIPTS)
+    ap.add_argument("--firmware", default="3.2", choices=("3.2", "3.3"))
+    ap.add_argument("--duration", type=float, help="stop after this many simulated seconds")
+    ap.add_argument("--param-file", default="sitl-params.json",
+                    help="parameter persistence file (JSON), kept across restarts")
+    ap.add_argument("--tlog", help="also record the session to this .tlog")
+    add_truth_args(ap)
+    return ap.parse_args(argv)
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    try:
+        from sitl.mavlink_vehicle import MavlinkVehicle
+        from sitl.vehicle import SimVehicle
+        truth = make_truth(args)
+        if args.write_truth:
+            truth.save(args.write_truth)
+        vehicle = SimVehicle(truth, args.script, args.firmware, args.param_file, seed=args.seed,
+                             duration=args.duration if args.script != "operator" else None)
+        endpoint = MavlinkVehicle(vehicle, args.connection, args.speedup, args.tlog)
+        try:
+            endpoint.serve(args.duration)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            endpoint.close()
+    except SitlError as err:
+        print(f"sitl: {err}", file=sys.stderr)
+        return 2
+    except (OSError, ValueError) as err:
+        print(f"sitl: {args.connection}: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

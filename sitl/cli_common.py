@@ -1,0 +1,28 @@
+"""Command-line options shared by ``python -m sitl`` and ``python -m sitl.makelog``."""
+from __future__ import annotations
+
+from sitl.truth import DEFAULT_SITE, Truth
+
+
+def add_truth_args(ap) -> None:
+    ap.add_argument("--seed", type=int, default=0, help="error draw and noise seed")
+    ap.add_argument("--truth", help="LOAD the injected errors from this JSON (else drawn by seed)")
+    ap.add_argument("--disable", default="", help="effects to switch off, comma-separated "
+                    "('all' for every effect)")
+    ap.add_argument("--enable", default="", help="effects to switch on, comma-separated")
+    ap.add_argument("--lat", type=float, default=DEFAULT_SITE["lat"], help="home latitude [deg]")
+    ap.add_argument("--lon", type=float, default=DEFAULT_SITE["lon"], help="home longitude [deg]")
+    ap.add_argument("--alt", type=float, default=DEFAULT_SITE["alt"], help="home height [m]")
+
+
+def make_truth(args) -> Truth:
+    """Truth from --truth or --seed, then --lat/--lon/--alt (only when drawn) and switches."""
+    if args.truth:
+        truth = Truth.load(args.truth)
+    else:
+        truth = Truth.random(args.seed, dict(DEFAULT_SITE, lat=args.lat, lon=args.lon,
+                                             alt=args.alt))
+    split = lambda s: [x.strip() for x in s.split(",") if x.strip()]
+    # --disable first so "--disable all --enable acc_bias" isolates one effect
+    truth.with_effects(disable=split(args.disable))
+    return truth.with_effects(enable=split(args.enable))

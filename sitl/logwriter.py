@@ -1,0 +1,88 @@
+"""Log writers read back by pymavlink: telemetry .tlog and dataflash .bin.
+
+.tlog: each record is an 8-byte big-endian microsecond Unix timestamp followed by one packed
+MAVLink message (the format mavutil.mavlogfile reads). Messages are packed by the vehicle's own
+pymavlink MAVLink 2 encoder, so only the timestamp framing is written here.
+
+.bin: hand-written with struct because pymavlink has no dataflash writer. Every record is
+0xA3 0x95, message type, payload; FMT (type 128) records describe each type with DFReader's
+format characters (Q uint64, f float32, h int16, I uint32, B uint8, N char[16], Z char[64]).
+"""
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+HEAD = b"\xa3\x95"
+FMT_TYPE = 128
+
+# name → (type id, DFReader format, columns); units: Gyr rad/s, Acc m/s², T degC, Mag mGauss
+DF_MESSAGES = {
+    "FMT": (FMT_TYPE, "BBnNZ", "Type,Length,Name,Format,Columns"),
+    "PARM": (129, "QNf", "TimeUS,Name,Value"),
+    "MSG": (130, "QZ", "TimeUS,Message"),
+    "IMU": (131, "QffffffIIf", "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,ErrG,ErrA,T"),
+    "MAG": (132, "QhhhhhhhhhB", "TimeUS,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ,Health"),
+}
+_STRUCT = {"Q": "Q", "f": "f", "h": "h", "I": "I", "B": "B", "n": "4s", "N": "16s", "Z": "64s"}
+
+
+def _struct(fmt: str) -> struct.Struct:
+    return struct.Struct("<" + "".join(_STRUCT[c] for c in fmt))
+
+
+class TlogWriter:
+    """Write (unix time [s], packed MAVLink bytes) records to a .tlog file."""
+
+    def __init__(self, path):
+        self.f = open(Path(path), "wb")
+
+    def write(self, unix_s: float, packed: bytes) -> None:
+        self.f.write(struct.pack(">Q", int(round(unix_s * 1e6))) + packed)
+
+    def close(self) -> None:
+        self.f.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+class DataflashWriter:
+    """Write a binary dataflash log with FMT, PARM, MSG, IMU and MAG records."""
+
+    def __init__(self, path):
+        self.f = open(Path(path), "wb")
+        self._structs = {name: _struct(fmt) for name, (_, fmt, _) in DF_MESSAGES.items()}
+        for name, (mid, fmt, cols) in DF_MESSAGES.items():
+            length = 3 + self._structs[name].size
+            self._record("FMT", mid, length, name.encode(), fmt.encode(), cols.encode())
+
+    def _record(self, name: str, *values) -> None:
+        self.f.write(HEAD + bytes([DF_MESSAGES[name][0]]) + self._structs[name].pack(*values))
+
+    def parm(self, time_us: int, name: str, value: float) -> None:
+        self._record("PARM", time_us, name.encode(), float(value))
+
+    def msg(self, time_us: int, text: str) -> None:
+        self._record("MSG", time_us, text.encode()[:64])
+
+    def imu(self, time_us: int, gyr, acc, temp_c: float) -> None:
+        """One IMU record: gyro [rad/s] and accel [m/s²] body frame, temperature [degC]."""
+        self._record("IMU", time_us, *map(float, gyr), *map(float, acc), 0, 0, float(temp_c))
+
+    def mag(self, time_us: int, field_mgauss, ofs, motor=(0, 0, 0)) -> None:
+        """One MAG record: corrected field, COMPASS_OFS and motor compensation [mGauss]."""
+        ints = [int(max(-32768, min(32767, round(v)))) for v in (*field_mgauss, *ofs, *motor)]
+        self._record("MAG", time_us, *ints, 1)
+
+    def close(self) -> None:
+        self.f.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

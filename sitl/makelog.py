@@ -1,0 +1,116 @@
+"""Generate a sample log from the simulated vehicle without real time.
+
+    python -m sitl.makelog --script ferraris --out logs/ferraris.tlog --seed 1 \
+        [--truth-out logs/ferraris.truth.json] [--rate 50] [--firmware 3.2] [--set NAME=VALUE ...]
+
+.tlog: PARAM_VALUE of every parameter at the start, STATUSTEXT firmware string, HEARTBEAT 1 Hz,
+SYS_STATUS, RAW_IMU at --rate, SCALED_PRESSURE at 2 Hz.
+.bin : FMT, PARM (all), MSG (firmware string), IMU and MAG at --rate.
+Parameters are NEUTRAL (offsets 0, scales 1, INS_GYR_CAL=0 so no boot gyro offsets) unless --set.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from sitl.errors import SitlError
+from sitl.cli_common import add_truth_args, make_truth
+from sitl.logwriter import DataflashWriter, TlogWriter
+from sitl.vehicle import SimVehicle, VERSION_TEXT
+
+START_UNIX = 1_780_000_000.0     # fixed start time (2026-05-28) so logs are byte-reproducible
+
+
+def make_vehicle(args) -> SimVehicle:
+    truth = make_truth(args)
+    v = SimVehicle(truth, args.script, args.firmware, None, seed=args.seed,
+                   duration=args.duration, gyro_boot_s=1.0)
+    v.params.set("INS_GYR_CAL", 0, save=False)
+    v._boot_gyro = None                 # neutral: no boot-time gyro offsets
+    for item in args.set or []:
+        name, _, value = item.partition("=")
+        if v.params.set(name.strip(), value, save=False) is None:
+            raise SitlError(f"unknown parameter or bad value {item!r}", where="--set")
+    return v
+
+
+def write_tlog(v: SimVehicle, out: Path, rate: float, seconds: float) -> None:
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+    v.set_interval("RAW_IMU", rate)
+    v.set_interval("SCALED_PRESSURE", 2.0)
+    with TlogWriter(out) as w:
+        for name in v.params.names:     # parameters in force at the start
+            msg = mavlink.MAVLink_param_value_message(name.encode(), v.params[name],
+                                                      mavlink.MAV_PARAM_TYPE_REAL32,
+                                                      len(v.params), v.params.index(name))
+            w.write(START_UNIX, v.encode(msg))
+        _drain(v, seconds, lambda t, m: w.write(START_UNIX + t, v.encode(m)))
+
+
+def write_bin(v: SimVehicle, out: Path, rate: float, seconds: float) -> None:
+    v.set_interval("HIGHRES_IMU", rate)
+    with DataflashWriter(out) as w:
+        for name in v.params.names:
+            w.parm(0, name, v.params[name])
+        w.msg(0, VERSION_TEXT[v.generation])
+        ofs = [v.params[f"COMPASS_OFS_{a}"] for a in "XYZ"]
+
+        def emit(t, m):
+            if m.get_type() == "HIGHRES_IMU":
+                us = int(round(t * 1e6))
+                w.imu(us, (m.xgyro, m.ygyro, m.zgyro), (m.xacc, m.yacc, m.zacc), m.temperature)
+                w.mag(us, (m.xmag * 1000, m.ymag * 1000, m.zmag * 1000), ofs)
+        _drain(v, seconds, emit)
+
+
+def _drain(v: SimVehicle, seconds: float, emit) -> None:
+    end = v.tick + int(round(seconds * v.fs))
+    while v.tick < end:
+        v.step(min(1.0, (end - v.tick) / v.fs))
+        for t, m in v.pop_messages():
+            emit(t, m)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m sitl.makelog", description=__doc__.split("\n")[0])
+    ap.add_argument("--script", default="ferraris")
+    ap.add_argument("--out", required=True, help="output .tlog or .bin")
+    ap.add_argument("--truth-out", help="write the injected truth JSON here")
+    ap.add_argument("--rate", type=float, default=50.0, help="IMU message rate [Hz]")
+    ap.add_argument("--firmware", choices=("3.2", "3.3"), default="3.2")
+    ap.add_argument("--duration", type=float, help="script length [s] (onepos/warmup/tumble)")
+    ap.add_argument("--set", action="append", metavar="NAME=VALUE",
+                    help="parameter in force (default: all neutral)")
+    add_truth_args(ap)
+    args = ap.parse_args(argv)
+    try:
+        v = make_vehicle(args)
+        seconds = v.motion.duration + 1.0
+        out = Path(args.out)
+        if out.suffix.lower() == ".bin":
+            write_bin(v, out, args.rate, seconds)
+        elif out.suffix.lower() == ".tlog":
+            write_tlog(v, out, args.rate, seconds)
+        else:
+            raise SitlError("output must end in .tlog or .bin", out)
+        if args.truth_out:
+            v.truth.save(args.truth_out, extra=session_info(v, args, seconds))
+    except SitlError as err:
+        print(f"makelog: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def session_info(v: SimVehicle, args, seconds: float) -> dict:
+    """What a test needs besides the errors: script sections, params, time base."""
+    return {"script": v.script, "seed": args.seed, "firmware": v.generation,
+            "start_unix": START_UNIX, "duration_s": seconds,
+            "time_base": "t (sections, gyr t_ref/drift, temperature) = seconds since boot = "
+                         "tlog timestamp - start_unix = RAW_IMU time_usec/1e6 = dataflash TimeUS/1e6",
+            "sections": [list(s) for s in v.motion.sections()], "params": v.params.as_dict(),
+            "earth_field_ned_mgauss": v.field_ned.tolist()}
+
+
+if __name__ == "__main__":
+    sys.exit(main())

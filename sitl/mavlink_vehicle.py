@@ -1,0 +1,73 @@
+"""The network endpoint: paces a :class:`SimVehicle` against the wall clock and exchanges
+MAVLink with a ground station over any pymavlink connection string.
+"""
+from __future__ import annotations
+
+import time
+
+from pymavlink import mavutil
+
+from sitl.logwriter import TlogWriter
+from sitl.vehicle import SimVehicle
+
+
+class MavlinkVehicle:
+    """Serve ``vehicle`` on ``connection`` (e.g. "udpout:127.0.0.1:14550", "udpin:0.0.0.0:14550",
+    "tcpin:0.0.0.0:5760").
+
+    Parameters
+    ----------
+    speedup : float
+        Simulated seconds per wall-clock second.
+    tlog : path, optional
+        Also record everything sent and received to this .tlog.
+    """
+
+    def __init__(self, vehicle: SimVehicle, connection: str = "udpout:127.0.0.1:14550",
+                 speedup: float = 1.0, tlog=None):
+        self.vehicle, self.speedup = vehicle, float(speedup)
+        self.conn = mavutil.mavlink_connection(connection, source_system=1, source_component=1)
+        self.tlog = TlogWriter(tlog) if tlog else None
+        self._wall0 = None
+        self._sim0 = vehicle.t
+
+    def poll(self) -> None:
+        """Advance the vehicle to the current wall-clock time, send its messages, read input."""
+        now = time.monotonic()
+        if self._wall0 is None:
+            self._wall0 = now
+        target = self._sim0 + (now - self._wall0) * self.speedup
+        v = self.vehicle
+        while v.t < target - 0.5 / v.fs:
+            v.step(min(0.02, target - v.t))
+            self._flush()
+        self._flush()
+        while True:
+            msg = self.conn.recv_msg()
+            if msg is None:
+                break
+            if msg.get_type() == "BAD_DATA":
+                continue
+            if self.tlog:
+                self.tlog.write(time.time(), msg.get_msgbuf())
+            v.handle(msg)
+        self._flush()
+
+    def _flush(self) -> None:
+        for _, msg in self.vehicle.pop_messages():
+            buf = self.vehicle.encode(msg)
+            self.conn.write(buf)
+            if self.tlog:
+                self.tlog.write(time.time(), buf)
+
+    def serve(self, duration: float | None = None, tick_s: float = 0.005) -> None:
+        """Run until ``duration`` simulated seconds have passed (forever when None)."""
+        end = None if duration is None else self.vehicle.t + duration
+        while end is None or self.vehicle.t < end:
+            self.poll()
+            time.sleep(tick_s)
+
+    def close(self) -> None:
+        self.conn.close()
+        if self.tlog:
+            self.tlog.close()

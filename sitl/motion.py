@@ -1,0 +1,243 @@
+"""Motion scripts: the true attitude and body rate of the vehicle as functions of time.
+
+A script is a list of segments: holds (static, one pose) and rotations about one BODY axis with a
+smooth (1 − cos) rate profile, so attitude and rate are analytic and exact at any time — the
+accelerometer can be evaluated at t − time_offset. Hand-held tremor/sway (motion_contamination)
+is a small rotation Exp(δ(t)) applied on top: R = R_script·Exp(δ), ω = Exp(δ)ᵀω_script + J_r(δ)·δ'.
+
+Attitude R_nb maps body (FRD) vectors to NED; poses are built as Rz(yaw)·Ry(pitch)·Rx(roll).
+Face names follow imucal / Ferraris: "x_p" = x axis reads +g (x up, nose up), "x_a" = x down.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from sitl.firmware import euler_matrix
+
+# ardupilot-facts.md (Frames and signs): nose down → acc_x ≈ −g, left side down → acc_y ≈ +g,
+# upside down → acc_z ≈ +g.
+POSES = {
+    "level": (0, 0, 0), "left": (-90, 0, 0), "right": (90, 0, 0),
+    "nosedown": (0, -90, 0), "noseup": (0, 90, 0), "back": (180, 0, 0),
+    "x_p": (0, 90, 0), "x_a": (0, -90, 0), "y_p": (-90, 0, 0), "y_a": (90, 0, 0),
+    "z_p": (180, 0, 0), "z_a": (0, 0, 0),
+}
+# ArduPilot accelcal ACCELCAL_VEHICLE_POS values (param1 of MAV_CMD_ACCELCAL_VEHICLE_POS)
+ACCELCAL_POSES = {1: "level", 2: "left", 3: "right", 4: "nosedown", 5: "noseup", 6: "back"}
+SCRIPTS = ("ferraris", "ardupilot6", "onepos", "tumble", "warmup", "operator")
+
+
+def pose_matrix(name: str, yaw_deg: float = 0.0) -> np.ndarray:
+    """R_nb of a named pose, heading ``yaw_deg`` (applied about NED down)."""
+    r, p, _ = POSES[name]
+    return euler_matrix(0, 0, yaw_deg) @ euler_matrix(r, p, 0)
+
+
+@dataclass
+class Segment:
+    t0: float
+    duration: float
+    r0: np.ndarray                   # attitude at the start (body → NED)
+    axis: np.ndarray                 # body-frame unit rotation axis (zeros for a hold)
+    angle: float                     # total rotation [rad] (0 for a hold)
+    label: str
+    r1: np.ndarray | None = None     # exact end pose when known (avoids round-off build-up)
+
+    @property
+    def t1(self) -> float:
+        return self.t0 + self.duration
+
+    def end_pose(self) -> np.ndarray:
+        if self.r1 is not None:
+            return self.r1
+        return self.r0 @ Rotation.from_rotvec(self.axis * self.angle).as_matrix()
+
+
+@dataclass
+class Motion:
+    """A sequence of segments; beyond the last one the vehicle holds its final pose."""
+
+    segments: list = field(default_factory=list)
+    start_pose: np.ndarray = field(default_factory=lambda: np.eye(3))
+
+    @property
+    def duration(self) -> float:
+        return self.segments[-1].t1 if self.segments else 0.0
+
+    def end_pose(self) -> np.ndarray:
+        return self.segments[-1].end_pose() if self.segments else self.start_pose
+
+    def hold(self, seconds: float, label: str) -> "Motion":
+        self.segments.append(Segment(self.duration, seconds, self.end_pose(), np.zeros(3), 0.0,
+                                     label))
+        return self
+
+    def rotate(self, axis, angle_deg: float, seconds: float, label: str) -> "Motion":
+        axis = np.asarray(axis, float) / np.linalg.norm(axis)
+        self.segments.append(Segment(self.duration, seconds, self.end_pose(), axis,
+                                     np.radians(angle_deg), label))
+        return self
+
+    def move_to(self, target: np.ndarray, seconds: float, label: str = "transition") -> "Motion":
+        """Rotate about one body axis from the current end pose to ``target``."""
+        rv = Rotation.from_matrix(self.end_pose().T @ target).as_rotvec()
+        ang = np.linalg.norm(rv)
+        if ang < 1e-9:
+            return self.hold(seconds, label)
+        self.rotate(rv / ang, np.degrees(ang), seconds, label)
+        self.segments[-1].r1 = np.array(target, dtype=float)
+        return self
+
+    def sections(self) -> list[tuple[str, float, float]]:
+        """(label, t_start, t_end) of consecutive segments sharing a label."""
+        out: list = []
+        for s in self.segments:
+            if out and out[-1][0] == s.label:
+                out[-1] = (s.label, out[-1][1], s.t1)
+            else:
+                out.append((s.label, s.t0, s.t1))
+        return out
+
+    def evaluate(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Script attitude R (n,3,3), body rate ω (n,3) [rad/s], segment index (n,) at times t."""
+        t = np.atleast_1d(np.asarray(t, float))
+        n = len(t)
+        rot = np.repeat(self.end_pose()[None], n, axis=0)
+        rate = np.zeros((n, 3))
+        idx = np.full(n, len(self.segments))
+        if not self.segments:
+            return rot, rate, idx
+        starts = np.array([s.t0 for s in self.segments])
+        seg = np.clip(np.searchsorted(starts, t, side="right") - 1, 0, len(self.segments) - 1)
+        for k in np.unique(seg):
+            s = self.segments[k]
+            m = (seg == k) & (t < s.t1)      # after the last segment: final pose (default)
+            if not m.any():
+                continue
+            idx[m] = k
+            u = np.clip((t[m] - s.t0) / s.duration, 0.0, 1.0)
+            # smooth profile: angle(u) = θ(u − sin 2πu / 2π), rate = θ/T (1 − cos 2πu)
+            ang = s.angle * (u - np.sin(2 * np.pi * u) / (2 * np.pi))
+            rate[m] = np.outer(s.angle / s.duration * (1 - np.cos(2 * np.pi * u)), s.axis)
+            rot[m] = s.r0 @ Rotation.from_rotvec(np.outer(ang, s.axis)).as_matrix()
+        return rot, rate, idx
+
+
+class Tremor:
+    """Hand-held contamination δ(t) [rad]: sums of sinusoids with seeded phases (smooth, exact δ')."""
+
+    def __init__(self, params: dict, seed: int):
+        rng = np.random.default_rng(np.random.SeedSequence([seed, 0x7E30]))
+        comps = []
+        for amp_key, band_key, count in (("tremor_deg", "tremor_hz", 4), ("sway_deg", "sway_hz", 3)):
+            amp = np.radians(params[amp_key]) / np.sqrt(count)
+            lo, hi = params[band_key]
+            for _ in range(count):
+                comps.append((amp * rng.standard_normal(3), rng.uniform(lo, hi, 3),
+                              rng.uniform(0, 2 * np.pi, 3)))
+        self.amp = np.array([c[0] for c in comps])     # (k, 3)
+        self.freq = np.array([c[1] for c in comps])
+        self.phase = np.array([c[2] for c in comps])
+
+    def __call__(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """δ (n,3) [rad] and δ' (n,3) [rad/s]."""
+        arg = 2 * np.pi * self.freq[None] * t[:, None, None] + self.phase[None]
+        d = (self.amp[None] * np.sin(arg)).sum(axis=1)
+        dd = (self.amp[None] * 2 * np.pi * self.freq[None] * np.cos(arg)).sum(axis=1)
+        return d, dd
+
+
+def _hat(v: np.ndarray) -> np.ndarray:
+    z = np.zeros(len(v))
+    return np.stack([np.stack([z, -v[:, 2], v[:, 1]], -1), np.stack([v[:, 2], z, -v[:, 0]], -1),
+                     np.stack([-v[:, 1], v[:, 0], z], -1)], axis=1)
+
+
+def contaminate(rot, rate, t, tremor: Tremor | None):
+    """Apply tremor: R·Exp(δ), body rate Exp(δ)ᵀω + J_r(δ)δ' (exact right Jacobian)."""
+    if tremor is None:
+        return rot, rate
+    d, dd = tremor(t)
+    e = Rotation.from_rotvec(d).as_matrix()
+    th = np.linalg.norm(d, axis=1)[:, None, None]
+    th = np.where(th < 1e-12, 1e-12, th)
+    h = _hat(d)
+    jr = np.eye(3) - (1 - np.cos(th)) / th ** 2 * h + (th - np.sin(th)) / th ** 3 * (h @ h)
+    rate = np.einsum("nji,nj->ni", e, rate) + np.einsum("nij,nj->ni", jr, dd)
+    return rot @ e, rate
+
+
+# ---- the scripts -----------------------------------------------------------------------------
+def ferraris(hold: float = 20.0, pause: float = 20.0, step_s: float = 2.0,
+             move_s: float = 3.0) -> Motion:
+    """Seed 002 §3.1: six faces ~20 s each, then for x, y, z: that axis antiparallel to gravity
+    ("_a" face), four −90° steps about it with ~20 s idle after each (imucal expects −360°)."""
+    m = Motion(start_pose=pose_matrix("x_p"))
+    for face in ("x_p", "x_a", "y_p", "y_a", "z_p", "z_a"):
+        if m.segments:
+            m.move_to(pose_matrix(face), move_s)
+        m.hold(hold, face)
+    for ax, face in zip(np.eye(3), ("x_a", "y_a", "z_a")):
+        m.move_to(pose_matrix(face), move_s)
+        label = face[0] + "_rot"
+        m.hold(pause, label)
+        for _ in range(4):
+            m.rotate(ax, -90.0, step_s, label)
+            m.hold(pause, label)
+    return m
+
+
+def ardupilot6(hold: float = 10.0, move_s: float = 3.0) -> Motion:
+    """ArduPilot's accelcal order: level, LEFT, RIGHT, nose DOWN, nose UP, BACK."""
+    m = Motion()
+    for k in range(1, 7):
+        name = ACCELCAL_POSES[k]
+        if m.segments:
+            m.move_to(pose_matrix(name), move_s)
+        m.hold(hold, name)
+    return m
+
+
+def onepos(seconds: float = 60.0) -> Motion:
+    """Seed 002 one-position method: one minute static, x north, z down."""
+    return Motion().hold(seconds, "onepos")
+
+
+def warmup(seconds: float = 600.0) -> Motion:
+    return Motion().hold(seconds, "warmup")
+
+
+def tumble(seconds: float = 90.0, seed: int = 0, step_s: float = 1.5) -> Motion:
+    """Random rotations about random body axes (90..180° each) — covers the sphere for the
+    magnetometer; a 2 s hold at start and end."""
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x70B1E]))
+    m = Motion().hold(2.0, "still")
+    while m.duration + step_s + 2.0 <= seconds:
+        axis = rng.standard_normal(3)
+        m.rotate(axis, rng.uniform(90, 180) * rng.choice([-1, 1]), step_s, "tumble")
+    return m.hold(max(seconds - m.duration, 2.0), "still")   # total = ``seconds`` exactly
+
+
+def operator() -> Motion:
+    """Starts level; the ground station moves it (see :meth:`Motion.move_to`)."""
+    return Motion().hold(1.0, "level")
+
+
+def build(name: str, seed: int = 0, duration: float | None = None) -> Motion:
+    """The named script (``SCRIPTS``); ``duration`` stretches holds-only scripts."""
+    if name == "ferraris":
+        return ferraris()
+    if name == "ardupilot6":
+        return ardupilot6()
+    if name == "onepos":
+        return onepos(duration or 60.0)
+    if name == "warmup":
+        return warmup(duration or 600.0)
+    if name == "tumble":
+        return tumble(duration or 90.0, seed)
+    if name == "operator":
+        return operator()
+    raise ValueError(f"unknown script {name!r}; known: {', '.join(SCRIPTS)}")
