@@ -1,0 +1,174 @@
+"""Helpers shared by the log readers: file loading, firmware strings, parameters, recordings."""
+from __future__ import annotations
+
+import math
+import os
+import re
+import struct
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from apmcal.errors import ApmcalError
+from apmcal.recording import ACC, GYR, MAG, LogContents, Recording
+
+#: numpy dtype per struct format character (little-endian, packed)
+STRUCT_TO_NUMPY = {
+    "b": "i1", "B": "u1", "h": "<i2", "H": "<u2", "i": "<i4", "I": "<u4",
+    "q": "<i8", "Q": "<u8", "f": "<f4", "d": "<f8", "e": "<f2", "c": "S1",
+}
+
+MAX_DAMAGE_OFFSETS = 1000     # damaged_at keeps at most this many offsets (the count is exact)
+
+# "ArduCopter V3.2.1 (...)", "APM:Copter V3.3-dev (...)", "ArduSub V4.1.1 BETA5 (...)"
+_FW_RE = re.compile(r"\b(Ardu[A-Za-z]+|APM:[A-Za-z]+|Rover|AntennaTracker|Blimp)\s+V(\d[\w.\-]*)")
+_APM_NAMES = {"APM:Copter": "ArduCopter", "APM:Plane": "ArduPlane", "APM:Rover": "Rover",
+              "ArduRover": "Rover", "APM:Sub": "ArduSub", "APM:Tracker": "AntennaTracker"}
+
+
+def struct_dtype(names: list[str], fmt: str) -> np.dtype:
+    """Packed numpy dtype equal to the ``struct`` format ``fmt`` with field ``names``.
+
+    ``"50s"`` becomes a 50-byte string field, ``"8B"`` a (8,) subarray.
+    """
+    codes = re.findall(r"(\d*)([a-zA-Z?])", fmt.lstrip("<>=!@"))
+    if len(codes) != len(names):
+        raise ValueError(f"{len(names)} names for {len(codes)} fields in {fmt!r}")
+    fields = []
+    for name, (count, ch) in zip(names, codes):
+        k = int(count) if count else 1
+        if ch == "s":
+            fields.append((name, f"S{k}"))
+        elif k > 1:
+            fields.append((name, STRUCT_TO_NUMPY[ch], (k,)))
+        else:
+            fields.append((name, STRUCT_TO_NUMPY[ch]))
+    dt = np.dtype(fields)
+    assert dt.itemsize == struct.calcsize("<" + fmt.lstrip("<>=!@"))
+    return dt
+
+
+def load_bytes(path) -> np.ndarray:
+    """The file as a read-only uint8 array (memory-mapped), or ApmcalError when unreadable/empty."""
+    p = Path(path)
+    try:
+        size = os.path.getsize(p)
+    except OSError as e:
+        raise ApmcalError(f"cannot open file: {e.strerror or e}", str(path)) from None
+    if p.is_dir():
+        raise ApmcalError("is a directory, not a log file", str(path))
+    if size == 0:
+        raise ApmcalError("empty file", str(path), "byte 0")
+    try:
+        mm = np.memmap(p, dtype=np.uint8, mode="r")
+    except (OSError, ValueError) as e:
+        raise ApmcalError(f"cannot read file: {e}", str(path)) from None
+    return np.asarray(mm)
+
+
+def parse_firmware(text: str) -> tuple[str, str] | None:
+    """(vehicle, firmware) from a boot banner such as "ArduCopter V3.2.1 (abc)", else None."""
+    m = _FW_RE.search(text)
+    if not m:
+        return None
+    vehicle = _APM_NAMES.get(m.group(1), m.group(1))
+    return vehicle, f"{vehicle} V{m.group(2)}"
+
+
+def cstr(b: bytes) -> str:
+    """NUL-terminated bytes to str (UTF-8, falling back to Latin-1 as pymavlink does)."""
+    b = bytes(b).split(b"\0", 1)[0]
+    try:
+        return b.decode("utf-8")
+    except UnicodeDecodeError:
+        return b.decode("ISO-8859-1")
+
+
+def add_param(out: LogContents, name: str, value: float, where: str) -> None:
+    """Store a parameter; non-finite values are kept out and reported in ``out.messages``."""
+    value = float(value)
+    if not math.isfinite(value):
+        out.messages.append(f"warning: parameter {name} is {value} at {where}; ignored")
+        return
+    out.params[name] = value
+
+
+def _params(out: LogContents, names: np.ndarray, values: np.ndarray, what: str) -> None:
+    """Last finite value of every parameter, vectorised (logs repeat the list many times).
+
+    Non-finite values (NaN parameters exist in real logs, e.g. COMPASS_MOT_* on Copter 3.1.1)
+    are kept out; one warning per parameter names the first such record.
+    """
+    values = np.asarray(values, dtype=np.float64)
+    ok = np.isfinite(values)
+    if not ok.all():
+        for i in _first_per_name(names, ~ok):
+            add_param(out, _name(names[i]), values[i], f"{what} #{i}")
+    idx = np.flatnonzero(ok)
+    if len(idx):
+        for i in _last_per_name(names[idx]):
+            add_param(out, _name(names[idx[i]]), values[idx[i]], f"{what} #{idx[i]}")
+
+
+def _name(v) -> str:
+    return cstr(v) if isinstance(v, (bytes, np.bytes_)) else str(v)
+
+
+def _first_per_name(names: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    idx = np.flatnonzero(mask)
+    _, first = np.unique(names[idx], return_index=True)
+    return idx[np.sort(first)]
+
+
+def _last_per_name(names: np.ndarray) -> np.ndarray:
+    """Indices of the last occurrence of each distinct name, in order of those occurrences."""
+    _, rev_first = np.unique(names[::-1], return_index=True)
+    return np.sort(len(names) - 1 - rev_first)
+
+
+def drop_zero_sensors(df: pd.DataFrame, label: str, out: LogContents) -> pd.DataFrame:
+    """Remove sensor column triples (and temp) that are zero in every sample.
+
+    Some firmware fills absent sensors with zeros (ArduSub's SCALED_IMU2 acc/gyro, an absent
+    compass in old MAG messages). Zeros are not data, so the columns are dropped (the recording
+    model says absent columns are absent, never zero-filled) and a note is added to messages.
+    """
+    for cols, what in ((ACC, "acc"), (GYR, "gyr"), (MAG, "mag"), (["temp"], "temp")):
+        if (all(c in df.columns for c in cols) and len(df)
+                and not any(df[c].to_numpy().any() for c in cols)):
+            df = df.drop(columns=cols)
+            out.messages.append(f"note: {label} {what} is all zero; column(s) dropped")
+    return df
+
+
+def _default_index(df: pd.DataFrame) -> bool:
+    ix = df.index
+    return isinstance(ix, pd.RangeIndex) and ix.start == 0 and ix.step == 1
+
+
+def add_recording(out: LogContents, df: pd.DataFrame, message: str, instance: int) -> None:
+    """Append a body-frame, firmware-corrected Recording if any sensor columns survive.
+
+    ArduPilot's RAW_IMU/SCALED_IMU*/IMU/MAG are corrected and in body frame
+    (ardupilot-facts.md, "What the telemetry really carries").
+    """
+    label = f"{message}[{instance}]"
+    df = drop_zero_sensors(df, label, out)
+    if not any(c in df.columns for c in ACC + GYR + MAG):
+        out.messages.append(f"note: {label} has no non-zero sensor data; not used")
+        return
+    if not _default_index(df):
+        df = df.reset_index(drop=True)
+    out.recordings.append(Recording(data=df, source=out.path, message=message, instance=instance,
+                                    corrected=True, frame="body"))
+
+
+def finish(out: LogContents, found: list[str]) -> LogContents:
+    """Attach vehicle/firmware/params to each recording; ApmcalError when there is no IMU data."""
+    if not out.recordings:
+        names = ", ".join(sorted(set(found))[:20]) or "nothing recognisable"
+        raise ApmcalError(f"no IMU messages (found: {names})", out.path)
+    for r in out.recordings:
+        r.vehicle, r.firmware, r.params = out.vehicle, out.firmware, dict(out.params)
+    return out

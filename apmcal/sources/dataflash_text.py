@@ -1,0 +1,133 @@
+"""Reader for ArduPilot dataflash text logs (.log): lines "FMT, 128, 89, FMT, BBnNZ, ..." and
+"IMU, 95892, 0.00033, ...".
+
+Parsing follows pymavlink's DFReader_text: the delimiter is ", " unless the file only has "FMT,"
+lines; a line is used when its first field names a message defined by an earlier FMT line and it
+has at least as many fields as the format; values are converted with Python's ``int``/``float``
+exactly as DFReader_text does (no multipliers in text logs). Lines that cannot be converted are
+counted as damaged bytes. Recordings are then built as for .bin logs
+(:func:`apmcal.sources.dataflash.build_contents`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from apmcal.errors import ApmcalError
+from apmcal.recording import LogContents
+from apmcal.sources._common import MAX_DAMAGE_OFFSETS, load_bytes
+from apmcal.sources.dataflash import build_contents, wanted_name
+
+_INT_CHARS = set("bBhHiIMqQ")
+_FLOAT_CHARS = set("fdgcCeEL")
+
+
+def _converter(ch: str):
+    if ch in _INT_CHARS:
+        return int
+    if ch in _FLOAT_CHARS:
+        return float
+    if ch == "a":
+        return str
+    return lambda s: s.split("\0", 1)[0]
+
+
+class _Fmt:
+    """One FMT line: name, format characters, column names and per-column converters."""
+
+    def __init__(self, name: str, fmt: str, columns: str):
+        self.name, self.fmt = name, fmt
+        self.columns = [c.strip() for c in columns.split(",")] if columns else []
+        self.conv = [_converter(c) for c in fmt]
+
+
+def _lines(data: bytes):
+    """(byte offset, line text, byte count, complete) for every line, decoded as UTF-8.
+
+    The last line is incomplete when the file does not end with a newline (a truncated log):
+    its last number may be cut short, so it must not be trusted.
+    """
+    pos = 0
+    pieces = data.split(b"\n")
+    for i, raw in enumerate(pieces):
+        complete = i < len(pieces) - 1
+        yield pos, raw.rstrip().decode("utf-8", errors="replace"), len(raw) + complete, complete
+        pos += len(raw) + 1
+
+
+def _column(vals: list, conv) -> np.ndarray:
+    """Array of converted values: float64, int64 (object if out of range) or object strings."""
+    if conv is float:
+        return np.array(vals, dtype=np.float64)
+    if conv is int:
+        try:
+            return np.array(vals, dtype=np.int64)
+        except OverflowError:
+            return np.array(vals, dtype=object)
+    return np.array(vals, dtype=object)
+
+
+def parse_text(data: bytes, want=wanted_name):
+    """Parse text dataflash bytes: (name → column → array, bytes_skipped, damaged_at)."""
+    first = data.find(b"FMT, ")
+    delim = ", " if first != -1 else ","
+    formats = {"FMT": _Fmt("FMT", "BBnNZ", "Type,Length,Name,Format,Columns")}
+    rows: dict[str, list] = {}
+    skipped, damaged = 0, []
+    first_fmt = data.find(b"FMT,")
+    for pos, line, nbytes, complete in _lines(data):
+        if not line.strip() or pos < first_fmt:
+            continue  # blank lines, banner before the first FMT (e.g. "ArduCopter V3.1")
+        if not complete:
+            skipped += nbytes
+            damaged.append(pos)
+            continue
+        el = line.split(delim)
+        fmt = formats.get(el[0])
+        if fmt is None or len(el) < len(fmt.fmt) + 1:
+            if fmt is None or (fmt.fmt and fmt.name != "FMT"):  # unknown/short line: damage
+                skipped += nbytes
+                if len(damaged) < MAX_DAMAGE_OFFSETS:
+                    damaged.append(pos)
+            continue
+        vals = el[1:]
+        try:
+            if fmt.name == "FMT":
+                if delim == ",":
+                    vals = vals[0:4] + [",".join(vals[4:])]
+                cols = vals[4] if len(vals) > 4 else ""
+                if vals[2] == "FMT" and cols == "Type,Length,Name,Format":
+                    cols = "Type,Length,Name,Format,Columns"
+                int(vals[0]), int(vals[1])
+                formats[vals[2]] = _Fmt(vals[2], vals[3], cols)
+            elif want(fmt.name):
+                rows.setdefault(fmt.name, []).append(
+                    [cv(v) for cv, v in zip(fmt.conv, vals[:len(fmt.fmt)])])
+        except (ValueError, IndexError):
+            skipped += nbytes
+            if len(damaged) < MAX_DAMAGE_OFFSETS:
+                damaged.append(pos)
+    msgs = {}
+    for name, rs in rows.items():
+        fmt = formats[name]
+        cols = {}
+        for j, c in enumerate(fmt.columns[:len(fmt.fmt)]):
+            vals = [r[j] for r in rs]
+            cols[c] = _column(vals, fmt.conv[j])
+        msgs[name] = cols
+    return msgs, skipped, damaged
+
+
+def read_dataflash_text(path, *, progress: bool = False) -> LogContents:
+    """Read a text dataflash log into a :class:`LogContents`.
+
+    Raises
+    ------
+    ApmcalError
+        Unreadable/empty file, no FMT line, or no IMU message.
+    """
+    data = load_bytes(path).tobytes()
+    if b"FMT," not in data:
+        raise ApmcalError("no FMT line: not a dataflash text log", str(path), "byte 0")
+    msgs, skipped, damaged = parse_text(data)
+    out = LogContents(path=str(path), format="log", bytes_skipped=skipped, damaged_at=damaged)
+    return build_contents(out, msgs)

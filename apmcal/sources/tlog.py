@@ -1,0 +1,239 @@
+"""Fast reader for MAVLink telemetry logs (.tlog).
+
+A .tlog is a sequence of frames: an 8-byte big-endian timestamp [µs since 1970] followed by one
+MAVLink v1 (0xFE) or v2 (0xFD) packet. Framing and the CRC check (with the dialect's CRC_EXTRA)
+run in one compiled pass (``_framing.scan_tlog``); the wanted messages are then gathered into a
+zero-padded (n, wire_length) byte array and decoded all at once through a numpy structured dtype
+built from pymavlink's own message definition (same field order and types as pymavlink), so the
+values are bit-identical to pymavlink's.
+
+Damage: the messages read here (IMU, PARAM_VALUE, STATUSTEXT, HEARTBEAT, AUTOPILOT_VERSION) must
+pass the MAVLink CRC. Other messages are only framed (known msgid, plausible length, next frame
+where expected; else their CRC decides), which saves the CRC on most of the file. Bytes in no
+valid frame are skipped one at a time until framing resumes and are counted in
+``LogContents.bytes_skipped``. Signed MAVLink 2 packets are framed (13-byte signature) but the
+signature is not verified (the key is unknown to a log reader).
+
+Units (ardupilot-facts.md, "What the telemetry really carries"):
+RAW_IMU / SCALED_IMU / SCALED_IMU2 / SCALED_IMU3: acc [mG] → m/s² (× 9.80665/1000), gyro
+[mrad/s] → rad/s, mag [mGauss] as is, temperature [cdegC] → °C. HIGHRES_IMU: SI floats, mag
+[Gauss] → mGauss. Time comes from the message (time_usec [µs] or time_boot_ms [ms]) in s.
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+import pandas as pd
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from apmcal.constants import GAUSS_TO_MGAUSS, MG_TO_MS2, MRAD_TO_RAD
+from apmcal.errors import ApmcalError
+from apmcal.recording import LogContents
+from apmcal.sources import _framing
+from apmcal.sources._common import (
+    MAX_DAMAGE_OFFSETS, _params, add_recording, cstr, finish, load_bytes, parse_firmware,
+    struct_dtype,
+)
+
+IMU_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
+META_MESSAGES = ("PARAM_VALUE", "STATUSTEXT", "HEARTBEAT", "AUTOPILOT_VERSION")
+_SCALED_INSTANCE = {"SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}
+_CHUNK = 1 << 20          # index entries per scan call (bounds index memory)
+
+# MAV_TYPE → ArduPilot vehicle, used only when no boot banner names the firmware
+_MAV_TYPE_VEHICLE = {1: "ArduPlane", 2: "ArduCopter", 3: "ArduCopter", 4: "ArduCopter",
+                     7: "Blimp", 10: "Rover", 11: "Rover", 12: "ArduSub", 13: "ArduCopter",
+                     14: "ArduCopter", 15: "ArduCopter", 16: "ArduPlane", 19: "ArduPlane",
+                     20: "ArduPlane", 21: "ArduPlane", 22: "ArduPlane", 23: "ArduPlane",
+                     24: "ArduPlane", 25: "ArduPlane", 29: "ArduCopter", 5: "AntennaTracker"}
+MAV_AUTOPILOT_ARDUPILOTMEGA = 3
+
+
+@lru_cache(maxsize=1)
+def _tables():
+    """(crc_extra int16[65536], full payload length int16[65536], name → (msgid, class)).
+
+    From pymavlink's ardupilotmega dialect; msgids ≥ 65536 are treated as unknown.
+    """
+    crc = np.full(1 << 16, -1, dtype=np.int16)
+    max_len = np.zeros(1 << 16, dtype=np.int16)
+    by_name = {}
+    for msgid, cls in mavlink.mavlink_map.items():
+        if msgid < crc.shape[0]:
+            crc[msgid] = cls.crc_extra
+            max_len[msgid] = cls.unpacker.size
+        by_name[cls.msgname] = (msgid, cls)
+    return crc, max_len, by_name
+
+
+def message_dtype(name: str) -> tuple[int, np.dtype]:
+    """(msgid, packed dtype of the full MAVLink 2 wire payload) of message ``name``."""
+    msgid, cls = _tables()[2][name]
+    return msgid, struct_dtype(list(cls.ordered_fieldnames), cls.unpacker.format)
+
+
+def _index(buf: np.ndarray, wanted: np.ndarray):
+    """Frame offsets, payload lengths and msgids of wanted frames; bytes skipped; damage."""
+    crc, max_len, _ = _tables()
+    state = np.zeros(3, dtype=np.int64)
+    damage = np.zeros(MAX_DAMAGE_OFFSETS, dtype=np.int64)
+    offs, lens, mids = [], [], []
+    chunk = min(_CHUNK, buf.shape[0] // 64 + 1024)
+    while state[0] < buf.shape[0]:
+        off = np.empty(chunk, np.int64)
+        ln = np.empty(chunk, np.int16)
+        mid = np.empty(chunk, np.int32)
+        k = _framing.scan_tlog(buf, state, crc, max_len, wanted, off, ln, mid, damage)
+        offs.append(off[:k].copy()); lens.append(ln[:k].copy()); mids.append(mid[:k].copy())
+    nd = int(min(state[2], MAX_DAMAGE_OFFSETS))
+    return (np.concatenate(offs), np.concatenate(lens), np.concatenate(mids), int(state[1]),
+            damage[:nd].tolist())
+
+
+def _header_len(buf: np.ndarray, off: np.ndarray) -> np.ndarray:
+    """MAVLink header length (6 for v1, 10 for v2) of the frames starting at ``off``."""
+    return np.where(buf[off + 8] == _framing.MAV1_MAGIC, 6, 10)
+
+
+def frame_spans(buf: np.ndarray, names=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(start, end, msgid) of every valid frame (of messages ``names``, or all), file order.
+
+    ``start`` is the offset of the 8-byte timestamp, ``end`` one past the last packet byte
+    (CRC and, for signed MAVLink 2 packets, the 13-byte signature).
+    """
+    wanted = np.zeros(1 << 16, dtype=np.bool_)
+    if names is None:
+        wanted[:] = True
+    else:
+        for nm in names:
+            wanted[message_dtype(nm)[0]] = True
+    off, ln, mid, _, _ = _index(buf, wanted)
+    hlen = _header_len(buf, off)
+    signed = (hlen == 10) & ((buf[np.minimum(off + 10, buf.shape[0] - 1)] & 1) == 1)
+    end = off + 8 + hlen + ln + 2 + np.where(signed, 13, 0)
+    return off, end, mid
+
+
+def scan(buf: np.ndarray, names) -> tuple[dict[str, np.ndarray], int, list[int]]:
+    """Frame the whole buffer; decode every message of ``names``.
+
+    Returns
+    -------
+    decoded : dict name → structured array of that message's fields (pymavlink field names).
+    bytes_skipped : int, bytes that were not part of a valid frame.
+    damaged_at : list of byte offsets where skipped runs begin (at most MAX_DAMAGE_OFFSETS).
+    """
+    wanted = np.zeros(1 << 16, dtype=np.bool_)
+    ids = {}
+    for nm in names:
+        msgid, dt = message_dtype(nm)
+        wanted[msgid] = True
+        ids[msgid] = (nm, dt)
+    off, ln, mid, skipped, damaged = _index(buf, wanted)
+    payload = off + 8 + _header_len(buf, off)
+    decoded = {}
+    for msgid, (nm, dt) in ids.items():
+        sel = np.flatnonzero(mid == msgid)
+        rows = _framing.gather(buf, payload[sel], ln[sel], dt.itemsize)
+        decoded[nm] = rows.view(dt).reshape(-1)
+    return decoded, skipped, damaged
+
+
+def _int_imu_frame(a: np.ndarray, time_field: str, time_scale: float) -> pd.DataFrame:
+    """RAW_IMU / SCALED_IMU* integer fields to SI columns."""
+    df = pd.DataFrame({
+        "t": a[time_field].astype(np.float64) * time_scale,
+        "acc_x": a["xacc"] * MG_TO_MS2, "acc_y": a["yacc"] * MG_TO_MS2,
+        "acc_z": a["zacc"] * MG_TO_MS2,
+        "gyr_x": a["xgyro"] * MRAD_TO_RAD, "gyr_y": a["ygyro"] * MRAD_TO_RAD,
+        "gyr_z": a["zgyro"] * MRAD_TO_RAD,
+        "mag_x": a["xmag"].astype(np.float64), "mag_y": a["ymag"].astype(np.float64),
+        "mag_z": a["zmag"].astype(np.float64),
+    })
+    temp = a["temperature"]
+    if temp.any():  # extension field absent (zero-padded) or not filled → no temp column
+        df["temp"] = np.where(temp != 0, temp * 0.01, np.nan)
+    return df
+
+
+def _highres_frame(a: np.ndarray) -> pd.DataFrame:
+    """HIGHRES_IMU float fields (already SI; mag Gauss → mGauss)."""
+    f64 = lambda k: a[k].astype(np.float64)  # noqa: E731
+    return pd.DataFrame({
+        "t": a["time_usec"].astype(np.float64) * 1e-6,
+        "acc_x": f64("xacc"), "acc_y": f64("yacc"), "acc_z": f64("zacc"),
+        "gyr_x": f64("xgyro"), "gyr_y": f64("ygyro"), "gyr_z": f64("zgyro"),
+        "mag_x": f64("xmag") * GAUSS_TO_MGAUSS, "mag_y": f64("ymag") * GAUSS_TO_MGAUSS,
+        "mag_z": f64("zmag") * GAUSS_TO_MGAUSS, "temp": f64("temperature"),
+    })
+
+
+def _imu_recordings(out: LogContents, dec: dict[str, np.ndarray]) -> None:
+    """One Recording per (message, instance) from the decoded IMU messages."""
+    for name in IMU_MESSAGES:
+        a = dec.get(name)
+        if a is None or len(a) == 0:
+            continue
+        if name in _SCALED_INSTANCE:
+            groups = {_SCALED_INSTANCE[name]: a}
+        else:  # RAW_IMU / HIGHRES_IMU carry an instance "id" (extension, 0 when absent)
+            groups = {int(i): a[a["id"] == i] for i in np.unique(a["id"])}
+        for inst, g in groups.items():
+            if name == "HIGHRES_IMU":
+                df = _highres_frame(g)
+            elif name == "RAW_IMU":
+                df = _int_imu_frame(g, "time_usec", 1e-6)
+            else:
+                df = _int_imu_frame(g, "time_boot_ms", 1e-3)
+            add_recording(out, df, name, inst)
+
+
+def _metadata(out: LogContents, dec: dict[str, np.ndarray]) -> None:
+    """Parameters, STATUSTEXT messages, vehicle and firmware."""
+    pv = dec["PARAM_VALUE"]
+    _params(out, pv["param_id"], pv["param_value"], "PARAM_VALUE")
+    for s in dec["STATUSTEXT"]:
+        text = cstr(s["text"])
+        out.messages.append(text)
+        fw = parse_firmware(text)
+        if fw and out.firmware is None:
+            out.vehicle, out.firmware = fw
+    if out.vehicle is None:
+        hb = dec["HEARTBEAT"]
+        hb = hb[hb["autopilot"] == MAV_AUTOPILOT_ARDUPILOTMEGA]
+        if len(hb):
+            types, counts = np.unique(hb["type"], return_counts=True)
+            out.vehicle = _MAV_TYPE_VEHICLE.get(int(types[np.argmax(counts)]))
+    av = dec["AUTOPILOT_VERSION"]
+    if out.firmware is None and len(av) and out.vehicle:
+        v = int(av["flight_sw_version"][-1])  # major<<24 | minor<<16 | patch<<8 | type
+        out.firmware = f"{out.vehicle} V{(v >> 24) & 255}.{(v >> 16) & 255}.{(v >> 8) & 255}"
+
+
+def read_tlog_messages(path, names=IMU_MESSAGES) -> tuple[dict[str, np.ndarray], int, list[int]]:
+    """Decode all messages ``names`` of a .tlog into structured arrays (raw MAVLink fields).
+
+    Field values are exactly pymavlink's (same wire layout). See :func:`scan` for the return.
+    """
+    buf = load_bytes(path)
+    return scan(buf, names)
+
+
+def read_tlog(path, *, progress: bool = False) -> LogContents:
+    """Read a .tlog into a :class:`LogContents` (IMU recordings, params, firmware, messages).
+
+    Raises
+    ------
+    ApmcalError
+        Unreadable or empty file, no valid MAVLink frame, or no IMU message.
+    """
+    buf = load_bytes(path)
+    dec, skipped, damaged = scan(buf, IMU_MESSAGES + META_MESSAGES)
+    out = LogContents(path=str(path), format="tlog", bytes_skipped=skipped, damaged_at=damaged)
+    if skipped == buf.shape[0]:
+        raise ApmcalError("no valid MAVLink frame in the file", str(path), "byte 0")
+    _metadata(out, dec)
+    _imu_recordings(out, dec)
+    found = [k for k, v in dec.items() if len(v)]
+    return finish(out, found)

@@ -1,0 +1,117 @@
+"""Reader speed: apmcal.sources.read_log against pymavlink (and fasttlogparser) on the same files.
+
+    python benchmarks/readers.py FILE [FILE ...]        (make big files with make_big_log.py)
+
+For each file: apmcal is run cold (first call in the process: loads numba's cached machine code,
+or compiles it on the very first run after a change) and warm (best of 3); pymavlink reads the IMU messages with mavutil.mavlink_connection + recv_match
+(DFReader for .bin/.log); the IMU values of both are asserted identical (exact float64 equality,
+after the documented unit conversion). For .tlog, fasttlogparser is timed too when importable.
+Peak memory is the tracemalloc peak of Python/numpy allocations during one apmcal read (the
+read-only memory map of the file itself is not an allocation and is not counted; the compiled
+kernels write only into numpy-allocated arrays, so those are traced) and the ru_maxrss growth of
+the process over the cold read (which includes the mapped file pages touched, shared with the
+page cache).
+The last line is ``ratio_vs_pymavlink=N``: the smallest pymavlink/apmcal time ratio over the files.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import resource
+import sys
+import time
+import tracemalloc
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from apmcal.sources import read_log, sniff_format  # noqa: E402
+from apmcal.sources import _pymavlink_ref as ref  # noqa: E402
+
+
+def _maxrss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: KiB
+
+
+@contextlib.contextmanager
+def _quiet_stdout():
+    """Silence C-level stdout (file descriptor 1) inside the block."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    with open(os.devnull, "wb") as null:
+        os.dup2(null.fileno(), 1)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 1)
+            os.close(saved)
+
+
+def _timed(fn, *a, **k):
+    t0 = time.perf_counter()
+    r = fn(*a, **k)
+    return r, time.perf_counter() - t0
+
+
+def bench_file(path: Path, skip_pymavlink: bool = False) -> dict:
+    size_mb = path.stat().st_size / 1e6
+    kind = sniff_format(path)
+    rss0 = _maxrss_mb()
+    _, cold = _timed(read_log, path)
+    rss = _maxrss_mb() - rss0
+    warm = min(_timed(read_log, path)[1] for _ in range(3))
+    tracemalloc.start()
+    contents = read_log(path)        # memory run, separate: tracemalloc slows allocations
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    n_imu = sum(len(r) for r in contents.recordings)
+    print(f"{path.name}: {size_mb:.1f} MB {kind}, {n_imu} IMU/MAG samples in "
+          f"{len(contents.recordings)} recordings, {contents.bytes_skipped} bytes skipped")
+    print(f"  apmcal       cold {cold:7.3f} s  warm {warm:7.3f} s  {size_mb / warm:8.1f} MB/s  "
+          f"peak tracemalloc {peak / 1e6:.1f} MB ({peak / 1e6 / size_mb:.2f}x file), "
+          f"ru_maxrss growth over the cold read {rss:.1f} MB")
+    res = {"apmcal": warm}
+    if skip_pymavlink:
+        return res
+    types = ref.TLOG_IMU if kind == "tlog" else None
+    msgs, t_pm = _timed(ref.pymavlink_messages, path, types)
+    expected = ref.tlog_expected(msgs) if kind == "tlog" else ref.df_expected(msgs)
+    n = ref.compare(contents, expected)
+    print(f"  pymavlink    {t_pm:7.3f} s  {size_mb / t_pm:8.2f} MB/s  "
+          f"values identical ({n} compared)  ratio {t_pm / warm:.1f}x")
+    res["pymavlink"] = t_pm
+    if kind == "tlog":
+        try:
+            import fasttlogparser
+        except ImportError:
+            print("  fasttlogparser not importable: skipped")
+        else:
+            with _quiet_stdout():   # it prints a BAD_CRC line per damaged packet
+                r, t_f = _timed(fasttlogparser.parseTLog, str(path), whitelist=ref.TLOG_IMU)
+            got = r[0]
+            for name in ref.TLOG_IMU:   # sanity: same number of IMU messages
+                want = sum(1 for m in msgs if m.get_type() == name)
+                have = len(got[name]["time_usec" if "time_usec" in got[name] else
+                               "time_boot_ms"]) if name in got else 0
+                assert have == want, f"fasttlogparser {name}: {have} != {want}"
+            print(f"  fasttlogparser {t_f:7.3f} s  {size_mb / t_f:8.1f} MB/s  "
+                  f"ratio {t_f / warm:.1f}x")
+            res["fasttlogparser"] = t_f
+    return res
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("paths", nargs="+", type=Path)
+    args = ap.parse_args(argv)
+    results = [bench_file(p) for p in args.paths]
+    ft = [r["fasttlogparser"] / r["apmcal"] for r in results if "fasttlogparser" in r]
+    if ft:
+        print(f"ratio_vs_fasttlogparser={min(ft):.1f}")
+    print(f"ratio_vs_pymavlink={min(r['pymavlink'] / r['apmcal'] for r in results):.1f}")
+
+
+if __name__ == "__main__":
+    main()
