@@ -156,10 +156,8 @@ def run_calibration(contents, args):
 
     recording, mag_recording = pick_recording(contents, args.instance)
     calibration = pipeline.calibrate(recording, args.method, args.lat, args.lon)
-    if (mag_recording is not None and "mag" not in calibration.sensors
-            and pipeline.has_live_magnetometer(mag_recording)):
-        pipeline.add_magnetometer(calibration, pipeline.raw_sensor_frame(mag_recording),
-                                  args.lat, args.lon)
+    if mag_recording is not None:
+        pipeline.calibrate_magnetometer(calibration, mag_recording, args.lat, args.lon)
     if not calibration.sensors:
         raise ApmcalError("nothing could be calibrated: "
                           + "; ".join(calibration.report.get("warnings", [])), contents.path)

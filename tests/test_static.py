@@ -165,3 +165,62 @@ def test_imucal_session_full_turns(imucal_session):
         assert abs(r.angle_deg + 360) < 15                    # clockwise: −360° (imucal)
         assert r.off_axis_deg < 2.0
         assert r.pose == r.axis_name + "_p"                   # turned about the up axis
+
+
+def _level_hold(t, rng, noise=0.02):
+    acc = np.tile([0.0, 0.0, -G], (t.size, 1)) + rng.normal(0, noise, (t.size, 3))
+    gyr = rng.normal(0, 0.003, (t.size, 3))
+    return acc, gyr
+
+
+def test_bump_inside_a_hold_is_bridged_and_excluded():
+    """A 2 s knock (±0.6 m/s², no net turn) splits a 60 s hold; the merge joins it back."""
+    rng = np.random.default_rng(4)
+    t = np.arange(0, 60, 0.01)
+    acc, gyr = _level_hold(t, rng)
+    bump = (t >= 30) & (t < 32)
+    acc[bump] += 0.6 * np.sin(2 * np.pi * 7 * t[bump])[:, None] * [1, -1, 0.5]
+    gyr[bump] += 0.05 * np.sin(2 * np.pi * 7 * t[bump])[:, None]      # returns to where it was
+    split = find_static_segments(t, acc, gyr, merge_gap=0.0)
+    assert len(split) == 2
+    (seg,) = find_static_segments(t, acc, gyr)
+    assert seg.duration > 59.0
+    assert 200 <= seg.n_excluded <= 300 and seg.n == seg.i1 - seg.i0 - seg.n_excluded
+    assert not np.any(bump[seg.kept()])                                # knock left out
+    np.testing.assert_allclose(seg.acc_mean, [0, 0, -G], atol=0.005)
+    assert np.all(seg.acc_std < 0.03)
+
+
+def test_tilt_change_or_long_gap_is_not_merged():
+    rng = np.random.default_rng(5)
+    t = np.arange(0, 60, 0.01)
+    acc, gyr = _level_hold(t, rng)
+    # tilt by 3° about x during a 1 s move at 30 s: mean specific force differs by 3° > 2°
+    tilt = np.radians(3.0)
+    after = t >= 31
+    acc[after] = (np.array([[1, 0, 0], [0, np.cos(tilt), -np.sin(tilt)],
+                            [0, np.sin(tilt), np.cos(tilt)]]) @ acc[after].T).T
+    move = (t >= 30) & (t < 31)
+    acc[move] += rng.normal(0, 1.0, (move.sum(), 3))
+    gyr[move] += tilt                                                  # rad/s for 1 s
+    assert len(find_static_segments(t, acc, gyr)) == 2
+    # a 20 s logging hole (no samples) longer than merge_gap splits an unchanged hold
+    t2 = np.where(t >= 30, t + 20.0, t)
+    acc2, gyr2 = _level_hold(t2, rng)
+    segs = find_static_segments(t2, acc2, gyr2)
+    assert len(segs) == 2 and segs[0].end < 30 and segs[1].start >= 50
+    assert len(find_static_segments(t2, acc2, gyr2, merge_gap=30.0)) == 1
+
+
+def test_fast_on_100k_samples():
+    import time
+    rng = np.random.default_rng(6)
+    t = np.arange(100_000) / 1000.0                                    # 1 kHz, 100 s
+    acc, gyr = _hold_then_move(t, [(5, 30), (40, 70), (80, 95)], rng)
+    best = np.inf
+    for _ in range(3):
+        t0 = time.perf_counter()
+        segs = find_static_segments(t, acc, gyr)
+        best = min(best, time.perf_counter() - t0)
+    assert len(segs) == 3
+    assert best < 0.5

@@ -1,0 +1,65 @@
+"""The resolution of integer telemetry, and the bias its truncation leaves.
+
+ardupilot-facts.md "What the telemetry really carries": RAW_IMU and SCALED_IMU/2/3 carry
+int16 values in mG, mrad/s and mGauss, converted from float by C's truncation toward zero.
+A mean of truncated samples is biased toward zero by up to one step when the noise is smaller
+than a step (the gyro at rest: 1 mrad/s step, noise ~0.1 mrad/s), so the samples are moved to
+the middle of the interval they stand for, and the remaining uncertainty (uniform over one step,
+step/√12) is added to the calibration's sigma.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from apmcal.constants import MG_TO_MS2, MRAD_TO_RAD
+from apmcal.recording import SENSOR_COLUMNS, Recording
+from apmcal.solvers.result import Calibration
+
+INT16_TELEMETRY = {"RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3"}
+STEP_SI = {"acc": MG_TO_MS2, "gyr": MRAD_TO_RAD, "mag": 1.0}   # m/s², rad/s, mGauss per count
+ONE_SIGMA_OF_UNIFORM_STEP = 1.0 / np.sqrt(12.0)
+
+
+def telemetry_steps(recording: Recording) -> dict[str, float]:
+    """Quantisation step per sensor in SI units; empty for floating-point sources."""
+    if recording.message not in INT16_TELEMETRY:
+        return {}
+    return {s: STEP_SI[s] for s in recording.sensors}
+
+
+def undo_truncation(recording: Recording) -> Recording:
+    """Samples moved half a step away from zero: the centre of what a truncated count means.
+
+    A count of 0 stands for (−1, 1) steps and is left at 0.
+    """
+    steps = telemetry_steps(recording)
+    if not steps:
+        return recording
+    data = recording.data.copy()
+    for sensor, step in steps.items():
+        cols = SENSOR_COLUMNS[sensor]
+        x = data[cols].to_numpy(dtype=float)
+        data[cols] = x + 0.5 * step * np.sign(x)
+    return replace(recording, data=data)
+
+
+def add_resolution_floor(calibration: Calibration, steps: dict[str, float],
+                         field: dict[str, float]) -> None:
+    """Widen offset (and accelerometer/magnetometer matrix) sigmas by the step's own spread.
+
+    ``field`` gives the magnitude the matrix was fitted to (|g| m/s², |B| mGauss): a step error in
+    a mean is a relative error step/|field| in the matrix terms it feeds.
+    """
+    for sensor, step in steps.items():
+        cal = calibration.sensors.get(sensor)
+        if cal is None:
+            continue
+        floor = step * ONE_SIGMA_OF_UNIFORM_STEP
+        sigma = dict(cal.sigma)
+        sigma["offset"] = np.hypot(np.asarray(sigma.get("offset", np.zeros(3))), floor)
+        if sensor in field and field[sensor] > 0:
+            sigma["matrix"] = np.hypot(np.asarray(sigma.get("matrix", np.zeros((3, 3)))),
+                                       floor / field[sensor])
+        cal.sigma = sigma

@@ -1,0 +1,60 @@
+"""Magnetometer calibration: coverage check, field magnitude, robust ellipsoid fit (seed 000)."""
+from __future__ import annotations
+
+import datetime
+
+import numpy as np
+
+from apmcal.errors import ApmcalError
+from apmcal.solvers.ellipsoid import fit_ellipsoid_robust, sphere_fit, verdict
+from apmcal.solvers.result import SensorCalibration
+
+NT_PER_MGAUSS = 100.0       # 1 mGauss = 0.1 µT = 100 nT
+
+
+def check_coverage(mag: np.ndarray, min_spread: float = 0.25) -> None:
+    """Refuse a fit on samples [mGauss] that do not turn through space.
+
+    Each principal standard deviation of the raw samples must reach ``min_spread`` × their median
+    magnitude: a uniform sphere gives 1/√3 ≈ 0.58, one still pose only the noise, a turn about
+    one axis a flat disc.
+    """
+    spread = np.sqrt(np.clip(np.linalg.eigvalsh(np.cov(mag.T)), 0, None))
+    scale = float(np.median(np.linalg.norm(mag, axis=1)))
+    if scale <= 0 or spread[0] < min_spread * scale:
+        raise ApmcalError(f"magnetometer not calibrated: samples span only "
+                          f"{spread[0] / max(scale, 1e-9):.2f} of the field along their flattest "
+                          f"direction (need {min_spread}); rotate the vehicle through all "
+                          f"orientations")
+
+
+def earth_field_ned(lat_deg: float, lon_deg: float, alt_m: float = 0.0,
+                    when: datetime.date | None = None) -> np.ndarray:
+    """World Magnetic Model main field [mGauss] in NED at a site (pygeomag gives nT)."""
+    from pygeomag import GeoMag
+
+    when = when or datetime.date.today()
+    year = when.year + (when.timetuple().tm_yday - 1) / 365.25
+    res = GeoMag().calculate(glat=lat_deg, glon=lon_deg, alt=alt_m / 1000.0, time=year)
+    return np.array([res.x, res.y, res.z]) / NT_PER_MGAUSS
+
+
+def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: float | None,
+                           report: dict) -> SensorCalibration:
+    """Robust ellipsoid fit of raw sensor-frame samples [mGauss]; verdict lines into ``report``.
+
+    The field magnitude comes from the World Magnetic Model when the site is known; otherwise
+    from a sphere fit, which ties the overall scale to the data's own mean radius (offsets and
+    shape are unaffected).
+    """
+    check_coverage(mag)
+    if lat_deg is not None and lon_deg is not None:
+        radius, origin = float(np.linalg.norm(earth_field_ned(lat_deg, lon_deg))), "WMM"
+    else:
+        radius, origin = sphere_fit(mag)[1], "sphere fit (no --lat/--lon)"
+    info: dict = {}
+    cal = fit_ellipsoid_robust(mag, radius, info=info)
+    report.setdefault("lines", []).append(f"mag: field magnitude {radius:.1f} mGauss from {origin}")
+    report["lines"] += verdict(mag, cal, radius, sensor="mag", info=info)
+    report["mag_field_mgauss"] = radius
+    return cal
