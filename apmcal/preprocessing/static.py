@@ -2,7 +2,12 @@
 
 A sample is "static" when the moving standard deviation of the accelerometer (and gyroscope when
 given) stays below a threshold adapted to the sensor's own noise, so the same code works on 2 Hz
-telemetry and 1 kHz dataflash logs without tuning.
+telemetry and 1 kHz dataflash logs without tuning (the variance-vs-threshold test of Tedaldi et
+al. 2014, imu_tk, with the threshold found from the record itself instead of a known rest period).
+Windows and segments never reach across logging holes (dataflash stops IMU logging while
+disarmed); a two-level hysteresis bridges noisy stretches inside a hold, and runs of one hold
+split by a short knock (same mean specific force, no turn across the gap) are merged with the
+knock's samples excluded from the statistics.
 
 Signs (ardupilot-facts.md, "Frames and signs"): accelerometers read specific force, so at rest an
 axis pointing UP reads +g and an axis pointing down reads −g; a level FRD vehicle reads
@@ -233,7 +238,8 @@ def _hysteresis(s: np.ndarray, enter: float, leave: float) -> np.ndarray:
     return np.cumsum(edges[:-1]) > 0
 
 
-def _slow(gyr: np.ndarray, w: int, still: np.ndarray, max_rate: float) -> np.ndarray:
+def _slow(gyr: np.ndarray, w: int, still: np.ndarray, max_rate: float,
+          blocks: list[tuple[int, int]]) -> np.ndarray:
     """Samples whose moving-mean rate stays within ``max_rate`` of the bias.
 
     A turn at constant rate (a turntable, or a steady hand) has a small moving std; only its
@@ -243,7 +249,9 @@ def _slow(gyr: np.ndarray, w: int, still: np.ndarray, max_rate: float) -> np.nda
     if not np.any(still):
         return still
     bias = np.median(gyr[still], axis=0)
-    mean = uniform_filter1d(gyr - bias, w, axis=0, mode="nearest")
+    mean = np.empty_like(gyr)
+    for b0, b1 in blocks:                   # as moving_std: no window across a logging hole
+        mean[b0:b1] = uniform_filter1d(gyr[b0:b1] - bias, min(w, b1 - b0), axis=0, mode="nearest")
     return np.linalg.norm(mean, axis=1) < max_rate
 
 
@@ -393,7 +401,8 @@ def find_static_segments(t, acc, gyr=None, *, min_duration: float = 2.0, window:
     merge_angle_deg : float
         Two runs are one hold when their mean specific forces differ by less than this angle and
         the gyro turns less than this angle across the gap (their mean rates must also agree
-        within the gyro threshold).
+        within the gyro threshold). Without ``gyr`` only the mean specific force is compared,
+        so holds separated by a turn about the vertical are merged.
     gyr_unit_rad : float
         Gyro unit in rad/s (1 for rad/s, π/180 for deg/s), used only for the turn in the merge
         test. Too large a value only makes merging stricter.
@@ -417,7 +426,8 @@ def find_static_segments(t, acc, gyr=None, *, min_duration: float = 2.0, window:
         thr_gyr = (threshold[1] if threshold is not None and threshold[1] is not None
                    else noise_threshold(s_gyr, gyr))
         still &= _hysteresis(s_gyr, thr_gyr, hysteresis * thr_gyr)
-        still &= _slow(gyr, w, still, RATE_FACTOR * thr_gyr if max_rate is None else max_rate)
+        still &= _slow(gyr, w, still, RATE_FACTOR * thr_gyr if max_rate is None else max_rate,
+                       blocks)
     runs = [(b0 + i0, b0 + i1) for b0, b1 in blocks for i0, i1 in _runs(still[b0:b1])
             if i1 - i0 >= 2]
     merged = merge_holds(t, acc, gyr, runs, merge_gap=merge_gap, max_angle_deg=merge_angle_deg,
