@@ -196,6 +196,7 @@ def cmd_live(args) -> int:
         if n == 0:
             raise ApmcalError(f"no IMU messages in {args.duration:g} s (stream request "
                               "ignored? check SRn_RAW_SENS)", args.connection)
+        check_params_unchanged(params, link.fetch_params(), args.connection)
     contents = read_log(log_path)
     status, proposal = summarise_and_calibrate(contents, args)
     if args.upload:
@@ -204,6 +205,23 @@ def cmd_live(args) -> int:
                               + ", ".join(proposal.rejected), args.connection)
         upload_values(args.connection, proposal.values, args.backup, params, console)
     return status
+
+
+def check_params_unchanged(before: dict, after: dict, connection: str) -> None:
+    """Refuse a recording during which the calibration parameters changed.
+
+    RAW_IMU is corrected with the parameters in force (ardupilot-facts.md), so samples from
+    before and after a change (a boot gyro calibration still running, another GCS writing)
+    cannot be un-corrected with one set.
+    """
+    from apmcal.report import CALIBRATION_PARAM_PREFIXES
+
+    changed = [f"{k} {before.get(k)} -> {after.get(k)}" for k in sorted(set(before) | set(after))
+               if k.startswith(CALIBRATION_PARAM_PREFIXES) and before.get(k) != after.get(k)]
+    if changed:
+        raise ApmcalError("calibration parameters changed while recording (" + ", ".join(changed)
+                          + "); wait for the vehicle to finish booting and record again",
+                          connection)
 
 
 def upload_values(connection, values, backup, vehicle_params, console):
