@@ -75,7 +75,6 @@ def test_live_without_vehicle_fails_in_one_line(capsys):
     port = free_udp_port()
     status = main(["live", f"udp:127.0.0.1:{port}", "--duration", "1"])
     assert status == 2
-    assert "INS_GYROFFS_X" in capsys.readouterr().err
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "HEARTBEAT" in err[0]
 
