@@ -59,6 +59,8 @@ def add_calibration_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lat", type=float, default=None, help="latitude [deg] (Earth rate, gravity)")
     p.add_argument("--lon", type=float, default=None, help="longitude [deg]")
     p.add_argument("--instance", type=int, default=None, help="IMU instance (default: first)")
+    p.add_argument("--firmware", choices=["3.2", "3.3+"], default=None,
+                   help="parameter generation (default: from the log; Copter 3.2 is APM 2.x)")
     p.add_argument("--param-file", default=None, help="write proposed parameters (.param)")
     p.add_argument("--json", default=None, help="write summary and calibration as JSON")
     p.add_argument("--quiet", action="store_true")
@@ -118,12 +120,20 @@ def summarise_and_calibrate(contents, args):
     output = {"summary": summary}
     proposal = None
     if not getattr(args, "summary_only", False):
-        calibration, proposal = run_calibration(contents, args)
+        from apmcal.pipeline import calibrate_log
+
+        calibration, proposal = calibrate_log(contents, args.method, args.lat, args.lon,
+                                              args.instance, args.firmware)
         report.print_calibration(calibration, proposal, console)
         output.update(calibration.to_dict())
-        output["params"] = dict(proposal.values)
-        output["rejected_params"] = dict(proposal.rejected)
+        if proposal is not None:
+            output["params"] = dict(proposal.values)
+            output["rejected_params"] = dict(proposal.rejected)
         if args.param_file:
+            if proposal is None:
+                raise ApmcalError("not an ArduPilot log, so no firmware generation to write "
+                                  "parameters for: add --firmware 3.2 or --firmware 3.3",
+                                  contents.path)
             from apmcal.vehicle.paramfile import write_param_file
 
             write_param_file(args.param_file, proposal.values,
@@ -135,51 +145,6 @@ def summarise_and_calibrate(contents, args):
         Path(args.json).write_text(json.dumps(_jsonable(output), indent=2) + "\n")
         console.print(f"wrote {args.json}")
     return (0 if proposal is None or not proposal.rejected else 1), proposal
-
-
-def pick_recording(contents, instance):
-    candidates = [r for r in contents.recordings if r.has("acc")]
-    if instance is not None:
-        candidates = [r for r in candidates if r.instance == instance]
-    if not candidates:
-        which = "" if instance is None else f" for instance {instance}"
-        raise ApmcalError(f"no accelerometer recording{which}", contents.path)
-    recording = candidates[0]
-    mags = [r for r in contents.recordings if r.has("mag") and r.instance == recording.instance]
-    return recording, (mags[0] if mags and mags[0] is not recording else None)
-
-
-def run_calibration(contents, args):
-    from apmcal import pipeline
-    from apmcal.preprocessing.firmware import firmware_generation
-    from apmcal.vehicle.params import to_ardupilot_params
-
-    recording, mag_recording = pick_recording(contents, args.instance)
-    calibration = pipeline.calibrate(recording, args.method, args.lat, args.lon)
-    if mag_recording is not None:
-        pipeline.calibrate_magnetometer(calibration, mag_recording, args.lat, args.lon)
-    if not calibration.sensors:
-        raise ApmcalError("nothing could be calibrated: "
-                          + "; ".join(calibration.report.get("warnings", [])), contents.path)
-    generation = firmware_generation(contents.params, contents.firmware)
-    proposal = to_ardupilot_params(calibration, generation, instance=recording.instance,
-                                   current_params=contents.params)
-    withhold_undetermined(proposal, calibration.report.get("undetermined", {}))
-    calibration.params = dict(proposal.values)
-    return calibration, proposal
-
-
-SENSOR_PARAM_PREFIXES = {"acc": ("INS_ACC",), "gyr": ("INS_GYR",), "mag": ("COMPASS_",)}
-
-
-def withhold_undetermined(proposal, undetermined: dict) -> None:
-    """Move parameters of sensors the method could not determine from values to notes."""
-    for sensor, why in undetermined.items():
-        names = [n for n in proposal.values if n.startswith(SENSOR_PARAM_PREFIXES[sensor])]
-        for name in names:
-            del proposal.values[name]
-        if names:
-            proposal.notes.append(f"{', '.join(names)} withheld: {why}")
 
 
 def cmd_live(args) -> int:
@@ -200,9 +165,10 @@ def cmd_live(args) -> int:
     contents = read_log(log_path)
     status, proposal = summarise_and_calibrate(contents, args)
     if args.upload:
-        if proposal.rejected:
+        if proposal is None or proposal.rejected:
             raise ApmcalError("not uploading: the firmware would reject "
-                              + ", ".join(proposal.rejected), args.connection)
+                              + ", ".join(proposal.rejected if proposal else ["everything"]),
+                              args.connection)
         upload_values(args.connection, proposal.values, args.backup, params, console)
     return status
 

@@ -21,6 +21,7 @@ from apmcal.solvers.result import Calibration
 METHODS = ("auto", "ferraris", "static", "ellipsoid")
 FERRARIS_FACES = {"x_p", "x_a", "y_p", "y_a", "z_p", "z_a"}
 MIN_ELLIPSOID_HOLDS = 7     # 9 parameters; the robust fit's prior carries the rest (seed 000)
+MIN_ORIENTATIONS = 4        # holds ≥ 30° apart: fewer leave the ellipsoid undetermined
 
 
 @dataclass
@@ -57,7 +58,7 @@ def choose_method(recording: Recording) -> str:
     faces = FERRARIS_FACES & set(label_poses(segments))
     if len(faces) == 6 and gyr is not None and len(find_rotations(t, gyr, segments)) >= 3:
         return "ferraris"
-    if len(segments) >= MIN_ELLIPSOID_HOLDS and len({s.pose for s in segments if s.pose}) >= 4:
+    if len(segments) >= MIN_ELLIPSOID_HOLDS and distinct_orientations(segments) >= MIN_ORIENTATIONS:
         return "ellipsoid"
     if segments:
         return "static"
@@ -91,6 +92,46 @@ def calibrate(recording: Recording, method: str = "auto", lat_deg: float | None 
     if has_live_magnetometer(prepared.raw):
         add_magnetometer(cal, prepared, lat_deg, lon_deg)
     return cal
+
+
+def calibrate_log(contents, method: str = "auto", lat_deg=None, lon_deg=None,
+                  instance: int | None = None, generation: str | None = None):
+    """Calibrate one IMU instance of a log (and its compass) and propose ArduPilot parameters.
+
+    Returns (Calibration, ParamProposal or None); None when the source is not an ArduPilot log
+    and no ``generation`` was given (a CSV file has no firmware to write parameters for).
+    """
+    from apmcal.preprocessing.firmware import firmware_generation
+    from apmcal.vehicle.params import to_ardupilot_params, withhold_undetermined
+
+    recording, mag_recording = pick_recording(contents, instance)
+    cal = calibrate(recording, method, lat_deg, lon_deg)
+    if mag_recording is not None:
+        calibrate_magnetometer(cal, mag_recording, lat_deg, lon_deg)
+    if not cal.sensors:
+        raise ApmcalError("nothing could be calibrated: "
+                          + "; ".join(cal.report.get("warnings", [])), contents.path)
+    if generation is None and contents.format == "csv":
+        return cal, None
+    generation = generation or firmware_generation(contents.params, contents.firmware)
+    proposal = to_ardupilot_params(cal, generation, instance=recording.instance,
+                                   current_params=contents.params)
+    withhold_undetermined(proposal, cal.report.get("undetermined", {}))
+    cal.params = dict(proposal.values)
+    return cal, proposal
+
+
+def pick_recording(contents, instance: int | None):
+    """(IMU recording, separate magnetometer recording of the same instance or None)."""
+    candidates = [r for r in contents.recordings if r.has("acc")]
+    if instance is not None:
+        candidates = [r for r in candidates if r.instance == instance]
+    if not candidates:
+        which = "" if instance is None else f" for instance {instance}"
+        raise ApmcalError(f"no accelerometer recording{which}", contents.path)
+    recording = candidates[0]
+    mags = [r for r in contents.recordings if r.has("mag") and r.instance == recording.instance]
+    return recording, (mags[0] if mags and mags[0] is not recording else None)
 
 
 def inertial_calibration(raw: Recording, method: str, lat_deg, lon_deg,
@@ -142,15 +183,52 @@ def add_magnetometer(cal: Calibration, prepared: Prepared, lat_deg, lon_deg) -> 
                          {"mag": cal.report["mag_field_mgauss"]})
 
 
+LEVEL_TOLERANCE_DEG = 10.0     # seed 002 §3.2 levels the platform with a plumb line
+
+
+def tilt_from_level_deg(acc_mean: np.ndarray) -> float:
+    """Angle [deg] between the mean specific force and a level vehicle's (0, 0, −g)."""
+    up = -np.asarray(acc_mean, dtype=float) / np.linalg.norm(acc_mean)
+    return float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
+
+
 def longest_static_segment(t, acc, gyr, source: str):
-    """The longest still period (the one-position method's input), or a clear error."""
+    """The longest still period that is level (the one-position method's input)."""
     from apmcal.preprocessing.static import find_static_segments
 
     segments = find_static_segments(t, acc, gyr)
-    if not segments:
-        raise ApmcalError("no static period found: hold the vehicle still (level, x north) "
-                          "for about a minute", source)
-    return max(segments, key=lambda s: s.end - s.start)
+    level = [s for s in segments if tilt_from_level_deg(s.acc_mean) <= LEVEL_TOLERANCE_DEG]
+    if not level:
+        tilts = ", ".join(f"{tilt_from_level_deg(s.acc_mean):.0f}°" for s in segments[:5])
+        found = f" (still periods found, tilted {tilts})" if segments else ""
+        raise ApmcalError("one-position method: no level still period found; hold the vehicle "
+                          f"level (z down, x north) for about a minute{found}", source)
+    return max(level, key=lambda s: s.end - s.start)
+
+
+def distinct_orientations(segments, min_chord: float = 0.5) -> int:
+    """Number of hold orientations whose mean accelerometer vectors are at least ``min_chord``
+    field radii apart (0.5 radius ≈ 30°), by greedy clustering.
+
+    The radius is g when the samples are in m/s²; for raw counts (large offsets, unknown scale)
+    it is half the largest distance between hold means, provided that distance stands well
+    above the holds' own noise.
+    """
+    means = np.array([s.acc_mean for s in segments])
+    if len(means) == 0:
+        return 0
+    radius = float(np.median(np.linalg.norm(means, axis=1)))
+    if not 0.7 * STANDARD_GRAVITY < radius < 1.3 * STANDARD_GRAVITY:     # not m/s²: counts
+        spread = max(np.linalg.norm(means[:, None] - means[None], axis=2).max() / 2, 0.0)
+        noise = float(np.median([np.linalg.norm(s.acc_std) for s in segments]))
+        if spread < 10 * noise:
+            return 1
+        radius = spread
+    centres: list[np.ndarray] = []
+    for m in means:
+        if all(np.linalg.norm(m - c) >= min_chord * radius for c in centres):
+            centres.append(m)
+    return len(centres)
 
 
 def accelerometer_ellipsoid(t, acc, gyr, lat_deg) -> Calibration:
@@ -159,12 +237,14 @@ def accelerometer_ellipsoid(t, acc, gyr, lat_deg) -> Calibration:
     from apmcal.solvers.ellipsoid import ellipsoid_calibration
 
     segments = find_static_segments(t, acc, gyr)
-    if len(segments) < MIN_ELLIPSOID_HOLDS:
+    n_orient = distinct_orientations(segments)
+    if len(segments) < MIN_ELLIPSOID_HOLDS or n_orient < MIN_ORIENTATIONS:
         raise ApmcalError(f"ellipsoid fit needs at least {MIN_ELLIPSOID_HOLDS} static holds in "
-                          f"different orientations, found {len(segments)}")
+                          f"{MIN_ORIENTATIONS} or more orientations; found {len(segments)} holds "
+                          f"in {n_orient} orientation(s)")
     samples = {"acc": np.array([s.acc_mean for s in segments])}
     if gyr is not None:
-        samples["gyr"] = np.concatenate([gyr[s.i0:s.i1] for s in segments])
+        samples["gyr"] = np.concatenate([gyr[s.kept()] for s in segments])
     cal = ellipsoid_calibration(samples, {"acc": local_gravity(lat_deg)})
     cal.report["static_segments"] = len(segments)
     return cal

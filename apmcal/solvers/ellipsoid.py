@@ -71,7 +71,7 @@ def ellipsoid_calibration(samples: dict, radius: dict, *, method: str = "robust"
         mse_cal = relative_mse(test, sc, radius[name])
         cal.report[name] = {k: v for k, v in info.items() if k not in ("cov", "inliers")}
         cal.report[name].update({"relative_mse_raw": mse_raw, "relative_mse_calibrated": mse_cal,
-                                 "scored_on": "held-out" if n_test else "fitting samples"})
+                                 "scored_on": "held-out" if n_test else "fitting"})
         cal.report["lines"] += verdict(train, sc, radius[name], sensor=name, info=info)
         cal.report["lines"].append(f"{name}: relative MSE of |calibrated| (seed 000) raw "
                                    f"{mse_raw:.3g} → {mse_cal:.3g} on "

@@ -184,13 +184,14 @@ def _static_rows(t, gyr, segs, acc_cal, lat_deg, earth_rate):
     """Per-sample rows (t, gyro − known Earth rate, segment's mean calibrated acc)."""
     ts, ys, fs = [], [], []
     for s in segs:
-        y = gyr[s.i0:s.i1]
+        k = s.kept()               # merged holds leave their knocks out
+        y = gyr[k]
         if earth_rate and lat_deg is not None:
-            f = acc_cal[s.i0:s.i1].mean(axis=0)
+            f = acc_cal[k].mean(axis=0)
             y = y - earth_rate_up(f / np.linalg.norm(f), lat_deg)
-        ts.append(t[s.i0:s.i1])
+        ts.append(t[k])
         ys.append(y)
-        fs.append(np.repeat(acc_cal[s.i0:s.i1].mean(axis=0)[None, :], s.i1 - s.i0, axis=0))
+        fs.append(np.repeat(acc_cal[k].mean(axis=0)[None, :], len(k), axis=0))
     return np.concatenate(ts), np.vstack(ys), np.vstack(fs)
 
 
@@ -279,7 +280,7 @@ def _gyro_part(t, gyr, acc_cal, poses, segs, rots, g, *, bias_drift, earth_rate,
     if classic:
         # imucal: plain mean of all samples of the six holds; K_ga from the hold differences
         used = [poses[p] for p in POSES]
-        allg = np.vstack([gyr[s.i0:s.i1] for s in used])
+        allg = np.vstack([gyr[s.kept()] for s in used])
         b0, b1 = allg.mean(axis=0), np.zeros(3)
         sb0, sb1 = allg.std(axis=0, ddof=1) / np.sqrt(len(allg)), np.zeros(3)
         ugp, uga = u_matrices({k: s.gyr_mean for k, s in poses.items()})

@@ -242,3 +242,22 @@ def _check_known(prop: ParamProposal, current_params: dict[str, float] | None) -
               if n not in current and n.split("_", 1)[0] in families]:
         prop.rejected[n] = "the vehicle has no such parameter (wrong firmware generation?)"
         del prop.values[n]
+
+
+SENSOR_PARAM_PREFIXES = {"acc": ("INS_ACC",), "gyr": ("INS_GYR",), "mag": ("COMPASS_",)}
+
+
+def withhold_undetermined(proposal: ParamProposal, undetermined: dict[str, str]) -> None:
+    """Drop the parameters (proposed or rejected) of sensors the method could not determine.
+
+    ``undetermined`` maps a sensor ("acc", "gyr", "mag") to the reason; it becomes a note, so
+    the user sees why nothing is proposed rather than a misleading rejection.
+    """
+    for sensor, why in undetermined.items():
+        prefixes = SENSOR_PARAM_PREFIXES[sensor]
+        names = [n for n in [*proposal.values, *proposal.rejected] if n.startswith(prefixes)]
+        for name in names:
+            proposal.values.pop(name, None)
+            proposal.rejected.pop(name, None)
+        if names:
+            proposal.notes.append(f"{', '.join(names)} withheld: {why}")
