@@ -59,6 +59,8 @@ def add_calibration_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lat", type=float, default=None, help="latitude [deg] (Earth rate, gravity)")
     p.add_argument("--lon", type=float, default=None, help="longitude [deg]")
     p.add_argument("--instance", type=int, default=None, help="IMU instance (default: first)")
+    p.add_argument("--min-still", type=float, default=2.0, metavar="S",
+                   help="shortest still period counted as a hold [s] (default 2)")
     p.add_argument("--firmware", choices=["3.2", "3.3+"], default=None,
                    help="parameter generation (default: from the log; Copter 3.2 is APM 2.x)")
     p.add_argument("--param-file", default=None, help="write proposed parameters (.param)")
@@ -120,10 +122,10 @@ def summarise_and_calibrate(contents, args):
     output = {"summary": summary}
     proposal = None
     if not getattr(args, "summary_only", False):
-        from apmcal.pipeline import calibrate_log
+        from apmcal.pipeline import Options, calibrate_log
 
-        calibration, proposal = calibrate_log(contents, args.method, args.lat, args.lon,
-                                              args.instance, args.firmware)
+        calibration, proposal = calibrate_log(contents, Options(
+            args.method, args.lat, args.lon, args.min_still, args.instance, args.firmware))
         report.print_calibration(calibration, proposal, console)
         output.update(calibration.to_dict())
         if proposal is not None:
