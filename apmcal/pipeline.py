@@ -21,6 +21,7 @@ from apmcal.solvers.result import Calibration
 
 METHODS = ("auto", "ferraris", "static", "ellipsoid")
 FERRARIS_FACES = {"x_p", "x_a", "y_p", "y_a", "z_p", "z_a"}
+FERRARIS_MAX_TILT_DEG = 10.0    # Ferraris assumes each hold has one axis along gravity
 
 
 @dataclass
@@ -69,9 +70,11 @@ def choose_method(t, gyr, segments) -> str:
     from apmcal.preprocessing.rotations import find_rotations
     from apmcal.preprocessing.static import label_poses
 
-    faces = FERRARIS_FACES & set(label_poses(segments))
-    if len(faces) == 6 and gyr is not None and len(find_rotations(t, gyr, segments)) >= 3:
-        return "ferraris"
+    aligned = [s for s in segments if s.tilt_deg <= FERRARIS_MAX_TILT_DEG]
+    if FERRARIS_FACES <= set(label_poses(aligned)) and gyr is not None:
+        turns = {r.axis for r in find_rotations(t, gyr, segments) if r.is_full_turn()}
+        if turns == {0, 1, 2}:
+            return "ferraris"
     if len(segments) >= MIN_ELLIPSOID_HOLDS and distinct_orientations(segments) >= MIN_ORIENTATIONS:
         return "ellipsoid"
     return "static"
