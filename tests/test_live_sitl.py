@@ -71,10 +71,12 @@ def test_live_record_calibrate_upload_restore(vehicle):
             assert np.float32(link.read_param(name)) == np.float32(before[name])
 
 
-def test_live_without_vehicle_fails_in_one_line(capsys):
+def test_live_without_vehicle_fails_in_one_line(capsys, tmp_path):
     port = free_udp_port()
-    status = main(["live", f"udp:127.0.0.1:{port}", "--duration", "1"])
+    log = tmp_path / "never.tlog"
+    status = main(["live", f"udp:127.0.0.1:{port}", "--duration", "1", "--save-log", str(log)])
     assert status == 2
+    assert not log.exists()                  # nothing recorded, nothing left behind
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "HEARTBEAT" in err[0]
 

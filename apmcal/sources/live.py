@@ -48,8 +48,15 @@ class VehicleLink:
                                                      source_component=190, autoreconnect=False)
         except Exception as exc:  # pymavlink raises many types for a bad connection string
             raise ApmcalError(f"cannot open connection ({exc})", connection) from None
-        self._tlog = open(record_to, "wb") if record_to else None
-        self.wait_heartbeat(timeout_s)
+        self._tlog = None
+        try:
+            heartbeat = self.wait_heartbeat(timeout_s)
+        except ApmcalError:
+            self.master.close()
+            raise
+        if record_to:       # only once a vehicle answered: no empty log files on failure
+            self._tlog = open(record_to, "wb")
+            self._record(heartbeat)
 
     # -- receiving --------------------------------------------------------------------------
     def recv(self, types=None, timeout_s: float = 1.0):
@@ -71,13 +78,15 @@ class VehicleLink:
             # .tlog record: 8-byte big-endian time in µs since the Unix epoch, then the packet.
             self._tlog.write(struct.pack(">Q", int(time.time() * 1e6)) + msg.get_msgbuf())
 
-    def wait_heartbeat(self, timeout_s: float) -> None:
+    def wait_heartbeat(self, timeout_s: float):
+        """The first HEARTBEAT; sets the target system and component from it."""
         msg = self.recv({"HEARTBEAT"}, timeout_s)
         if msg is None:
             raise ApmcalError(f"no HEARTBEAT within {timeout_s:g} s: is the vehicle connected?",
                               self.connection)
         self.target_system = msg.get_srcSystem()
         self.target_component = msg.get_srcComponent()
+        return msg
 
     # -- parameters -------------------------------------------------------------------------
     def fetch_params(self, timeout_s: float = 20.0, idle_s: float = 2.0) -> dict[str, float]:
