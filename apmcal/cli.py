@@ -159,7 +159,7 @@ def cmd_live(args) -> int:
         params = link.fetch_params()
         link.request_imu_stream(args.rate)
         console.print(f"recording {args.duration:g} s from {args.connection} to {log_path}")
-        n = link.collect(args.duration)
+        n = record_with_progress(link, args.duration, console)
         if n == 0:
             raise ApmcalError(f"no IMU messages in {args.duration:g} s (stream request "
                               "ignored? check SRn_RAW_SENS)", args.connection)
@@ -173,6 +173,15 @@ def cmd_live(args) -> int:
                               args.connection)
         upload_values(args.connection, proposal.values, args.backup, params, console)
     return status
+
+
+def record_with_progress(link, duration_s: float, console) -> int:
+    """Receive for ``duration_s`` with a progress bar; returns the IMU message count."""
+    from rich.progress import Progress
+
+    with Progress(console=console, transient=True) as bar:
+        task = bar.add_task("recording", total=duration_s)
+        return link.collect(duration_s, progress=lambda s: bar.update(task, completed=s))
 
 
 def check_params_unchanged(before: dict, after: dict, connection: str) -> None:

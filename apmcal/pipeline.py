@@ -13,7 +13,8 @@ import numpy as np
 
 from apmcal.constants import STANDARD_GRAVITY, normal_gravity
 from apmcal.errors import ApmcalError
-from apmcal.preprocessing.resolution import add_resolution_floor, telemetry_steps, undo_truncation
+from apmcal.preprocessing.resolution import (INT16_TELEMETRY, add_resolution_floor,
+                                             telemetry_steps, undo_truncation)
 from apmcal.preprocessing.timebase import monotonic
 from apmcal.recording import Recording
 from apmcal.solvers.holds import MIN_ELLIPSOID_HOLDS, MIN_ORIENTATIONS, distinct_orientations
@@ -140,6 +141,7 @@ def calibrate_log(contents, opts: Options = Options()):
 
     recording, mag_recording = pick_recording(contents, opts.instance)
     cal = calibrate(recording, opts)
+    cal.report["recording"] = f"{recording.message} (IMU instance {recording.instance})"
     if mag_recording is not None and "mag" not in cal.sensors:
         if has_live_magnetometer(mag_recording):
             add_magnetometer(cal, prepare(mag_recording), opts)
@@ -164,7 +166,8 @@ def pick_recording(contents, instance: int | None):
     if not candidates:
         which = "" if instance is None else f" for instance {instance}"
         raise ApmcalError(f"no accelerometer recording{which}", contents.path)
-    recording = candidates[0]
+    # floating-point samples (HIGHRES_IMU, dataflash) before int16 telemetry of the same IMU
+    recording = min(candidates, key=lambda r: (r.instance, r.message in INT16_TELEMETRY))
     mags = [r for r in contents.recordings if r.has("mag") and r.instance == recording.instance]
     return recording, (mags[0] if mags and mags[0] is not recording else None)
 

@@ -53,7 +53,8 @@ def print_summary(summary: dict, console) -> None:
 
 def print_calibration(calibration, proposal, console) -> None:
     """Render a Calibration and its ArduPilot parameter proposal."""
-    console.print(f"[bold]method:[/] {calibration.method}")
+    used = calibration.report.get("recording")
+    console.print(f"[bold]method:[/] {calibration.method}" + (f" on {used}" if used else ""))
     units = {"acc": "m/s²", "gyr": "rad/s", "mag": "mGauss"}
     for name, cal in calibration.sensors.items():
         sig = cal.sigma.get("offset")

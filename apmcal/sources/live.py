@@ -16,8 +16,10 @@ import numpy as np
 from apmcal.errors import ApmcalError
 
 # ardupilot-facts.md "What the telemetry really carries": stream 1 = RAW_SENSORS carries RAW_IMU,
-# SCALED_IMU2/3 and SCALED_PRESSURE; newer firmware also honours SET_MESSAGE_INTERVAL (511).
-IMU_MESSAGE_IDS = {"RAW_IMU": 27, "SCALED_IMU2": 116, "SCALED_PRESSURE": 29}
+# SCALED_IMU2/3 and SCALED_PRESSURE; newer firmware also honours SET_MESSAGE_INTERVAL (511),
+# through which HIGHRES_IMU (SI floats, free of RAW_IMU's 1 mG / 1 mrad/s steps) is asked for.
+IMU_MESSAGE_IDS = {"RAW_IMU": 27, "SCALED_IMU2": 116, "HIGHRES_IMU": 105}
+STREAMED_MESSAGE_IDS = {**IMU_MESSAGE_IDS, "SCALED_PRESSURE": 29}
 
 
 def float32(value: float) -> float:
@@ -162,7 +164,7 @@ class VehicleLink:
         mav, mavlink = self.master.mav, self._mavutil.mavlink
         mav.request_data_stream_send(self.target_system, self.target_component,
                                      mavlink.MAV_DATA_STREAM_RAW_SENSORS, int(rate_hz), 1)
-        for msg_id in IMU_MESSAGE_IDS.values():
+        for msg_id in STREAMED_MESSAGE_IDS.values():
             mav.command_long_send(self.target_system, self.target_component,
                                   mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
                                   msg_id, 1e6 / rate_hz, 0, 0, 0, 0, 0)
