@@ -38,6 +38,12 @@ def build_parser() -> argparse.ArgumentParser:
     live.add_argument("--duration", type=float, default=60.0, help="seconds to record (default 60)")
     live.add_argument("--rate", type=int, default=50, help="IMU stream rate [Hz] (default 50)")
     live.add_argument("--save-log", default=None, help="keep the recording as this .tlog")
+    live.add_argument("--guide", choices=["ardupilot6"], default=None,
+                      help="prompt ArduPilot's six accel-cal faces one by one (instead of "
+                           "--duration)")
+    live.add_argument("--hold", type=float, default=10.0, help="seconds per face with --guide")
+    live.add_argument("--move", type=float, default=5.0,
+                      help="seconds to turn to the next face with --guide")
     live.add_argument("--upload", action="store_true",
                       help="write the proposed parameters to the vehicle (backed up, verified)")
     live.add_argument("--backup", default=None, help="backup file (default apmcal-backup-<time>.param)")
@@ -158,11 +164,16 @@ def cmd_live(args) -> int:
     with VehicleLink(args.connection, record_to=log_path) as link:
         params = link.fetch_params()
         link.request_imu_stream(args.rate)
-        console.print(f"recording {args.duration:g} s from {args.connection} to {log_path}")
-        n = record_with_progress(link, args.duration, console)
+        if args.guide:
+            from apmcal.sources.guided import record_six_faces
+
+            n = record_six_faces(link, args.hold, args.move, console.print)
+        else:
+            console.print(f"recording {args.duration:g} s from {args.connection} to {log_path}")
+            n = record_with_progress(link, args.duration, console)
         if n == 0:
-            raise ApmcalError(f"no IMU messages in {args.duration:g} s (stream request "
-                              "ignored? check SRn_RAW_SENS)", args.connection)
+            raise ApmcalError("no IMU messages received (stream request ignored? check "
+                              "SRn_RAW_SENS)", args.connection)
         check_params_unchanged(params, link.fetch_params(), args.connection)
     contents = read_log(log_path)
     status, proposal = summarise_and_calibrate(contents, args)

@@ -65,17 +65,16 @@ def prepare(recording: Recording) -> Prepared:
     return Prepared(recording, steps, warnings)
 
 
-def choose_method(t, gyr, segments) -> str:
-    """'ferraris' for six faces plus rotations, 'ellipsoid' for holds in four orientations or
+def choose_method(segments) -> str:
+    """'ferraris' for the six axis-aligned faces, 'ellipsoid' for holds in four orientations or
     more, else 'static'."""
-    from apmcal.preprocessing.rotations import find_rotations
     from apmcal.preprocessing.static import label_poses
 
     aligned = [s for s in segments if s.tilt_deg <= FERRARIS_MAX_TILT_DEG]
-    if FERRARIS_FACES <= set(label_poses(aligned)) and gyr is not None:
-        turns = {r.axis for r in find_rotations(t, gyr, segments) if r.is_full_turn()}
-        if turns == {0, 1, 2}:
-            return "ferraris"
+    if FERRARIS_FACES <= set(label_poses(aligned)):
+        # six faces suffice for the accelerometer part; without a full turn about each axis the
+        # gyro keeps an identity matrix (with a warning) and only its offset is calibrated
+        return "ferraris"
     if len(segments) >= MIN_ELLIPSOID_HOLDS and distinct_orientations(segments) >= MIN_ORIENTATIONS:
         return "ellipsoid"
     return "static"
@@ -120,7 +119,7 @@ def inertial_calibration(prepared: Prepared, opts: Options) -> Calibration:
     if not segments:
         raise ApmcalError(f"no still period of {opts.min_still_s:g} s or more found: hold the "
                           "vehicle still (or lower --min-still)")
-    method = choose_method(t, gyr, segments) if opts.method == "auto" else opts.method
+    method = choose_method(segments) if opts.method == "auto" else opts.method
     if method == "ferraris":
         return ferraris_calibration(t, acc, gyr, segments=segments, lat_deg=opts.lat_deg,
                                     gravity=opts.gravity, min_duration=opts.min_still_s,
