@@ -14,9 +14,10 @@ import numpy as np
 from apmcal.constants import STANDARD_GRAVITY, normal_gravity
 from apmcal.errors import ApmcalError
 from apmcal.preprocessing.resolution import (INT16_TELEMETRY, add_resolution_floor,
-                                             telemetry_steps, undo_truncation)
+                                             resolution_limited, telemetry_steps,
+                                             undo_truncation)
 from apmcal.preprocessing.timebase import monotonic
-from apmcal.recording import Recording
+from apmcal.recording import SENSOR_COLUMNS, Recording
 from apmcal.solvers.holds import MIN_ELLIPSOID_HOLDS, MIN_ORIENTATIONS, distinct_orientations
 from apmcal.solvers.result import Calibration
 
@@ -46,23 +47,42 @@ class Options:
 class Prepared:
     raw: Recording                                           # raw sensor-frame samples
     steps: dict[str, float] = field(default_factory=dict)    # telemetry resolution per sensor
+    floor_steps: dict[str, float] = field(default_factory=dict)  # of those, noise below a step
     warnings: list[str] = field(default_factory=list)
 
 
-def prepare(recording: Recording) -> Prepared:
-    """Monotonic time, truncation undone, firmware correction undone.
+def prepare(recording: Recording, generation: str | None = None) -> Prepared:
+    """Finite samples, monotonic time, truncation undone, firmware correction undone.
 
     ardupilot-facts.md "What the telemetry really carries": RAW_IMU and dataflash IMU/MAG are
-    corrected with the parameters in force, so a fit on them must first undo that correction.
+    corrected with the parameters in force, so a fit on them must first undo that correction,
+    the way ``generation`` ("3.2" / "3.3+"; None: from the log) applied it.
     """
-    recording, warnings = monotonic(recording)
+    recording, warnings = drop_non_finite(recording)
+    recording, time_warnings = monotonic(recording)
+    warnings += time_warnings
     steps = telemetry_steps(recording)
+    floor_steps = resolution_limited(recording, steps)
     recording = undo_truncation(recording)
-    if recording.corrected:
+    if recording.corrected or recording.frame == "body":
         from apmcal.preprocessing.firmware import uncorrect
 
-        recording = uncorrect(recording)
-    return Prepared(recording, steps, warnings)
+        recording = uncorrect(recording, generation=generation)
+    return Prepared(recording, steps, floor_steps, warnings)
+
+
+def drop_non_finite(recording: Recording) -> tuple[Recording, list[str]]:
+    """Rows whose time or sensor values are NaN/inf removed, with a counted warning."""
+    from dataclasses import replace
+
+    cols = ["t"] + [c for s in recording.sensors for c in SENSOR_COLUMNS[s]]
+    finite = np.isfinite(recording.data[cols].to_numpy(dtype=float)).all(axis=1)
+    bad = int(np.count_nonzero(~finite))
+    if bad == 0:
+        return recording, []
+    kept = recording.data.loc[finite].reset_index(drop=True)
+    return (replace(recording, data=kept),
+            [f"{bad} of {len(finite)} samples with NaN/inf values dropped"])
 
 
 def choose_method(segments) -> str:
@@ -91,7 +111,7 @@ def calibrate(recording: Recording, opts: Options = Options()) -> Calibration:
         raise ApmcalError(f"unknown method {opts.method!r}; choose one of {', '.join(METHODS)}")
     if not recording.has("acc"):
         raise ApmcalError("recording has no accelerometer samples", recording.source)
-    prepared = prepare(recording)
+    prepared = prepare(recording, opts.generation)
     try:
         cal = inertial_calibration(prepared, opts)
     except ApmcalError as err:
@@ -100,7 +120,7 @@ def calibrate(recording: Recording, opts: Options = Options()) -> Calibration:
         cal = Calibration(method="none", report={"warnings": [
             f"accelerometer and gyro not calibrated: {err.why}"]})
     cal.report.setdefault("warnings", []).extend(prepared.warnings)
-    add_resolution_floor(cal, prepared.steps, {"acc": opts.gravity})
+    add_resolution_floor(cal, prepared.floor_steps, {"acc": opts.gravity})
     if has_live_magnetometer(prepared.raw):
         add_magnetometer(cal, prepared, opts)
     return cal
@@ -126,7 +146,22 @@ def inertial_calibration(prepared: Prepared, opts: Options) -> Calibration:
                                     gyro_step=prepared.steps.get("gyr", 0.0))
     if method == "ellipsoid":
         return ellipsoid_on_holds(gyr, segments, opts.gravity)
-    return one_position_on_holds(t, acc, gyr, segments, opts.lat_deg, opts.lon_deg)
+    return one_position_on_holds(t, acc, gyr, segments, opts.lat_deg, opts.lon_deg,
+                                 board_rotation(raw))
+
+
+def board_rotation(recording: Recording) -> np.ndarray:
+    """AHRS_ORIENTATION as a matrix (sensor → body); identity when the source does not say.
+
+    ardupilot-facts.md "How the firmware applies the parameters": AHRS_ORIENTATION rotates
+    sensor vectors into the body frame; "level" and "x north" are the vehicle's, not the board's.
+    """
+    from apmcal.preprocessing.orientation import rotation_matrix
+
+    code = recording.params.get("AHRS_ORIENTATION")
+    if code is None:
+        return np.eye(3)
+    return rotation_matrix(code, recording.params)
 
 
 def calibrate_log(contents, opts: Options = Options()):
@@ -143,7 +178,10 @@ def calibrate_log(contents, opts: Options = Options()):
     cal.report["recording"] = f"{recording.message} (IMU instance {recording.instance})"
     if mag_recording is not None and "mag" not in cal.sensors:
         if has_live_magnetometer(mag_recording):
-            add_magnetometer(cal, prepare(mag_recording), opts)
+            mag_prepared = prepare(mag_recording, opts.generation)
+            cal.report.setdefault("warnings", []).extend(f"mag: {w}"
+                                                          for w in mag_prepared.warnings)
+            add_magnetometer(cal, mag_prepared, opts)
     if not cal.sensors:
         raise ApmcalError("nothing could be calibrated: "
                           + "; ".join(cal.report.get("warnings", [])), contents.path)
@@ -165,8 +203,10 @@ def pick_recording(contents, instance: int | None):
     if not candidates:
         which = "" if instance is None else f" for instance {instance}"
         raise ApmcalError(f"no accelerometer recording{which}", contents.path)
+    # accelerometer with gyro (IMU) before accelerometer alone (dataflash ACC1), then
     # floating-point samples (HIGHRES_IMU, dataflash) before int16 telemetry of the same IMU
-    recording = min(candidates, key=lambda r: (r.instance, r.message in INT16_TELEMETRY))
+    recording = min(candidates, key=lambda r: (r.instance, not r.has("gyr"),
+                                               r.message in INT16_TELEMETRY))
     mags = [r for r in contents.recordings if r.has("mag") and r.instance == recording.instance]
     return recording, (mags[0] if mags and mags[0] is not recording else None)
 
@@ -175,14 +215,13 @@ def add_magnetometer(cal: Calibration, prepared: Prepared, opts: Options) -> Non
     """Add the magnetometer fit to ``cal``, or a warning saying why it was not possible."""
     from apmcal.solvers.magnetometer import calibrate_magnetometer
 
-    cal.report.setdefault("warnings", []).extend(f"mag: {w}" for w in prepared.warnings)
     try:
         cal.sensors["mag"] = calibrate_magnetometer(prepared.raw.xyz("mag"), opts.lat_deg,
                                                     opts.lon_deg, cal.report)
     except ApmcalError as err:
-        cal.report["warnings"].append(err.why)
+        cal.report.setdefault("warnings", []).append(err.why)
         return
-    steps = {"mag": prepared.steps["mag"]} if "mag" in prepared.steps else {}
+    steps = {"mag": prepared.floor_steps["mag"]} if "mag" in prepared.floor_steps else {}
     add_resolution_floor(cal, steps, {"mag": cal.report["mag_field_mgauss"]})
 
 

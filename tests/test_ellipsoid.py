@@ -250,3 +250,33 @@ def test_real_gyro_offset_matches_reference_bias(shared_data):
     cal = gyro_offset(gyr)
     np.testing.assert_allclose(cal.offset, ref[9:12], atol=0.01)
     assert np.all(cal.sigma["offset"] > 0) and np.all(cal.sigma["offset"] < 1.0)
+
+
+def test_bootstrap_counts_failed_refits_and_says_so(monkeypatch):
+    import apmcal.solvers.ellipsoid_robust as robust
+
+    real_fit, calls = robust.fit_ellipsoid_robust, {"n": 0}
+
+    def flaky(samples, radius, **kw):
+        if kw.get("info") is None:          # a bootstrap refit: fail every third one
+            calls["n"] += 1
+            if calls["n"] % 3 == 0:
+                raise ApmcalError("singular")
+        return real_fit(samples, radius, **kw)
+
+    monkeypatch.setattr(robust, "fit_ellipsoid_robust", flaky)
+    info = {}
+    flaky(simulate(n=200, seed=5), R, n_bootstrap=9, rng=0, info=info)
+    assert info["bootstrap_failed"] == 3
+    assert any("3 of 9 bootstrap refits failed" in n for n in info["notes"])
+
+
+def test_few_residual_degrees_of_freedom_are_flagged():
+    from apmcal.solvers.ellipsoid import few_residuals_line
+
+    assert few_residuals_line("acc", 100, 9) == []
+    assert "only 1 residual degree" in few_residuals_line("acc", 7, 6)[0]
+    assert "no residual is left" in few_residuals_line("acc", 6, 9)[0]
+    cal = ellipsoid_calibration({"acc": simulate(n=7, noise=0.5, seed=2)}, {"acc": R})
+    assert any("residual degree" in line or "no residual" in line
+               for line in cal.report["lines"])

@@ -70,9 +70,18 @@ def test_gyro_reproduces_table_2_tau_from_latitude_alone():
     np.testing.assert_allclose(cal.sensors["gyr"].offset,
                                np.array([2e-3, -1e-3, 5e-4]) + earth_rate_ned(KUMASI_LAT),
                                atol=1e-12)
-    # ν ≈ 0 makes E singular: the report says so and identity is used instead of E⁻¹
+    # E is the recipe's artefact (τ = cot φ, ν ≈ 0): reported, never applied
+    np.testing.assert_allclose(cal.report["gyr"]["E"][0, 2], tau)
     np.testing.assert_allclose(cal.sensors["gyr"].matrix, np.eye(3))
-    assert any("E is singular" in line for line in cal.report["lines"])
+    assert any("gyro matrix left at identity" in line for line in cal.report["lines"])
+
+
+def test_gyro_offset_sigma_is_the_standard_error_of_the_mean():
+    t, acc, gyr = still(gyr_noise=1e-3)
+    cal = one_position_calibration(t, acc, gyr, lat_deg=KUMASI_LAT)
+    expected = 1e-3 / np.sqrt(len(t))
+    np.testing.assert_allclose(cal.sensors["gyr"].sigma["offset"], expected, rtol=0.1)
+    assert "offset" not in cal.sensors["acc"].sigma      # tilt and bias inseparable: no sigma
 
 
 def test_report_tells_what_one_pose_cannot_determine(tmp_path):
@@ -130,3 +139,39 @@ def test_real_still_minute_from_dataflash(shared_data):
     # |a| ≈ 8.4 m/s² here (uncalibrated accel): step 7 takes g := ‖mean‖ and hides it
     assert cal.report["acc"]["g"] == pytest.approx(np.linalg.norm(m))
     assert cal.report["acc"]["g"] < 9.0
+
+
+def test_body_to_sensor_gives_the_same_calibrated_samples():
+    from apmcal.preprocessing.orientation import rotation_matrix
+    from apmcal.solvers.holds import body_to_sensor
+    from apmcal.solvers.result import SensorCalibration
+
+    rng = np.random.default_rng(3)
+    body = SensorCalibration(offset=rng.normal(size=3), matrix=np.eye(3) + 0.01 * rng.normal(size=(3, 3)),
+                             sigma={"offset": [1.0, 2.0, 3.0]})
+    for code in (0, 8, 12, 16, 2, 43):
+        R = rotation_matrix(code)
+        sensor = body_to_sensor(body, R)
+        m = rng.normal(size=(5, 3))
+        np.testing.assert_allclose(R @ sensor.apply(m).T, body.apply(m @ R.T).T, atol=1e-12)
+    R = rotation_matrix(2)                                    # yaw 90: body x is sensor -y
+    np.testing.assert_allclose(body_to_sensor(body, R).sigma["offset"], [2.0, 1.0, 3.0])
+
+
+def test_board_mounted_upside_down_on_a_level_vehicle_is_level():
+    """AHRS_ORIENTATION = 8 (ROLL_180): a level vehicle's board reads z up. The one-position
+    method must run in the vehicle's frame and return a sensor-frame result."""
+    from apmcal.preprocessing.orientation import rotation_matrix
+    from apmcal.preprocessing.static import find_static_segments
+    from apmcal.solvers.holds import one_position_on_holds
+
+    t, acc_body, gyr_body = still(gyr_noise=1e-4)
+    R = rotation_matrix(8)
+    acc, gyr = acc_body @ R, gyr_body @ R                      # sensor = Rᵀ · body
+    segments = find_static_segments(t, acc, gyr)
+    with pytest.raises(ApmcalError, match="no level still period"):
+        one_position_on_holds(t, acc, gyr, segments, KUMASI_LAT, None)
+    cal = one_position_on_holds(t, acc, gyr, segments, KUMASI_LAT, None, board_rotation=R)
+    ref = one_position_calibration(t, acc_body, gyr_body, lat_deg=KUMASI_LAT)
+    np.testing.assert_allclose(cal.sensors["gyr"].offset, R.T @ ref.sensors["gyr"].offset,
+                               rtol=1e-9, atol=1e-12)

@@ -28,7 +28,8 @@ CASES = [
     ("ardupilot/pxf_copter_static_51.BIN", "ferraris", REFUSES, "needs all six holds"),
     ("ardupilot/pxf_copter_mag.BIN", "auto", WORKS, "static"),
     ("ardupilot/pixhawk1_copter368.bin", "auto", WORKS, "static"),
-    ("ardupilot/pixhawk_3imu_log171.bin", "static", REFUSES, "no level still period"),
+    ("ardupilot/pixhawk_3imu_log171.bin", "static", WORKS, "static"),         # board PITCH_180
+    ("ardupilot/ardusub_small.tlog", "static", WORKS, "static"),              # board ROLL_90
     ("ardupilot/sitl_vtol.tlog", "auto", WORKS, "static"),                    # time jumps back
     ("ardupilot/copter311_nan.log", "static", REFUSES, "too short"),          # 4 s still
     ("ardupilot/ardusub_small.tlog", "ellipsoid", REFUSES, "orientation"),

@@ -5,7 +5,10 @@ int16 values in mG, mrad/s and mGauss, converted from float by C's truncation to
 A mean of truncated samples is biased toward zero by up to one step when the noise is smaller
 than a step (the gyro at rest: 1 mrad/s step, noise ~0.1 mrad/s), so the samples are moved to
 the middle of the interval they stand for, and the remaining uncertainty (uniform over one step,
-step/√12) is added to the calibration's sigma.
+step/√12) is added to the calibration's sigma. When the noise spans several steps the rounding
+is dithered away: its variance (step²/12 per sample) is already in the residual-based sigma, and
+a floor would only inflate it (5-10× for a 50 Hz accelerometer), so the floor applies only to
+sensors whose noise is below one step (:func:`resolution_limited`).
 """
 from __future__ import annotations
 
@@ -29,6 +32,28 @@ def telemetry_steps(recording: Recording) -> dict[str, float]:
     return {s: STEP_SI[s] for s in recording.sensors}
 
 
+def noise_std(x: np.ndarray) -> float:
+    """Robust per-sample noise [units of x]: MAD of successive differences / (0.6745·√2).
+
+    Differences cancel slow motion and the median ignores the turns between holds, so a mostly
+    still recording gives its resting noise without finding the holds first.
+    """
+    d = np.diff(np.asarray(x, dtype=float), axis=0)
+    if len(d) == 0:
+        return 0.0
+    mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0)
+    return float(np.max(mad) / (0.6745 * np.sqrt(2.0)))
+
+
+def resolution_limited(recording: Recording, steps: dict[str, float]) -> dict[str, float]:
+    """The subset of ``steps`` whose sensor's resting noise is below one step.
+
+    Only there does truncation leave a systematic error in a hold mean (up to half a step)
+    that averaging cannot remove.
+    """
+    return {s: step for s, step in steps.items() if noise_std(recording.xyz(s)) < step}
+
+
 def undo_truncation(recording: Recording) -> Recording:
     """Samples moved half a step away from zero: the centre of what a truncated count means.
 
@@ -50,7 +75,8 @@ def add_resolution_floor(calibration: Calibration, steps: dict[str, float],
     """Widen offset (and accelerometer/magnetometer matrix) sigmas by the step's own spread.
 
     ``field`` gives the magnitude the matrix was fitted to (|g| m/s², |B| mGauss): a step error in
-    a mean is a relative error step/|field| in the matrix terms it feeds.
+    a mean is a relative error step/|field| in the matrix terms it feeds. Only sigmas the method
+    gave are widened: an estimate without one (undetermined) stays without.
     """
     for sensor, step in steps.items():
         cal = calibration.sensors.get(sensor)
@@ -58,8 +84,8 @@ def add_resolution_floor(calibration: Calibration, steps: dict[str, float],
             continue
         floor = step * ONE_SIGMA_OF_UNIFORM_STEP
         sigma = dict(cal.sigma)
-        sigma["offset"] = np.hypot(np.asarray(sigma.get("offset", np.zeros(3))), floor)
-        if sensor in field and field[sensor] > 0:
-            sigma["matrix"] = np.hypot(np.asarray(sigma.get("matrix", np.zeros((3, 3)))),
-                                       floor / field[sensor])
+        if "offset" in sigma:
+            sigma["offset"] = np.hypot(sigma["offset"], floor)
+        if "matrix" in sigma and field.get(sensor, 0) > 0:
+            sigma["matrix"] = np.hypot(sigma["matrix"], floor / field[sensor])
         cal.sigma = sigma

@@ -94,7 +94,10 @@ def integrate_slice(t: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 
 def _bias_between(a: StaticSegment, b: StaticSegment) -> np.ndarray:
-    """Gyro bias during a motion: linear interpolation between the means of the holds around it."""
+    """Gyro bias during a motion, taken as constant: the average of the two holds' means.
+
+    (:func:`apmcal.solvers.ferraris.integrate_motions` refines this with a bias linear in time.)
+    """
     return 0.5 * (a.gyr_mean + b.gyr_mean)
 
 

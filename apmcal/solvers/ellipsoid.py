@@ -24,6 +24,27 @@ FITS = {"analytical": fit_ellipsoid_analytical, "numerical": fit_ellipsoid_numer
         "robust": fit_ellipsoid_robust}
 
 
+MIN_RESIDUAL_DOF = 10     # below this the residual-based sigma is itself uncertain by > 20 %
+
+
+def few_residuals_line(sensor: str, n_samples: int, n_params: int | None) -> list[str]:
+    """A warning when the sigmas rest on few residuals (e.g. 7 hold means, 6 parameters).
+
+    A sigma estimated from k residual degrees of freedom is itself uncertain by about 1/√(2k).
+    """
+    if n_params is None:
+        return []
+    dof = n_samples - n_params
+    if dof >= MIN_RESIDUAL_DOF:
+        return []
+    if dof <= 0:
+        return [f"{sensor}: {n_samples} samples for {n_params} parameters: no residual is left "
+                "to estimate the uncertainty; the sigmas are not meaningful (add holds)"]
+    return [f"{sensor}: only {dof} residual degree(s) of freedom ({n_samples} samples, "
+            f"{n_params} parameters): the sigmas are themselves uncertain by about "
+            f"{100 / np.sqrt(2 * dof):.0f}% (add holds)"]
+
+
 def ellipsoid_calibration(samples: dict, radius: dict, *, method: str = "robust",
                           diagonal_only: dict | None = None, holdout: float = 0.0,
                           rng=None) -> Calibration:
@@ -73,6 +94,7 @@ def ellipsoid_calibration(samples: dict, radius: dict, *, method: str = "robust"
         cal.report[name].update({"relative_mse_raw": mse_raw, "relative_mse_calibrated": mse_cal,
                                  "scored_on": "held-out" if n_test else "fitting"})
         cal.report["lines"] += verdict(train, sc, radius[name], sensor=name, info=info)
+        cal.report["lines"] += few_residuals_line(name, len(train), info.get("n_params"))
         cal.report["lines"].append(f"{name}: relative MSE of |calibrated| (seed 000) raw "
                                    f"{mse_raw:.3g} → {mse_cal:.3g} on "
                                    f"{cal.report[name]['scored_on']} samples")

@@ -302,8 +302,15 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
                                                       prior_sigma=prior_sigma,
                                                       reject_sigma=reject_sigma),
                        s, n=n_bootstrap, rng=rng)
-        if info is not None and "sigma" in bs:
-            info["bootstrap_sigma"] = bs["sigma"]
+        if info is not None:
+            info["bootstrap_failed"] = bs["failed"]
+            if "sigma" in bs:
+                info["bootstrap_sigma"] = bs["sigma"]
+            if bs["failed"]:
+                # a resample the fit cannot handle says the data barely determine the ellipsoid
+                info.setdefault("notes", []).append(
+                    f"{bs['failed']} of {n_bootstrap} bootstrap refits failed: the bootstrap "
+                    "sigma describes only the resamples that could be fitted")
     return cal
 
 

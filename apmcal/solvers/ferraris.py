@@ -53,7 +53,9 @@ from apmcal.errors import ApmcalError
 from apmcal.preprocessing.rotations import Rotation, find_rotations, integrate_slice, sample_intervals
 from apmcal.preprocessing.static import (ARDUPILOT_FACE, POSES, StaticSegment, find_static_segments,
                                          label_poses, make_segment)
+from apmcal.solvers.gyro_bias import fit_gyro_bias, integrate_motions, motions_between_holds
 from apmcal.solvers.result import Calibration, SensorCalibration
+from apmcal.solvers.uncertainty import jacobian_sigma
 
 AXES = "xyz"
 MOTION_FACTOR = 3.0          # a hold noisier than 3 × the median hold is flagged
@@ -100,21 +102,6 @@ def earth_rate_up(up_axes: np.ndarray, lat_deg: float) -> np.ndarray:
     the horizontal part depends on the heading and is not included.
     """
     return EARTH_RATE * np.sin(np.radians(lat_deg)) * np.atleast_2d(up_axes)
-
-
-def jacobian_sigma(fun, x: np.ndarray, sx: np.ndarray, rel_step: float = 1e-6) -> np.ndarray:
-    """First-order propagation of independent input sigmas ``sx`` through ``fun`` (central differences)."""
-    x = np.asarray(x, dtype=float).ravel()
-    y0 = np.asarray(fun(x)).ravel()
-    var = np.zeros_like(y0)
-    for i in range(x.size):
-        h = rel_step * max(abs(x[i]), 1.0)
-        xp, xm = x.copy(), x.copy()
-        xp[i] += h
-        xm[i] -= h
-        d = (np.asarray(fun(xp)).ravel() - np.asarray(fun(xm)).ravel()) / (2 * h)
-        var += (d * sx.ravel()[i]) ** 2
-    return np.sqrt(var)
 
 
 # --------------------------------------------------------------------------- sections
@@ -193,84 +180,6 @@ def _static_rows(t, gyr, segs, acc_cal, lat_deg, earth_rate):
         ys.append(y)
         fs.append(np.repeat(acc_cal[k].mean(axis=0)[None, :], len(k), axis=0))
     return np.concatenate(ts), np.vstack(ys), np.vstack(fs)
-
-
-def fit_gyro_bias(ts, ys, fs=None, *, drift: bool = True, t_ref: float = 0.0):
-    """Least squares per axis of ``y = b0 + b1 (t − t_ref) + K_ga f`` (seed 002 eq. 5 + g-sensitivity).
-
-    Returns b0 (3,), b1 (3,), K_ga (3, 3) or None, and the one-sigma of b0 and b1 (residual-scaled
-    covariance; white-noise assumption, optimistic for correlated noise).
-    """
-    cols = [np.ones_like(ts)] + ([ts - t_ref] if drift else [])
-    a = np.column_stack(cols + ([fs] if fs is not None else []))
-    if np.linalg.matrix_rank(a) < a.shape[1]:
-        raise ApmcalError("gyro bias not identifiable from these static holds (need holds spread "
-                          "over time for the drift and opposite poses for the g-sensitivity)")
-    coef, *_ = np.linalg.lstsq(a, ys, rcond=None)
-    res = ys - a @ coef
-    dof = max(1, a.shape[0] - a.shape[1])
-    cov = np.linalg.inv(a.T @ a)
-    s2 = (res ** 2).sum(axis=0) / dof
-    sig = np.sqrt(np.outer(np.diag(cov), s2))
-    b0, sb0 = coef[0], sig[0]
-    b1, sb1 = (coef[1], sig[1]) if drift else (np.zeros(3), np.zeros(3))
-    kga = coef[-3:].T if fs is not None else None
-    return b0, b1, kga, sb0, sb1
-
-
-def motions_between_holds(rotation: Rotation, segments) -> list[tuple]:
-    """(hold before, hold after) pairs around each motion of ``rotation``, in time order.
-
-    The holds are the static segment ending where the rotation starts, those inside it and the
-    one starting where it ends; an empty list when they cannot all be found.
-    """
-    holds = [s for s in segments if s.i1 <= rotation.i1 + 1 and s.i0 >= rotation.i0 - 1
-             or s.i1 == rotation.i0 or s.i0 == rotation.i1]
-    holds = sorted({(s.i0, s.i1): s for s in holds}.values(), key=lambda s: s.i0)
-    if len(holds) < 2 or holds[0].i1 > rotation.i0 or holds[-1].i0 < rotation.i1:
-        return []
-    return list(zip(holds[:-1], holds[1:]))
-
-
-HOLD_EDGE_S = 0.5     # the static detector's window: a hold's edge may still hold motion tails
-
-
-def _trimmed_hold(t, gyr, seg, keep_start: bool) -> tuple[slice, float, np.ndarray, np.ndarray]:
-    """The hold without its edge next to the motion: (slice, mean time, mean, std error)."""
-    i0, i1 = seg.i0, seg.i1
-    n_edge = int(np.searchsorted(t[i0:i1], t[i0] + HOLD_EDGE_S))
-    n_edge = min(n_edge, (i1 - i0) // 4)
-    sl = slice(i0, i1 - n_edge) if keep_start else slice(i0 + n_edge, i1)
-    g = gyr[sl]
-    return sl, float(t[sl].mean()), g.mean(axis=0), g.std(axis=0, ddof=1) / np.sqrt(len(g))
-
-
-def integrate_motions(t, gyr, moves, step: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Σ over motions of ∫ (gyr − local bias) dt [rad] and its one-sigma [rad].
-
-    ``step`` [rad/s]: with too little noise to dither it, quantisation errs by the same fraction
-    of a step on every sample of a steady turn, so its error is taken as uniform over one step,
-    times the motion time, and the same in every motion (added linearly: step·ΣT/√12).
-
-    Each motion is integrated from the trimmed end of the hold before it to the trimmed start
-    of the hold after it (:data:`HOLD_EDGE_S` given back to the motion, so slow tails are not
-    lost), against a bias linear in time between the two trimmed holds' means.
-    """
-    total, var, moving_s = np.zeros(3), np.zeros(3), 0.0
-    for before, after in moves:
-        sa, ta, ba, ea = _trimmed_hold(t, gyr, before, keep_start=True)
-        sb, tb, bb, eb = _trimmed_hold(t, gyr, after, keep_start=False)
-        sl = slice(sa.stop, sb.start)
-        ts = t[sl]
-        if ts.size == 0:
-            continue
-        frac = ((ts - ta) / (tb - ta))[:, None]
-        dt = sample_intervals(ts)
-        total += integrate_slice(ts, gyr[sl] - ((1 - frac) * ba + frac * bb))
-        noise = 0.5 * (before.gyr_std + after.gyr_std)
-        var += (0.5 * np.hypot(ea, eb) * dt.sum()) ** 2 + noise ** 2 * (dt ** 2).sum()
-        moving_s += dt.sum()
-    return total, np.sqrt(var + (step * moving_s / np.sqrt(12.0)) ** 2)
 
 
 def _gyro_part(t, gyr, acc_cal, poses, segs, rots, g, *, bias_drift, earth_rate, lat_deg,

@@ -6,7 +6,7 @@ import numpy as np
 
 from apmcal.constants import STANDARD_GRAVITY
 from apmcal.errors import ApmcalError
-from apmcal.solvers.result import Calibration
+from apmcal.solvers.result import Calibration, SensorCalibration
 
 LEVEL_TOLERANCE_DEG = 10.0  # seed 002 §3.2 levels the platform with a plumb line
 MIN_ELLIPSOID_HOLDS = 7     # 9 parameters; the robust fit's prior carries the rest (seed 000)
@@ -19,34 +19,67 @@ def tilt_from_level_deg(acc_mean: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
 
 
-def longest_level_hold(segments):
-    """The longest hold within :data:`LEVEL_TOLERANCE_DEG` of level, or a clear error."""
-    level = [s for s in segments if tilt_from_level_deg(s.acc_mean) <= LEVEL_TOLERANCE_DEG]
+def longest_level_hold(segments, board_rotation: np.ndarray = np.eye(3)):
+    """The longest hold within :data:`LEVEL_TOLERANCE_DEG` of level, or a clear error.
+
+    Level is the vehicle's: the hold means (sensor frame) are rotated into the body frame by
+    ``board_rotation`` (AHRS_ORIENTATION, sensor → body), so a board mounted upside down on a
+    level vehicle counts as level.
+    """
+    def tilt(s):
+        return tilt_from_level_deg(board_rotation @ s.acc_mean)
+
+    level = [s for s in segments if tilt(s) <= LEVEL_TOLERANCE_DEG]
     if not level:
-        tilts = ", ".join(f"{tilt_from_level_deg(s.acc_mean):.0f}°" for s in segments[:5])
+        tilts = ", ".join(f"{tilt(s):.0f}°" for s in segments[:5])
         found = f" (still periods found, tilted {tilts})" if segments else ""
         raise ApmcalError("one-position method: no level still period found; hold the vehicle "
                           f"level (z down, x north) for about a minute{found}")
     return max(level, key=lambda s: s.end - s.start)
 
 
-def one_position_on_holds(t, acc, gyr, segments, lat_deg, lon_deg) -> Calibration:
+def one_position_on_holds(t, acc, gyr, segments, lat_deg, lon_deg,
+                          board_rotation: np.ndarray = np.eye(3)) -> Calibration:
     """Seed 002's one-position method on the longest level hold.
 
-    The paper's recipe runs, but one pose cannot separate accelerometer bias from tilt (see the
+    The paper's platform is level with x north and z down (seed 002 §3.2): that is the vehicle's
+    body frame, so the sensor-frame samples are rotated into it by ``board_rotation``
+    (AHRS_ORIENTATION), the recipe runs there, and the result is turned back to the sensor frame
+    like every other method's. One pose cannot separate accelerometer bias from tilt (see the
     identifiability lines in the report), so the accelerometer is marked undetermined and its
     offsets are never sent to a vehicle.
     """
     from apmcal.solvers.one_position import one_position_calibration
 
-    still = longest_level_hold(segments)
+    R = np.asarray(board_rotation, dtype=float)
+    still = longest_level_hold(segments, R)
     part = still.kept()
-    cal = one_position_calibration(t[part], acc[part], None if gyr is None else gyr[part],
+    cal = one_position_calibration(t[part], acc[part] @ R.T,
+                                   None if gyr is None else gyr[part] @ R.T,
                                    lat_deg=lat_deg, lon_deg=lon_deg)
+    cal.sensors = {name: body_to_sensor(sc, R) for name, sc in cal.sensors.items()}
     cal.report["static_segment_s"] = [still.start, still.end]
     cal.report["undetermined"] = {"acc": "one static pose cannot separate accelerometer "
                                   "bias from tilt (see the identifiability report)"}
     return cal
+
+
+def body_to_sensor(cal: SensorCalibration, R: np.ndarray) -> SensorCalibration:
+    """A calibration of body-frame samples (R @ m) re-expressed for sensor-frame samples m.
+
+    From R·M_s·(m − o_s) = M_b·(R·m − o_b): o_s = Rᵀ·o_b and M_s = Rᵀ·M_b·R. Sigmas move with
+    the squared entries (exact for the axis permutations of ArduPilot's board rotations).
+    """
+    R2 = R ** 2
+    sigma = {}
+    if "offset" in cal.sigma:
+        sigma["offset"] = np.sqrt(R2.T @ cal.sigma["offset"] ** 2)
+    if "matrix" in cal.sigma:
+        sigma["matrix"] = np.sqrt(R2.T @ cal.sigma["matrix"] ** 2 @ R2)
+    if "drift" in cal.sigma:
+        sigma["drift"] = np.sqrt(R2.T @ cal.sigma["drift"] ** 2)
+    return SensorCalibration(offset=R.T @ cal.offset, matrix=R.T @ cal.matrix @ R,
+                             drift=R.T @ cal.drift, t_ref=cal.t_ref, sigma=sigma)
 
 
 def distinct_orientations(segments, min_chord: float = 0.5) -> int:

@@ -87,16 +87,16 @@ def gyroscope_one_position(gyr: np.ndarray, fs: float, cutoff_hz: float = 0.5,
                            ) -> tuple[SensorCalibration, dict]:
     """Seed 002 §5.2 on still gyro samples (n, 3) [rad/s], x north, z down.
 
-    Returns SensorCalibration (offset = b, matrix = E⁻¹, or I when E cannot be formed) and the
-    intermediate quantities.
+    Returns SensorCalibration (offset = b, matrix = I) and the intermediate quantities. The
+    paper's E is computed and reported but never applied: its terms are set by the Earth rate
+    and the latitude, not by the gyro (module docstring), so E⁻¹ would distort every reading.
     """
     R = gyr.mean(axis=0)                                   # mean
     Rf = highpass(gyr, fs, cutoff_hz).mean(axis=0)         # high-pass mean
     b = R - Rf                                             # eq. (2) with E = I
     out = {"R": R, "R_f": Rf, "bias": b, "notes": []}
-    matrix = np.eye(3)
     if lat_deg is None:
-        out["notes"].append("no latitude: E not computed (identity)")
+        out["notes"].append("no latitude: E not computed")
     else:
         C = c_ecef_to_ned(lat_deg, 0.0 if lon_deg is None else lon_deg)
         w_p = C @ np.array([0.0, 0.0, EARTH_RATE])         # = Ω(cos φ, 0, −sin φ), any longitude
@@ -110,12 +110,11 @@ def gyroscope_one_position(gyr: np.ndarray, fs: float, cutoff_hz: float = 0.5,
         nu = d[2] / w_p[2]
         E = np.array([[1.0, 0.0, tau], [0.0, 1.0, xi], [0.0, 0.0, nu]])
         out.update({"omega_p": w_p, "E": E, "tau_xi_nu": np.array([tau, xi, nu])})
-        if np.linalg.cond(E) < 1e8:
-            matrix = np.linalg.inv(E)
-        else:
-            out["notes"].append(f"E is singular (ν = {nu:.3g}): its inverse cannot be applied, "
-                                "identity used")
-    return SensorCalibration(offset=b, matrix=matrix), out
+    out["notes"].append("gyro matrix left at identity: one pose cannot determine it (E is "
+                        "reported, not applied)")
+    # white-noise standard error of the mean; the resolution floor is added by the pipeline
+    sigma = {"offset": gyr.std(axis=0, ddof=1) / np.sqrt(len(gyr))}
+    return SensorCalibration(offset=b, matrix=np.eye(3), sigma=sigma), out
 
 
 def one_position_calibration(t, acc, gyr, *, lat_deg: float | None = None,

@@ -105,3 +105,18 @@ def bootstrap(fit_fn: Callable[[np.ndarray], object], samples: np.ndarray, n: in
     if is_cal and len(est) > 1:
         res["sigma"] = {"offset": res["std"][:3], "matrix": res["std"][3:12].reshape(3, 3)}
     return res
+
+
+def jacobian_sigma(fun, x: np.ndarray, sx: np.ndarray, rel_step: float = 1e-6) -> np.ndarray:
+    """First-order propagation of independent input sigmas ``sx`` through ``fun`` (central differences)."""
+    x = np.asarray(x, dtype=float).ravel()
+    y0 = np.asarray(fun(x)).ravel()
+    var = np.zeros_like(y0)
+    for i in range(x.size):
+        h = rel_step * max(abs(x[i]), 1.0)
+        xp, xm = x.copy(), x.copy()
+        xp[i] += h
+        xm[i] -= h
+        d = (np.asarray(fun(xp)).ravel() - np.asarray(fun(xm)).ravel()) / (2 * h)
+        var += (d * sx.ravel()[i]) ** 2
+    return np.sqrt(var)

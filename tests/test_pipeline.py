@@ -1,0 +1,54 @@
+"""The joining stage: which recording is calibrated and how it is prepared."""
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from apmcal.pipeline import Options, calibrate, pick_recording, prepare
+from apmcal.recording import LogContents, Recording
+from apmcal.sources import read_log
+
+LOGS = Path(__file__).resolve().parent.parent / "logs"
+
+
+def _recording(message, columns, instance=0, n=10):
+    data = pd.DataFrame({"t": np.arange(n) * 0.1, **{c: np.zeros(n) for c in columns}})
+    return Recording(data=data, message=message, instance=instance)
+
+
+def test_pick_prefers_a_recording_with_gyro_over_accelerometer_alone():
+    acc_only = _recording("ACC1", ["acc_x", "acc_y", "acc_z"])
+    imu = _recording("IMU", ["acc_x", "acc_y", "acc_z", "gyr_x", "gyr_y", "gyr_z"])
+    contents = LogContents(path="x.bin", format="bin", recordings=[acc_only, imu])
+    assert pick_recording(contents, None)[0] is imu
+
+
+def test_pick_prefers_float_samples_over_int16_telemetry():
+    cols = ["acc_x", "acc_y", "acc_z", "gyr_x", "gyr_y", "gyr_z"]
+    raw, high = _recording("RAW_IMU", cols), _recording("HIGHRES_IMU", cols)
+    contents = LogContents(path="x.tlog", format="tlog", recordings=[raw, high])
+    assert pick_recording(contents, None)[0] is high
+
+
+def test_non_finite_samples_are_dropped_and_counted():
+    rec = pick_recording(read_log(LOGS / "ferraris.tlog"), None)[0]
+    data = rec.data.copy()
+    data.loc[[5, 500, 5000], "gyr_y"] = np.nan
+    data.loc[77, "acc_x"] = np.inf
+    prepared = prepare(replace(rec, data=data))
+    assert len(prepared.raw) == len(rec) - 4
+    assert any("4 of" in w and "NaN/inf" in w for w in prepared.warnings)
+    assert np.isfinite(prepared.raw.xyz("gyr")).all()
+    cal = calibrate(replace(rec, data=data), Options(lat_deg=5.6037, lon_deg=-0.187))
+    assert np.isfinite(cal.sensors["gyr"].offset).all()
+
+
+def test_firmware_option_drives_the_correction_undo():
+    """A 3.2 log read as 3.3+ is un-corrected differently: the option must reach prepare()."""
+    rec = pick_recording(read_log(LOGS / "ferraris_params32.tlog"), None)[0]
+    as_logged = prepare(rec).raw.xyz("acc")
+    np.testing.assert_allclose(prepare(rec, "3.2").raw.xyz("acc"), as_logged)
+    assert np.abs(prepare(rec, "3.3+").raw.xyz("acc") - as_logged).max() > 1e-3
