@@ -11,8 +11,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import os
 import sys
 import time
+import warnings
 from pathlib import Path
 
 from apmcal.errors import ApmcalError
@@ -21,8 +24,41 @@ EXIT_USER_ERROR = 2
 EXIT_INTERNAL_ERROR = 3
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line on stderr (the project rule), exit status 2."""
+
+    def error(self, message):
+        self.exit(EXIT_USER_ERROR, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def number_type(kind, low=None, high=None, low_open=False, what="a number"):
+    """An argparse ``type=`` accepting a finite ``kind`` (int/float) in [low, high] (or (low,
+    high] with ``low_open``); anything else is argparse's one-line usage error."""
+    lo = "" if low is None else (f"> {low:g}" if low_open else f">= {low:g}")
+    hi = "" if high is None else f"<= {high:g}"
+    wanted = f"{what} " + (f"in {'(' if low_open else '['}{low:g}, {high:g}]"
+                           if lo and hi else lo or hi)
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {wanted.strip()}, got {text!r}") from None
+        if (not math.isfinite(value) or (low is not None and (value <= low if low_open
+                                                                 else value < low))
+                or (high is not None and value > high)):
+            raise argparse.ArgumentTypeError(f"expected {wanted.strip()}, got {text!r}")
+        return value
+
+    parse.__name__ = kind.__name__
+    return parse
+
+
+POSITIVE_SECONDS = number_type(float, 0, low_open=True, what="seconds")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="apmcal", description=__doc__.split("\n")[0])
+    parser = OneLineParser(prog="apmcal", description=__doc__.split("\n")[0])
     parser.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -35,14 +71,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     live = sub.add_parser("live", help="record from a vehicle over MAVLink and calibrate")
     live.add_argument("connection", help="pymavlink connection string, e.g. udp:127.0.0.1:14550")
-    live.add_argument("--duration", type=float, default=60.0, help="seconds to record (default 60)")
-    live.add_argument("--rate", type=int, default=50, help="IMU stream rate [Hz] (default 50)")
+    live.add_argument("--duration", type=POSITIVE_SECONDS, default=60.0,
+                      help="seconds to record (default 60)")
+    live.add_argument("--rate", type=number_type(int, 1, 1000, what="an integer rate [Hz]"),
+                      default=50, help="IMU stream rate [Hz], 1 to 1000 (default 50)")
     live.add_argument("--save-log", default=None, help="keep the recording as this .tlog")
     live.add_argument("--guide", choices=["ardupilot6"], default=None,
                       help="prompt ArduPilot's six accel-cal faces one by one (instead of "
                            "--duration)")
-    live.add_argument("--hold", type=float, default=10.0, help="seconds per face with --guide")
-    live.add_argument("--move", type=float, default=5.0,
+    live.add_argument("--hold", type=POSITIVE_SECONDS, default=10.0,
+                      help="seconds per face with --guide")
+    live.add_argument("--move", type=number_type(float, 0, what="seconds"), default=5.0,
                       help="seconds to turn to the next face with --guide")
     live.add_argument("--upload", action="store_true",
                       help="write the proposed parameters to the vehicle (backed up, verified)")
@@ -62,23 +101,40 @@ def build_parser() -> argparse.ArgumentParser:
 
 def add_calibration_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--method", default="auto", choices=["auto", "ferraris", "static", "ellipsoid"])
-    p.add_argument("--lat", type=float, default=None, help="latitude [deg] (Earth rate, gravity)")
-    p.add_argument("--lon", type=float, default=None, help="longitude [deg]")
+    p.add_argument("--lat", type=number_type(float, -90, 90, what="latitude [deg]"), default=None,
+                   help="latitude [deg], -90 to 90: normal gravity and Earth rate; with --lon "
+                        "also the magnetometer's field magnitude (WMM). --lat alone is fine")
+    p.add_argument("--lon", type=number_type(float, -180, 180, what="longitude [deg]"),
+                   default=None, help="longitude [deg], -180 to 180 (needs --lat): only for the "
+                                      "magnetometer's field magnitude (WMM)")
     p.add_argument("--instance", type=int, default=None, help="IMU instance (default: first)")
-    p.add_argument("--min-still", type=float, default=2.0, metavar="S",
+    p.add_argument("--min-still", type=POSITIVE_SECONDS, default=2.0, metavar="S",
                    help="shortest still period counted as a hold [s] (default 2)")
     p.add_argument("--firmware", choices=["3.2", "3.3+"], default=None,
                    help="parameter generation (default: from the log; Copter 3.2 is APM 2.x)")
     p.add_argument("--param-file", default=None, help="write proposed parameters (.param)")
-    p.add_argument("--json", default=None, help="write summary and calibration as JSON")
+    p.add_argument("--json", default=None,
+                   help="write summary and calibration as JSON (also when --param-file fails)")
     p.add_argument("--quiet", action="store_true")
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "lon", None) is not None and args.lat is None:
+        # longitude alone would be silently unused (gravity and Earth rate need the latitude,
+        # the WMM field both)
+        parser.error("--lon needs --lat (the magnetic field model needs both; --lat alone is "
+                     "fine)")
+    command = {"log": cmd_log, "live": cmd_live, "upload": cmd_upload,
+               "restore": cmd_restore}[args.command]
     try:
-        return {"log": cmd_log, "live": cmd_live, "upload": cmd_upload,
-                "restore": cmd_restore}[args.command](args)
+        with warnings.catch_warnings():
+            if not args.debug:
+                # numpy/scipy/pandas RuntimeWarnings ("Mean of empty slice", ...) are not for
+                # the user's terminal: what matters is reported in the calibration's warnings
+                warnings.simplefilter("ignore")
+            return command(args)
     except ApmcalError as err:
         if err.path is None:   # solvers know no file names: name the input the user gave
             err.path = getattr(args, "file", None) or getattr(args, "connection", None)
@@ -98,12 +154,42 @@ def main(argv: list[str] | None = None) -> int:
 def console_for(args):
     from rich.console import Console
 
-    return Console(stderr=False, quiet=getattr(args, "quiet", False), highlight=False)
+    # markup and emoji codes off: file names, units "[m/s²]" and notes are printed literally;
+    # report.py styles with Text objects
+    return Console(stderr=False, quiet=getattr(args, "quiet", False), highlight=False,
+                   markup=False, emoji=False)
+
+
+def check_writable(path, what: str) -> None:
+    """Refuse, before any work, an output path that cannot be written (without creating it)."""
+    if path is None:
+        return
+    p = Path(path)
+    parent = p.parent
+    if p.is_dir():
+        why = "is a directory"
+    elif not parent.exists():
+        why = f"directory {parent} does not exist"
+    elif not parent.is_dir():
+        why = f"{parent} is not a directory"
+    elif not os.access(p if p.exists() else parent, os.W_OK):
+        why = "permission denied"
+    else:
+        return
+    raise ApmcalError(f"cannot write {what}: {why}", str(path))
+
+
+def check_outputs(args) -> None:
+    """Every output path of a calibration command checked before reading or recording."""
+    if not getattr(args, "summary_only", False):
+        check_writable(args.param_file, "parameter file")
+    check_writable(args.json, "JSON file")
 
 
 def cmd_log(args) -> int:
     from apmcal.sources import read_log
 
+    check_outputs(args)
     if args.layout == "auto":
         contents = read_log(args.file)
     else:
@@ -118,7 +204,8 @@ def summarise_and_calibrate(contents, args):
     """Print the summary and (unless --summary-only) the calibration; write the outputs.
 
     Returns (exit status, parameter proposal or None). The status is 1 when the firmware would
-    reject some proposed value.
+    reject some proposed value. The JSON file is written last but also when the parameter file
+    could not be (it then says why under "param_file_error"), before that error is raised.
     """
     from apmcal import report
 
@@ -127,6 +214,7 @@ def summarise_and_calibrate(contents, args):
     report.print_summary(summary, console)
     output = {"summary": summary}
     proposal = None
+    param_error = None
     if not getattr(args, "summary_only", False):
         from apmcal.pipeline import Options, calibrate_log
 
@@ -138,21 +226,42 @@ def summarise_and_calibrate(contents, args):
             output["params"] = dict(proposal.values)
             output["rejected_params"] = dict(proposal.rejected)
         if args.param_file:
-            if proposal is None:
-                raise ApmcalError("not an ArduPilot log, so no firmware generation to write "
-                                  "parameters for: add --firmware 3.2 or --firmware 3.3",
-                                  contents.path)
-            from apmcal.vehicle.paramfile import write_param_file
-
-            write_param_file(args.param_file, proposal.values,
-                             f"apmcal {calibration.method} calibration of {contents.path}")
-            console.print(f"wrote {args.param_file}")
+            try:
+                write_proposal(args.param_file, proposal, calibration, contents)
+            except ApmcalError as err:
+                param_error = err
+                output["param_file_error"] = str(err)
+            else:
+                output["param_file"] = args.param_file
+                console.print(f"wrote {args.param_file}")
     if args.json:
         from apmcal.solvers.result import _jsonable
 
-        Path(args.json).write_text(json.dumps(_jsonable(output), indent=2) + "\n")
+        text = json.dumps(_jsonable(output), indent=2) + "\n"
+        try:
+            Path(args.json).write_text(text)
+        except OSError as exc:
+            raise ApmcalError(f"cannot write JSON file ({exc.strerror or exc})",
+                              args.json) from None
         console.print(f"wrote {args.json}")
+    if param_error is not None:
+        raise param_error
     return (0 if proposal is None or not proposal.rejected else 1), proposal
+
+
+def write_proposal(path, proposal, calibration, contents) -> None:
+    """The proposed parameters as a .param file (ApmcalError when there are none or on OSError)."""
+    if proposal is None:
+        raise ApmcalError("not an ArduPilot log, so no firmware generation to write "
+                          "parameters for: add --firmware 3.2 or --firmware 3.3+",
+                          contents.path)
+    from apmcal.vehicle.paramfile import write_param_file
+
+    try:
+        write_param_file(path, proposal.values,
+                         f"apmcal {calibration.method} calibration of {contents.path}")
+    except OSError as exc:     # write_param_file wraps its own; this is belt and braces
+        raise ApmcalError(f"cannot write parameter file ({exc.strerror or exc})", path) from None
 
 
 def cmd_live(args) -> int:
@@ -161,7 +270,18 @@ def cmd_live(args) -> int:
 
     console = console_for(args)
     log_path = args.save_log or f"apmcal-live-{time.strftime('%Y%m%d-%H%M%S')}.tlog"
-    with VehicleLink(args.connection, record_to=log_path) as link:
+    # every output checked before connecting: no minute of recording lost to a typo
+    check_writable(log_path, "recording")
+    check_outputs(args)
+    if args.upload:     # the default backup goes to the current directory: check that too
+        check_writable(args.backup or default_backup_name(), "backup file")
+    try:
+        link = VehicleLink(args.connection, record_to=log_path)
+    except OSError as exc:
+        if exc.filename is None or Path(exc.filename) != Path(log_path):
+            raise
+        raise ApmcalError(f"cannot write recording ({exc.strerror or exc})", log_path) from None
+    with link:
         params = link.fetch_params()
         link.request_imu_stream(args.rate)
         if args.guide:
@@ -212,15 +332,29 @@ def check_params_unchanged(before: dict, after: dict, connection: str) -> None:
                           connection)
 
 
+def default_backup_name() -> str:
+    return f"apmcal-backup-{time.strftime('%Y%m%d-%H%M%S')}.param"
+
+
 def upload_values(connection, values, backup, vehicle_params, console):
     from apmcal.sources.live import VehicleLink
     from apmcal.vehicle.upload import upload_params
 
-    backup = backup or f"apmcal-backup-{time.strftime('%Y%m%d-%H%M%S')}.param"
+    backup = backup or default_backup_name()
+    check_writable(backup, "backup file")
     with VehicleLink(connection) as link:
         result = upload_params(link, values, backup, vehicle_params)
     console.print(f"wrote and verified {len(result.written)} parameters; backup in {backup} "
                   f"(undo: apmcal restore {connection} {backup})")
+    print_skipped(result, console)
+
+
+def print_skipped(result, console) -> None:
+    """Names the vehicle does not have (UploadReport.skipped, when the report carries it)."""
+    skipped = list(getattr(result, "skipped", None) or [])
+    if skipped:
+        console.print(f"skipped {len(skipped)} names the vehicle does not have: "
+                      + ", ".join(skipped))
 
 
 def cmd_upload(args) -> int:
@@ -237,7 +371,9 @@ def cmd_restore(args) -> int:
 
     with VehicleLink(args.connection) as link:
         result = restore_params(link, args.backup_file)
-    console_for(args).print(f"restored {len(result.written)} parameters from {args.backup_file}")
+    console = console_for(args)
+    console.print(f"restored {len(result.written)} parameters from {args.backup_file}")
+    print_skipped(result, console)
     return 0
 
 

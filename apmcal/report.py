@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+from rich.text import Text
 
 from apmcal.recording import LogContents
 
@@ -9,8 +10,27 @@ CALIBRATION_PARAM_PREFIXES = ("INS_ACC", "INS_GYR", "COMPASS_OFS", "COMPASS_DIA"
                               "COMPASS_MOT", "COMPASS_ORIENT", "AHRS_ORIENTATION")
 
 
+def reader_notes(contents: LogContents) -> list[str]:
+    """What the reader itself noted about the file (dropped columns, NaN parameters ignored, raw
+    counts, ...), as opposed to the vehicle's own STATUSTEXT/MSG texts.
+
+    The ArduPilot readers prefix their notes with "note: " or "warning: "; everything a CSV
+    reader puts in ``messages`` is a note of its own (a CSV file carries no vehicle texts).
+    """
+    if contents.format == "csv":
+        return list(contents.messages)
+    return [m for m in contents.messages if m.startswith(READER_NOTE_PREFIXES)]
+
+
+READER_NOTE_PREFIXES = ("note: ", "warning: ")
+
+
 def summarize(contents: LogContents) -> dict:
-    """Plain-dict summary of a source: sensors, rates, duration, parameters in force, firmware."""
+    """Plain-dict summary of a source: sensors, rates, duration, parameters in force, firmware.
+
+    ``messages`` holds the first 20 texts of the file (vehicle texts and reader notes, as read);
+    ``notes`` every note of the reader (:func:`reader_notes`), which the text report prints.
+    """
     recordings = []
     for rec in contents.recordings:
         recordings.append({
@@ -24,54 +44,82 @@ def summarize(contents: LogContents) -> dict:
     return {"file": contents.path, "format": contents.format, "vehicle": contents.vehicle,
             "firmware": contents.firmware, "recordings": recordings,
             "calibration_params_in_force": in_force, "param_count": len(contents.params),
-            "bytes_skipped": contents.bytes_skipped, "messages": contents.messages[:20]}
+            "bytes_skipped": contents.bytes_skipped, "messages": contents.messages[:20],
+            "notes": reader_notes(contents)}
+
+
+# Everything below prints Text objects, never strings rich would parse: file names, notes and
+# unit brackets such as "[m/s²]" are shown as they are (rich markup would eat "[m/s²]" and
+# "[blue]"), whatever the console's markup setting.
+
+def _note(text: str) -> Text:
+    """A reader/solver note, its "warning:" prefix in yellow."""
+    for prefix in ("warning:", "note:"):
+        if text.startswith(prefix):
+            return Text.assemble((prefix, "yellow" if prefix == "warning:" else ""),
+                                 text[len(prefix):])
+    return Text(text)
 
 
 def print_summary(summary: dict, console) -> None:
     """Render :func:`summarize` output with rich."""
+    from rich import box
     from rich.table import Table
 
-    console.print(f"[bold]{summary['file']}[/] ({summary['format']}); vehicle: "
-                  f"{summary['vehicle'] or 'unknown'}; firmware: {summary['firmware'] or 'unknown'}")
-    table = Table("message", "inst", "sensors", "samples", "rate [Hz]", "duration [s]",
-                  "corrected", "frame")
+    console.print(Text.assemble((str(summary["file"]), "bold"),
+                                f" ({summary['format']}); vehicle: "
+                                f"{summary['vehicle'] or 'unknown'}; firmware: "
+                                f"{summary['firmware'] or 'unknown'}"))
+    # compact (no borders, one space between columns): fits 80 columns, so a piped run neither
+    # wraps headers nor truncates cells ("acc,gyr,mag")
+    table = Table(box=box.SIMPLE_HEAD, padding=(0, 0), collapse_padding=True, show_edge=False,
+                  pad_edge=False)
+    for header in ("message", "inst", "sensors", "samples", "rate [Hz]", "duration [s]",
+                   "corrected", "frame"):
+        table.add_column(Text(header))
     for r in summary["recordings"]:
-        table.add_row(r["message"], str(r["instance"]), ",".join(r["sensors"]), str(r["samples"]),
-                      f"{r['rate_hz']:.1f}", f"{r['duration_s']:.1f}", str(r["corrected"]),
-                      r["frame"])
+        table.add_row(*[Text(str(c)) for c in (
+            r["message"], r["instance"], ",".join(r["sensors"]), r["samples"],
+            f"{r['rate_hz']:.1f}", f"{r['duration_s']:.1f}", r["corrected"], r["frame"])])
     console.print(table)
     params = summary["calibration_params_in_force"]
     if params:
-        console.print("calibration parameters in force: " +
-                      ", ".join(f"{k}={v:.6g}" for k, v in params.items()))
+        console.print(Text("calibration parameters in force: " +
+                           ", ".join(f"{k}={v:.6g}" for k, v in params.items())))
     else:
-        console.print(f"calibration parameters in force: none found "
-                      f"({summary['param_count']} parameters in the log)")
+        console.print(Text(f"calibration parameters in force: none found "
+                           f"({summary['param_count']} parameters in the log)"))
     if summary["bytes_skipped"]:
-        console.print(f"[yellow]damaged input: {summary['bytes_skipped']} bytes skipped[/]")
+        console.print(Text(f"damaged input: {summary['bytes_skipped']} bytes skipped",
+                           style="yellow"))
+    for note in summary.get("notes", []):
+        console.print(_note(note))
 
 
 def print_calibration(calibration, proposal, console) -> None:
-    """Render a Calibration and its ArduPilot parameter proposal."""
+    """Render a Calibration, its solver's report lines and its ArduPilot parameter proposal."""
     used = calibration.report.get("recording")
-    console.print(f"[bold]method:[/] {calibration.method}" + (f" on {used}" if used else ""))
+    console.print(Text.assemble(("method:", "bold"), f" {calibration.method}"
+                                + (f" on {used}" if used else "")))
     units = {"acc": "m/s²", "gyr": "rad/s", "mag": "mGauss"}
     for name, cal in calibration.sensors.items():
         sig = cal.sigma.get("offset")
         off = ", ".join(f"{v:+.6g}" for v in cal.offset)
         sig_txt = "" if sig is None else " ± (" + ", ".join(f"{v:.2g}" for v in np.ravel(sig)) + ")"
-        console.print(f"  {name}: offset [{units[name]}] = ({off}){sig_txt}")
+        console.print(Text(f"  {name}: offset [{units[name]}] = ({off}){sig_txt}"))
         with np.printoptions(precision=6, suppress=True):
-            console.print("    matrix = " + str(cal.matrix).replace("\n", "\n             "))
+            console.print(Text("    matrix = " + str(cal.matrix).replace("\n", "\n             ")))
         if np.any(cal.drift):
-            console.print(f"    drift [{units[name]}/s] = {cal.drift}")
+            console.print(Text(f"    drift [{units[name]}/s] = {cal.drift}"))
+    for line in calibration.report.get("lines", []):     # identifiability, residuals, verdicts
+        console.print(Text(f"  {line}"))
     for line in calibration.report.get("warnings", []):
-        console.print(f"  [yellow]warning:[/] {line}")
+        console.print(Text.assemble("  ", ("warning:", "yellow"), f" {line}"))
     if proposal is not None:
-        console.print(f"[bold]ArduPilot parameters ({proposal.generation}):[/]")
+        console.print(Text(f"ArduPilot parameters ({proposal.generation}):", style="bold"))
         for name, value in proposal.values.items():
-            console.print(f"  {name} {value:.6g}")
+            console.print(Text(f"  {name} {value:.6g}"))
         for name, why in proposal.rejected.items():
-            console.print(f"  [red]not proposed[/] {name}: {why}")
+            console.print(Text.assemble("  ", ("not proposed", "red"), f" {name}: {why}"))
         for note in proposal.notes:
-            console.print(f"  note: {note}")
+            console.print(Text(f"  note: {note}"))
