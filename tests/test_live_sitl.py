@@ -23,6 +23,23 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
+def wait_for_boot(param_file: Path, timeout_s: float = 60.0) -> None:
+    """Wait until the vehicle's boot gyro calibration (INS_GYR_CAL=1) has stored INS_GYROFFS.
+
+    A fixed sleep is not enough on a loaded machine: starting the simulator's Python alone can
+    take seconds, and a recording begun before the boot calibration ends is (rightly) refused.
+    """
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            if json.loads(param_file.read_text()).get("INS_GYROFFS_X", 0.0) != 0.0:
+                return
+        except (OSError, ValueError):       # not written yet, or caught mid-write
+            pass
+        time.sleep(0.1)
+    raise TimeoutError(f"simulated vehicle did not finish its boot calibration ({param_file})")
+
+
 @pytest.fixture
 def vehicle(tmp_path):
     port = free_udp_port()
@@ -33,7 +50,7 @@ def vehicle(tmp_path):
          "--disable", "motion_contamination,temperature_drift",
          "--write-truth", str(tmp_path / "truth.json")],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    time.sleep(2.0)      # past the boot gyro calibration (1 s simulated, INS_GYR_CAL=1)
+    wait_for_boot(tmp_path / "sitl-params.json")
     yield f"udp:127.0.0.1:{port}", tmp_path
     proc.kill()
     proc.wait(timeout=10)
@@ -109,7 +126,7 @@ def test_guided_six_faces_against_operator_vehicle(tmp_path):
          "--param-file", str(tmp_path / "p.json"), "--write-truth", str(tmp_path / "truth.json"),
          "--disable", "motion_contamination,temperature_drift,scale_nonlinearity"],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    time.sleep(2.0)
+    wait_for_boot(tmp_path / "p.json")
     out = tmp_path / "guided.json"
     try:
         status = main(["live", f"udp:127.0.0.1:{port}", "--guide", "ardupilot6", "--hold", "2",
