@@ -322,10 +322,10 @@ def check_params_unchanged(before: dict, after: dict, connection: str) -> None:
     before and after a change (a boot gyro calibration still running, another GCS writing)
     cannot be un-corrected with one set.
     """
-    from apmcal.report import CALIBRATION_PARAM_PREFIXES
+    from apmcal.recording import is_calibration_param
 
     changed = [f"{k} {before.get(k)} -> {after.get(k)}" for k in sorted(set(before) | set(after))
-               if k.startswith(CALIBRATION_PARAM_PREFIXES) and before.get(k) != after.get(k)]
+               if is_calibration_param(k) and before.get(k) != after.get(k)]
     if changed:
         raise ApmcalError("calibration parameters changed while recording (" + ", ".join(changed)
                           + "); wait for the vehicle to finish booting and record again",

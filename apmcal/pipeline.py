@@ -7,7 +7,8 @@ sees raw sensor-frame samples. Static holds are found once and shared by the met
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import datetime
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -36,6 +37,7 @@ class Options:
     min_still_s: float = 2.0              # shortest still period counted as a hold [s]
     instance: int | None = None           # IMU instance (None: the first)
     generation: str | None = None         # "3.2" / "3.3+" (None: from the log)
+    date: datetime.date | None = None     # recording date, for the WMM field (None: today)
 
     @property
     def gravity(self) -> float:
@@ -73,8 +75,6 @@ def prepare(recording: Recording, generation: str | None = None) -> Prepared:
 
 def drop_non_finite(recording: Recording) -> tuple[Recording, list[str]]:
     """Rows whose time or sensor values are NaN/inf removed, with a counted warning."""
-    from dataclasses import replace
-
     cols = ["t"] + [c for s in recording.sensors for c in SENSOR_COLUMNS[s]]
     finite = np.isfinite(recording.data[cols].to_numpy(dtype=float)).all(axis=1)
     bad = int(np.count_nonzero(~finite))
@@ -173,8 +173,18 @@ def calibrate_log(contents, opts: Options = Options()):
     from apmcal.preprocessing.firmware import firmware_generation
     from apmcal.vehicle.params import to_ardupilot_params, withhold_undetermined
 
+    from apmcal.preprocessing.param_changes import after_param_changes
+
     recording, mag_recording = pick_recording(contents, opts.instance)
+    recording, change_warnings = after_param_changes(recording, contents.param_changes,
+                                                     contents.path)
+    if mag_recording is not None:
+        mag_recording, _ = after_param_changes(mag_recording, contents.param_changes,
+                                               contents.path)
+    if opts.date is None:
+        opts = replace(opts, date=recording_date(contents))
     cal = calibrate(recording, opts)
+    cal.report.setdefault("warnings", []).extend(change_warnings)
     cal.report["recording"] = f"{recording.message} (IMU instance {recording.instance})"
     if mag_recording is not None and "mag" not in cal.sensors:
         if has_live_magnetometer(mag_recording):
@@ -193,6 +203,13 @@ def calibrate_log(contents, opts: Options = Options()):
     withhold_undetermined(proposal, cal.report.get("undetermined", {}))
     cal.params = dict(proposal.values)
     return cal, proposal
+
+
+def recording_date(contents) -> datetime.date | None:
+    """UTC date the source was recorded, when the source carries a wall-clock time."""
+    if contents.start_unix_s is None:
+        return None
+    return datetime.datetime.fromtimestamp(contents.start_unix_s, tz=datetime.timezone.utc).date()
 
 
 def pick_recording(contents, instance: int | None):
@@ -217,7 +234,7 @@ def add_magnetometer(cal: Calibration, prepared: Prepared, opts: Options) -> Non
 
     try:
         cal.sensors["mag"] = calibrate_magnetometer(prepared.raw.xyz("mag"), opts.lat_deg,
-                                                    opts.lon_deg, cal.report)
+                                                    opts.lon_deg, cal.report, opts.date)
     except ApmcalError as err:
         cal.report.setdefault("warnings", []).append(err.why)
         return

@@ -26,6 +26,17 @@ GYR = ["gyr_x", "gyr_y", "gyr_z"]
 MAG = ["mag_x", "mag_y", "mag_z"]
 SENSOR_COLUMNS = {"acc": ACC, "gyr": GYR, "mag": MAG}
 
+#: Parameters the firmware uses to correct (or rotate) the IMU and compass samples it reports
+#: (ardupilot-facts.md, "How the firmware applies the parameters"): a name starting with one of
+#: these is a calibration parameter.
+CALIBRATION_PARAM_PREFIXES = ("INS_ACC", "INS_GYR", "COMPASS_OFS", "COMPASS_DIA", "COMPASS_ODI",
+                              "COMPASS_MOT", "COMPASS_ORIENT", "AHRS_ORIENTATION")
+
+
+def is_calibration_param(name: str) -> bool:
+    """True if ``name`` starts with one of :data:`CALIBRATION_PARAM_PREFIXES`."""
+    return name.startswith(CALIBRATION_PARAM_PREFIXES)
+
 
 @dataclass
 class Recording:
@@ -76,6 +87,25 @@ class Recording:
         return len(self.data)
 
 
+@dataclass(frozen=True)
+class ParamChange:
+    """A calibration parameter that took a new value after the log's IMU samples had begun.
+
+    The firmware corrects every sample with the parameters in force at that moment, so samples
+    before and after the change cannot be un-corrected with one parameter set.
+    """
+
+    name: str
+    old: float                 # value before (the last one seen, possibly before the samples)
+    new: float
+    time_s: float | None       # on the recordings' time axis [s]; None when the log cannot tell
+    where: str                 # e.g. "PARM record at byte 12345", "PARAM_VALUE at byte 678"
+
+    def __str__(self) -> str:
+        when = f" at t={self.time_s:.3f} s" if self.time_s is not None else ""
+        return f"{self.name} changed from {self.old:g} to {self.new:g}{when} ({self.where})"
+
+
 @dataclass
 class LogContents:
     """Everything a reader found in one file."""
@@ -89,3 +119,9 @@ class LogContents:
     messages: list[str] = field(default_factory=list)        # STATUSTEXT / MSG texts
     bytes_skipped: int = 0                         # garbage or damaged bytes passed over
     damaged_at: list[int] = field(default_factory=list)      # byte offsets where damage began
+    # calibration parameters (CALIBRATION_PARAM_PREFIXES) that changed value after the first
+    # IMU/MAG sample, in file order; ``params`` keeps the last value of each
+    param_changes: list[ParamChange] = field(default_factory=list)
+    # wall-clock time of the first record [s since 1970, UTC] when the file carries one (a
+    # .tlog's per-frame timestamps); None otherwise. Dates the WMM field of the recording.
+    start_unix_s: float | None = None

@@ -1,13 +1,12 @@
 """Human and machine summaries of what was read and what was computed."""
 from __future__ import annotations
 
+import datetime
+
 import numpy as np
 from rich.text import Text
 
-from apmcal.recording import LogContents
-
-CALIBRATION_PARAM_PREFIXES = ("INS_ACC", "INS_GYR", "COMPASS_OFS", "COMPASS_DIA", "COMPASS_ODI",
-                              "COMPASS_MOT", "COMPASS_ORIENT", "AHRS_ORIENTATION")
+from apmcal.recording import LogContents, is_calibration_param
 
 
 def reader_notes(contents: LogContents) -> list[str]:
@@ -39,13 +38,21 @@ def summarize(contents: LogContents) -> dict:
             "duration_s": round(rec.duration, 3), "corrected": rec.corrected, "frame": rec.frame,
             "has_temperature": "temp" in rec.data.columns,
         })
-    in_force = {k: v for k, v in sorted(contents.params.items())
-                if k.startswith(CALIBRATION_PARAM_PREFIXES)}
+    in_force = {k: v for k, v in sorted(contents.params.items()) if is_calibration_param(k)}
     return {"file": contents.path, "format": contents.format, "vehicle": contents.vehicle,
             "firmware": contents.firmware, "recordings": recordings,
             "calibration_params_in_force": in_force, "param_count": len(contents.params),
             "bytes_skipped": contents.bytes_skipped, "messages": contents.messages[:20],
-            "notes": reader_notes(contents)}
+            "notes": reader_notes(contents), "recorded_utc": _utc(contents.start_unix_s),
+            "param_changes": [str(c) for c in contents.param_changes]}
+
+
+def _utc(unix_s: float | None) -> str | None:
+    """ISO 8601 UTC time of ``unix_s`` [s since 1970], to the second; None stays None."""
+    if unix_s is None:
+        return None
+    when = datetime.datetime.fromtimestamp(unix_s, tz=datetime.timezone.utc)
+    return when.isoformat(timespec="seconds")
 
 
 # Everything below prints Text objects, never strings rich would parse: file names, notes and
@@ -70,6 +77,8 @@ def print_summary(summary: dict, console) -> None:
                                 f" ({summary['format']}); vehicle: "
                                 f"{summary['vehicle'] or 'unknown'}; firmware: "
                                 f"{summary['firmware'] or 'unknown'}"))
+    if summary.get("recorded_utc"):
+        console.print(Text(f"recorded: {summary['recorded_utc']} (ground station clock)"))
     # compact (no borders, one space between columns): fits 80 columns, so a piped run neither
     # wraps headers nor truncates cells ("acc,gyr,mag")
     table = Table(box=box.SIMPLE_HEAD, padding=(0, 0), collapse_padding=True, show_edge=False,
@@ -92,6 +101,8 @@ def print_summary(summary: dict, console) -> None:
     if summary["bytes_skipped"]:
         console.print(Text(f"damaged input: {summary['bytes_skipped']} bytes skipped",
                            style="yellow"))
+    for change in summary.get("param_changes", []):
+        console.print(_note(f"warning: while recording, {change}"))
     for note in summary.get("notes", []):
         console.print(_note(note))
 

@@ -12,11 +12,16 @@ Generations
 
     acc = R·((raw − INS_ACCOFFS) ⊙ INS_ACCSCAL)      gyr = R·(raw − INS_GYROFFS)
 
-Compass, every generation, body frame, offset ADDED (DIA/ODI only on 3.3+, identity on 3.2)::
+Compass, every generation, body frame, offset ADDED (ardupilot-facts.md; DIA/ODI only on 3.3+)::
 
-    mag = M(DIA, ODI)·(R·raw + COMPASS_OFS) + COMPASS_MOT·throttle
+    3.2:  mag = R_mag·raw + COMPASS_OFS + MOT·d
+    3.3:  mag = M(DIA, ODI)·(R_mag·raw + COMPASS_OFS + MOT·d)
 
-R is the AHRS_ORIENTATION rotation (board frame → vehicle body frame).
+d = throttle (0..1, COMPASS_MOTCT=1) or current [A] (MOTCT=2), MOT·d applied only when MOTCT≠0
+and d≠0. R is the AHRS_ORIENTATION rotation (board frame → vehicle body frame). The facts file
+only says that COMPASS_ORIENT/COMPASS_EXTERNAL exist; how they combine with AHRS_ORIENTATION,
+the all-zero-DIA rule and where MOT·d enters on 3.3 are taken from the firmware sources (see
+:func:`compass_rotation`, :func:`soft_iron_matrix`, :func:`apply_compass`).
 """
 from __future__ import annotations
 
@@ -82,33 +87,96 @@ def apply_gyro(raw: np.ndarray, params: dict, generation: str) -> np.ndarray:
     return (raw - offs) @ rot.T            # ardupilot-facts.md: 3.3+ offset in sensor frame
 
 
+def dia_all_zero(params: dict) -> bool:
+    """True when COMPASS_DIA_X/Y/Z all exist and are exactly 0 (``Vector3f::is_zero()``)."""
+    names = [f"COMPASS_DIA_{a}" for a in "XYZ"]
+    return all(n in params for n in names) and all(float(params[n]) == 0.0 for n in names)
+
+
 def soft_iron_matrix(params: dict, generation: str) -> np.ndarray:
-    """M(DIA, ODI) of ardupilot-facts.md; identity on 3.2 where DIA/ODI do not exist."""
+    """M(DIA, ODI) of ardupilot-facts.md; identity on 3.2 where DIA/ODI do not exist.
+
+    All three COMPASS_DIA exactly 0 count as (1, 1, 1), the off-diagonals still applied (not in
+    ardupilot-facts.md): Copter 3.3's ``AP_Compass_Backend::apply_corrections`` (the 3.3-based
+    3drobotics/ardupilot-solo and SMT-sMart-Team/ardupilot-3.3; ``correct_field`` in
+    ArduPilot/ardupilot libraries/AP_Compass/AP_Compass_Backend.cpp at 00ed6bbc) starts with
+    ``if (state.diagonals.get().is_zero()) state.diagonals.set(Vector3f(1.0f,1.0f,1.0f));`` and
+    then builds the matrix with ODI as stored. Only the all-zero case is special: DIA = (0, 1, 1)
+    is used as it is (singular).
+    """
     if generation == "3.2":
         return np.eye(3)
-    dx, dy, dz = _vec(params, "COMPASS_DIA_{}", 1.0)
+    dx, dy, dz = (1.0, 1.0, 1.0) if dia_all_zero(params) else _vec(params, "COMPASS_DIA_{}", 1.0)
     ox, oy, oz = _vec(params, "COMPASS_ODI_{}", 0.0)
     return np.array([[dx, ox, oy], [ox, dy, oz], [oy, oz, dz]])
+
+
+def compass_rotation(params: dict, generation: str) -> np.ndarray:
+    """Compass sensor → body rotation from AHRS_ORIENTATION, COMPASS_ORIENT, COMPASS_EXTERNAL.
+
+    ardupilot-facts.md lists COMPASS_ORIENT and COMPASS_EXTERNAL (on every generation) but not
+    how they are applied; from the firmware sources (``v.rotate(A)`` then ``v.rotate(B)`` is
+    B·A·v; MAG_BOARD_ORIENTATION and the driver's fixed chip rotation are not modelled):
+
+    * 3.2 (the pre-backend drivers' ``read()``, e.g. ``AP_Compass_HMC5843::read``, and the
+      first ``AP_Compass_Backend::_copy_to_frontend``, in 3.2-era forks of ArduPilot):
+      ``rotate(COMPASS_ORIENT)`` always, then ``if (!_external) rotate(_board_orientation)``,
+      i.e. R = R_orient (external) or R_ahrs·R_orient (internal).
+    * 3.3 (``AP_Compass_Backend::publish_field`` in SMT-sMart-Team/ardupilot-3.3;
+      ``rotate_field`` in 3drobotics/ardupilot-solo and ArduPilot/ardupilot at 00ed6bbc):
+      ``if (!state.external) rotate(_board_orientation); else rotate(state.orientation)``,
+      i.e. R = R_orient (external) or R_ahrs (internal: COMPASS_ORIENT ignored).
+
+    COMPASS_EXTERNAL is used as stored (the drivers' boot-time ``set_external`` is not modelled).
+    """
+    ahrs = rotation_matrix(params.get("AHRS_ORIENTATION", 0))
+    orient = rotation_matrix(params.get("COMPASS_ORIENT", 0))
+    external = float(params.get("COMPASS_EXTERNAL", 0)) != 0
+    if generation == "3.2":
+        return orient if external else ahrs @ orient
+    return orient if external else ahrs
+
+
+def compass_motor_offset(params: dict, throttle: np.ndarray | float = 0.0,
+                         current_a: np.ndarray | float = 0.0, n: int | None = None
+                         ) -> np.ndarray:
+    """COMPASS_MOT·d [mGauss, body frame] (n, 3), the firmware's ``motor_offset`` (MAG MOX..Z).
+
+    COMPASS_MOTCT selects d: 0 none, 1 throttle (0..1), 2 battery current [A]. ADDED to the
+    field (ardupilot-facts.md "+ COMPASS_MOT·(throttle or current)"; Copter 3.2/3.3
+    ``mag += motor_offset`` only when the type is not disabled and d ≠ 0), never subtracted:
+    compassmot stores MOT as minus the interference per unit d, so adding it cancels it.
+    """
+    motct = int(params.get("COMPASS_MOTCT", 0))
+    drive = np.atleast_1d(np.asarray(throttle if motct == 1 else current_a, dtype=float))
+    if n is not None:
+        drive = np.broadcast_to(drive, (n,))
+    if motct not in (1, 2):
+        return np.zeros((len(drive), 3))
+    return np.multiply.outer(drive, _vec(params, "COMPASS_MOT_{}", 0.0))
 
 
 def apply_compass(raw: np.ndarray, params: dict, generation: str,
                   throttle: np.ndarray | float = 0.0, current_a: np.ndarray | float = 0.0
                   ) -> np.ndarray:
-    """Reported field [mGauss, body frame] from raw (n, 3) samples [mGauss, board frame].
+    """Reported field [mGauss, body frame] from raw (n, 3) samples [mGauss, compass frame].
 
-    COMPASS_MOTCT selects the compensation input: 0 none, 1 throttle (0..1), 2 current [A].
+    Copter 3.3 adds COMPASS_MOT·d BEFORE the DIA/ODI matrix (``apply_corrections`` /
+    ``correct_field``, same sources as :func:`soft_iron_matrix`:
+    ``mag += offsets; mag += motor_offset; mag = mat * mag``); later firmware (4.x
+    ``AP_Compass_Backend::correct_field``: "we apply the motor offsets after we apply the
+    elliptical correction") and ardupilot-facts.md's formula add it after. The simulated
+    firmware is Copter 3.3.3, so it follows 3.3. On 3.2 (no matrix) both orders agree.
     """
-    rot = rotation_matrix(params.get("AHRS_ORIENTATION", 0))
+    raw = np.atleast_2d(raw)
+    rot = compass_rotation(params, generation)
     ofs = _vec(params, "COMPASS_OFS_{}", 0.0)
     m = soft_iron_matrix(params, generation)
     # ardupilot-facts.md: compass offsets are ADDED, in the body frame, then DIA/ODI
-    out = (np.atleast_2d(raw) @ rot.T + ofs) @ m.T
-    motct = int(params.get("COMPASS_MOTCT", 0))
-    if motct in (1, 2):
-        drive = np.asarray(throttle if motct == 1 else current_a, dtype=float)
-        out = out + np.multiply.outer(np.broadcast_to(drive, out.shape[:1]),
-                                      _vec(params, "COMPASS_MOT_{}", 0.0))
-    return out
+    body = raw @ rot.T + ofs
+    if int(params.get("COMPASS_MOTCT", 0)) in (1, 2):
+        body = body + compass_motor_offset(params, throttle, current_a, len(raw))
+    return body @ m.T
 
 
 def gyro_boot_offsets(raw_gyro: np.ndarray, params: dict, generation: str) -> np.ndarray:

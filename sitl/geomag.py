@@ -5,6 +5,8 @@ NED; ArduPilot reports the magnetometer in mGauss (1 mGauss = 100 nT, so nT × 0
 """
 from __future__ import annotations
 
+import datetime
+
 import numpy as np
 from pygeomag import GeoMag
 
@@ -27,3 +29,11 @@ def earth_field_ned(lat_deg: float, lon_deg: float, alt_m: float = 0.0,
     res = GeoMag().calculate(glat=float(lat_deg), glon=float(lon_deg), alt=float(alt_m) / 1000.0,
                              time=float(year))
     return np.array([res.x, res.y, res.z]) * NT_TO_MGAUSS
+
+
+def decimal_year(unix_s: float) -> float:
+    """Unix time [s] → decimal year (UTC), the time argument of the WMM."""
+    when = datetime.datetime.fromtimestamp(unix_s, tz=datetime.timezone.utc)
+    start = datetime.datetime(when.year, 1, 1, tzinfo=datetime.timezone.utc)
+    end = datetime.datetime(when.year + 1, 1, 1, tzinfo=datetime.timezone.utc)
+    return when.year + (when - start) / (end - start)

@@ -5,7 +5,8 @@
 
 .tlog: PARAM_VALUE of every parameter at the start, STATUSTEXT firmware string, HEARTBEAT 1 Hz,
 SYS_STATUS, RAW_IMU at --rate, SCALED_PRESSURE at 2 Hz.
-.bin : FMT, PARM (all), MSG (firmware string), IMU and MAG at --rate.
+.bin : FMT, PARM (all), MSG (firmware string), IMU and MAG (MOX..Z = COMPASS_MOT·throttle or
+       current) at --rate.
 Parameters are NEUTRAL (offsets 0, scales 1, INS_GYR_CAL=0 so no boot gyro offsets) unless --set.
 """
 from __future__ import annotations
@@ -25,13 +26,14 @@ START_UNIX = 1_780_000_000.0     # fixed start time (2026-05-28) so logs are byt
 def make_vehicle(args) -> SimVehicle:
     truth = make_truth(args)
     v = SimVehicle(truth, args.script, args.firmware, None, seed=args.seed,
-                   duration=args.duration, gyro_boot_s=1.0)
+                   duration=args.duration, gyro_boot_s=1.0, start_unix=START_UNIX)
     v.params.set("INS_GYR_CAL", 0, save=False)
     v._boot_gyro = None                 # neutral: no boot-time gyro offsets
     for item in args.set or []:
         name, _, value = item.partition("=")
         if v.params.set(name.strip(), value, save=False) is None:
             raise SitlError(f"unknown parameter or bad value {item!r}", where="--set")
+    v.reset_zero_compass_diagonals()    # the firmware does it at its first compass sample
     return v
 
 
@@ -60,7 +62,8 @@ def write_bin(v: SimVehicle, out: Path, rate: float, seconds: float) -> None:
             if m.get_type() == "HIGHRES_IMU":
                 us = int(round(t * 1e6))
                 w.imu(us, (m.xgyro, m.ygyro, m.zgyro), (m.xacc, m.yacc, m.zacc), m.temperature)
-                w.mag(us, (m.xmag * 1000, m.ymag * 1000, m.zmag * 1000), ofs)
+                w.mag(us, (m.xmag * 1000, m.ymag * 1000, m.zmag * 1000), ofs,
+                      v.motor_offset(t)[0])
         _drain(v, seconds, emit)
 
 
@@ -79,7 +82,8 @@ def main(argv=None) -> int:
     ap.add_argument("--truth-out", help="write the injected truth JSON here")
     ap.add_argument("--rate", type=float, default=50.0, help="IMU message rate [Hz]")
     ap.add_argument("--firmware", choices=("3.2", "3.3"), default="3.2")
-    ap.add_argument("--duration", type=float, help="script length [s] (onepos/warmup/tumble)")
+    ap.add_argument("--duration", type=float,
+                    help="script length [s] (onepos/warmup/tumble/motors)")
     ap.add_argument("--set", action="append", metavar="NAME=VALUE",
                     help="parameter in force (default: all neutral)")
     add_truth_args(ap)
@@ -109,7 +113,7 @@ def session_info(v: SimVehicle, args, seconds: float) -> dict:
             "time_base": "t (sections, gyr t_ref/drift, temperature) = seconds since boot = "
                          "tlog timestamp - start_unix = RAW_IMU time_usec/1e6 = dataflash TimeUS/1e6",
             "sections": [list(s) for s in v.motion.sections()], "params": v.params.as_dict(),
-            "earth_field_ned_mgauss": v.field_ned.tolist()}
+            "earth_field_ned_mgauss": v.field_ned.tolist(), "wmm_year": v.wmm_year}
 
 
 if __name__ == "__main__":

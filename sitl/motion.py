@@ -7,6 +7,10 @@ is a small rotation Exp(δ(t)) applied on top: R = R_script·Exp(δ), ω = Exp(�
 
 Attitude R_nb maps body (FRD) vectors to NED; poses are built as Rz(yaw)·Ry(pitch)·Rx(roll).
 Face names follow imucal / Ferraris: "x_p" = x axis reads +g (x up, nose up), "x_a" = x down.
+
+Each segment also carries a throttle (0..1), constant or a linear ramp over the segment
+(:meth:`Motion.throttle`); it drives the mag_interference effect and COMPASS_MOT. Only the
+``motors`` script runs the motors: every other script is at throttle 0 throughout.
 """
 from __future__ import annotations
 
@@ -27,7 +31,7 @@ POSES = {
 }
 # ArduPilot accelcal ACCELCAL_VEHICLE_POS values (param1 of MAV_CMD_ACCELCAL_VEHICLE_POS)
 ACCELCAL_POSES = {1: "level", 2: "left", 3: "right", 4: "nosedown", 5: "noseup", 6: "back"}
-SCRIPTS = ("ferraris", "ardupilot6", "onepos", "tumble", "warmup", "operator")
+SCRIPTS = ("ferraris", "ardupilot6", "onepos", "tumble", "warmup", "operator", "motors")
 
 
 def pose_matrix(name: str, yaw_deg: float = 0.0) -> np.ndarray:
@@ -45,6 +49,7 @@ class Segment:
     angle: float                     # total rotation [rad] (0 for a hold)
     label: str
     r1: np.ndarray | None = None     # exact end pose when known (avoids round-off build-up)
+    throttle: tuple = (0.0, 0.0)     # throttle at the start and end (linear ramp in between)
 
     @property
     def t1(self) -> float:
@@ -70,16 +75,33 @@ class Motion:
     def end_pose(self) -> np.ndarray:
         return self.segments[-1].end_pose() if self.segments else self.start_pose
 
-    def hold(self, seconds: float, label: str) -> "Motion":
+    def hold(self, seconds: float, label: str, throttle: float | tuple = 0.0) -> "Motion":
+        """Hold the current pose; ``throttle`` a level or a (start, end) ramp."""
         self.segments.append(Segment(self.duration, seconds, self.end_pose(), np.zeros(3), 0.0,
-                                     label))
+                                     label, throttle=_ramp(throttle)))
         return self
 
-    def rotate(self, axis, angle_deg: float, seconds: float, label: str) -> "Motion":
+    def rotate(self, axis, angle_deg: float, seconds: float, label: str,
+               throttle: float | tuple = 0.0) -> "Motion":
         axis = np.asarray(axis, float) / np.linalg.norm(axis)
         self.segments.append(Segment(self.duration, seconds, self.end_pose(), axis,
-                                     np.radians(angle_deg), label))
+                                     np.radians(angle_deg), label, throttle=_ramp(throttle)))
         return self
+
+    def throttle(self, t) -> np.ndarray:
+        """Throttle (0..1) at times t (n,); beyond the last segment its end value holds."""
+        t = np.atleast_1d(np.asarray(t, float))
+        out = np.zeros(len(t))
+        if not any(any(s.throttle) for s in self.segments):
+            return out                       # motors never run: exact zeros, no arithmetic
+        starts = np.array([s.t0 for s in self.segments])
+        seg = np.clip(np.searchsorted(starts, t, side="right") - 1, 0, len(self.segments) - 1)
+        for k in np.unique(seg):
+            s = self.segments[k]
+            m = seg == k
+            u = np.clip((t[m] - s.t0) / s.duration, 0.0, 1.0) if s.duration > 0 else 1.0
+            out[m] = s.throttle[0] + (s.throttle[1] - s.throttle[0]) * u
+        return out
 
     def move_to(self, target: np.ndarray, seconds: float, label: str = "transition") -> "Motion":
         """Rotate about one body axis from the current end pose to ``target``."""
@@ -148,6 +170,14 @@ class Tremor:
         d = (self.amp[None] * np.sin(arg)).sum(axis=1)
         dd = (self.amp[None] * 2 * np.pi * self.freq[None] * np.cos(arg)).sum(axis=1)
         return d, dd
+
+
+def _ramp(throttle) -> tuple[float, float]:
+    """(start, end) throttle from a level or a pair, each checked to lie in 0..1."""
+    a, b = (throttle, throttle) if np.isscalar(throttle) else throttle
+    if not (0.0 <= a <= 1.0 and 0.0 <= b <= 1.0):
+        raise ValueError(f"throttle must be within 0..1, got {throttle!r}")
+    return float(a), float(b)
 
 
 def _hat(v: np.ndarray) -> np.ndarray:
@@ -221,6 +251,18 @@ def tumble(seconds: float = 90.0, seed: int = 0, step_s: float = 1.5) -> Motion:
     return m.hold(max(seconds - m.duration, 2.0), "still")   # total = ``seconds`` exactly
 
 
+def motors(seconds: float = 60.0, idle_s: float = 5.0, full_s: float = 5.0) -> Motion:
+    """Motors run while the vehicle is held still and level (like ArduPilot's compassmot):
+    idle at throttle 0, a linear ramp to full throttle, a hold at full throttle, a ramp back
+    down and idle again. The ramps share what ``seconds`` leaves after the three holds."""
+    ramp = max((seconds - 2 * idle_s - full_s) / 2.0, 1.0)
+    return (Motion().hold(idle_s, "idle")
+            .hold(ramp, "throttle_up", throttle=(0.0, 1.0))
+            .hold(full_s, "full_throttle", throttle=1.0)
+            .hold(ramp, "throttle_down", throttle=(1.0, 0.0))
+            .hold(idle_s, "idle_end"))
+
+
 def operator() -> Motion:
     """Starts level; the ground station moves it (see :meth:`Motion.move_to`)."""
     return Motion().hold(1.0, "level")
@@ -240,4 +282,6 @@ def build(name: str, seed: int = 0, duration: float | None = None) -> Motion:
         return tumble(duration or 90.0, seed)
     if name == "operator":
         return operator()
+    if name == "motors":
+        return motors(duration or 60.0)
     raise ValueError(f"unknown script {name!r}; known: {', '.join(SCRIPTS)}")

@@ -11,6 +11,15 @@ import numpy as np
 
 from sitl.errors import SitlError
 
+ROTATION_PARAMS = ("AHRS_ORIENTATION", "COMPASS_ORIENT")
+
+
+def rotation_is_simulated(value: float) -> bool:
+    """True for an integer rotation code the simulator has a matrix for."""
+    from sitl.firmware import ROTATIONS
+
+    return float(value).is_integer() and int(value) in ROTATIONS
+
 
 def _xyz(prefix: str, value: float) -> dict:
     return {f"{prefix}_{a}": value for a in "XYZ"}
@@ -93,6 +102,10 @@ class ParamStore:
         except (TypeError, ValueError):
             return None
         if not math.isfinite(v):
+            return None
+        if name in ROTATION_PARAMS and not rotation_is_simulated(v):
+            # the real firmware knows more rotations than the simulator models: refuse the set
+            # (the ground station sees the old value read back) rather than stop the vehicle
             return None
         self._values[name] = float(np.float32(v))
         if save:

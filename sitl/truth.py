@@ -37,6 +37,13 @@ mag_soft_iron          symmetric matrix − I                       0.05 diag, 0
 mag_interference       field per unit throttle [mGauss]           60
 mag_noise              per-sample σ [mGauss]                      fixed 3
 =====================  =========================================  ==============================
+
+Mounting (not effects): ``board_orientation`` is how the board (IMU and internal compass) is
+turned in the vehicle, an ArduPilot Rotation value, so AHRS_ORIENTATION = board_orientation
+undoes it. ``compass_orientation`` None means the compass is the board's internal one; an integer
+means an EXTERNAL compass whose chip is turned by that Rotation relative to the vehicle body
+(COMPASS_EXTERNAL=1 with COMPASS_ORIENT = compass_orientation undoes it). The mag_* errors are in
+the compass chip's own frame.
 """
 from __future__ import annotations
 
@@ -58,8 +65,9 @@ EFFECTS = (
     "local_gravity", "mag_hard_iron", "mag_soft_iron", "mag_interference", "mag_noise",
 )
 
-# default site: Accra (seed 002 was recorded in Ghana), 60 m
-DEFAULT_SITE = {"lat": 5.6037, "lon": -0.1870, "alt": 60.0, "year": 2026.0}
+# default site: Accra (seed 002 was recorded in Ghana), 60 m; year None: the WMM epoch is the
+# date of the vehicle's own clock (SimVehicle start_unix), as for a real vehicle
+DEFAULT_SITE = {"lat": 5.6037, "lon": -0.1870, "alt": 60.0, "year": None}
 
 
 def _zeros(n=3):
@@ -74,6 +82,7 @@ class Truth:
     seed: int = 0
     site: dict = field(default_factory=lambda: dict(DEFAULT_SITE))
     board_orientation: int = 0
+    compass_orientation: int | None = None
     acc_bias: list = _zeros()
     acc_scale: list = field(default_factory=lambda: [1.0, 1.0, 1.0])
     acc_cross_axis: list = _zeros()

@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import re
+import time
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -14,7 +15,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from apmcal.constants import earth_rate_ned
 from sitl import firmware, motion
 from sitl.errors_model import ImuErrorModel
-from sitl.geomag import earth_field_ned
+from sitl.geomag import decimal_year, earth_field_ned
 from sitl.params_store import ParamStore
 from sitl.truth import Truth
 
@@ -56,12 +57,13 @@ class SimVehicle:
     record : bool
         Keep the per-sample truth/raw/reported time series (:meth:`history`).
     duration : float, optional
-        Script length for stretchable scripts (onepos, warmup, tumble).
+        Script length for stretchable scripts (onepos, warmup, tumble, motors).
     """
 
     def __init__(self, truth: Truth | None = None, script: str = "onepos", generation: str = "3.2",
                  param_file=None, fs: float = 1000.0, seed: int = 0, record: bool = False,
-                 duration: float | None = None, gyro_boot_s: float = 1.0):
+                 duration: float | None = None, gyro_boot_s: float = 1.0,
+                 start_unix: float | None = None):
         if generation not in firmware.GENERATIONS:
             raise ValueError(f"firmware generation must be one of {firmware.GENERATIONS}")
         self.truth = truth if truth is not None else Truth.random(seed)
@@ -74,11 +76,18 @@ class SimVehicle:
         site = self.truth.site
         self.gravity = self.truth.gravity()
         self.earth_rate = earth_rate_ned(site["lat"]) if self.truth.on("earth_rate") else np.zeros(3)
-        self.field_ned = earth_field_ned(site["lat"], site["lon"], site["alt"], site["year"])
+        # the WMM epoch: the site's year if given, else the date of the vehicle's clock
+        self.start_unix = time.time() if start_unix is None else float(start_unix)
+        self.wmm_year = (decimal_year(self.start_unix) if site.get("year") is None
+                         else float(site["year"]))
+        self.field_ned = earth_field_ned(site["lat"], site["lon"], site["alt"], self.wmm_year)
         self.board_rot = firmware.rotation_matrix(self.truth.board_orientation)
+        # the compass chip: on the board (internal) or mounted on its own (external)
+        mount = self.truth.compass_orientation
+        self.compass_rot = self.board_rot if mount is None else firmware.rotation_matrix(mount)
         self.mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
         self.tick = 0                         # index of the next sensor sample
-        self.throttle = 0.0                   # 0..1, drives mag_interference and COMPASS_MOT
+        self.throttle = 0.0                   # 0..1 added to the script's throttle profile
         self.outbox: list = []                # (time [s], pymavlink message)
         self.streams: dict[str, float] = {}   # message name → interval [s]
         self.next_due: dict[str, float] = {}
@@ -145,14 +154,43 @@ class SimVehicle:
         w_body = rate + np.einsum("nji,j->ni", rot, self.earth_rate)
         b_body = np.einsum("nji,j->ni", rot, self.field_ned)
         to_board = self.board_rot                   # v_board = Rᵀ v_body, as rows: v @ R
-        thr = np.full(len(t), self.throttle)
+        thr = self.throttle_at(t)
         raw_acc = self.model.accel(t, f_acc_body @ to_board)
         raw_gyr = self.model.gyro(t, w_body @ to_board, f_body @ to_board)
-        raw_mag = self.model.mag(b_body @ to_board, thr)
+        raw_mag = self.model.mag(b_body @ self.compass_rot, thr)
         return {"t": t, "rot": rot, "rate": rate, "w_body": w_body, "f_body": f_body,
                 "b_body": b_body, "segment": idx, "throttle": thr,
                 "temp": self.model.temperature(t),
                 "raw_acc": raw_acc, "raw_gyr": raw_gyr, "raw_mag": raw_mag}
+
+    def throttle_at(self, t) -> np.ndarray:
+        """Throttle (0..1) at times t: the script's profile plus :attr:`throttle`, clipped."""
+        thr = self.motion.throttle(t)
+        if self.throttle:
+            thr = np.clip(thr + self.throttle, 0.0, 1.0)
+        return thr
+
+    def current_at(self, t) -> np.ndarray:
+        """Battery current [A] at times t: modelled as 20 A × throttle."""
+        return self.throttle_at(t) * 20.0
+
+    def motor_offset(self, t) -> np.ndarray:
+        """The firmware's COMPASS_MOT·(throttle or current) at times t (MAG MOX..Z) [mGauss]."""
+        return firmware.compass_motor_offset(self.params.as_dict(), self.throttle_at(t),
+                                             self.current_at(t), len(np.atleast_1d(t)))
+
+    def reset_zero_compass_diagonals(self) -> None:
+        """3.3: COMPASS_DIA_X/Y/Z all 0 become 1 at the next compass sample, in RAM only.
+
+        Copter 3.3 ``apply_corrections`` (see :func:`sitl.firmware.soft_iron_matrix` for the
+        sources): ``if (state.diagonals.get().is_zero())
+        state.diagonals.set(Vector3f(1.0f,1.0f,1.0f));``, so a PARAM_VALUE read afterwards
+        says 1. Not saved by the firmware; here a later save of another parameter writes the
+        whole table, 1s included.
+        """
+        if self.generation != "3.2" and firmware.dia_all_zero(self.params.as_dict()):
+            for axis in "XYZ":
+                self.params.set(f"COMPASS_DIA_{axis}", 1.0, save=False)
 
     def _boot_calibration(self, t: np.ndarray, raw_gyr: np.ndarray) -> None:
         """INS_GYR_CAL=1: average the first ``gyro_boot_s`` of gyro, store INS_GYROFFS."""
@@ -168,7 +206,9 @@ class SimVehicle:
             self._boot_gyro = None
 
     def _report(self, s: dict) -> None:
-        p, gen = self.params.as_dict(), self.generation
+        gen = self.generation
+        self.reset_zero_compass_diagonals()
+        p = self.params.as_dict()
         s["acc"] = firmware.apply_accel(s["raw_acc"], p, gen)
         s["gyr"] = firmware.apply_gyro(s["raw_gyr"], p, gen)
         # battery current modelled as 20 A × throttle (also reported in SYS_STATUS)
@@ -205,7 +245,7 @@ class SimVehicle:
         self.queue(self.t, mavlink.MAVLink_statustext_message(severity, text.encode()[:50]))
 
     def _emit(self, t: np.ndarray, s: dict) -> None:
-        t0, t1 = t[0], t[-1] + 1.0 / self.fs
+        t1 = t[-1] + 1.0 / self.fs
         while self._next_1hz < t1:
             self._queue_1hz(self._next_1hz)
             self._next_1hz += 1.0
@@ -222,8 +262,9 @@ class SimVehicle:
             mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
             mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 0, mavlink.MAV_STATE_STANDBY, 3))
         present = 0x1 | 0x2 | 0x4 | 0x8          # 3D gyro, accel, mag, abs pressure
+        current_ca = int(self.current_at(when)[0] * 100)      # SYS_STATUS current in cA
         self.queue(when, mavlink.MAVLink_sys_status_message(
-            present, present, present, 200, 12600, int(self.throttle * 2000), 90, 0, 0, 0, 0, 0, 0))
+            present, present, present, 200, 12600, current_ca, 90, 0, 0, 0, 0, 0, 0))
 
     def _build(self, name: str, when: float, s: dict, j: int):
         acc, gyr, mag, temp = s["acc"][j], s["gyr"][j], s["mag"][j], s["temp"][j]

@@ -55,19 +55,74 @@ def test_units_are_converted(tmp_path):
 
 
 @pytest.mark.parametrize("body, line, why", [
-    ("0,0,0,-9.8,0,0,0\n0.01,0,abc,-9.8,0,0,0\n", 3, "acc_y = 'abc'"),
-    ("0,0,0,-9.8,0,0,0\n0.01,0,nan,-9.8,0,0,0\n", 3, "acc_y"),
-    ("0,0,0,-9.8,0,0,0\n0.01,0,0,-9.8,0,0\n", 3, "gyr_z"),            # short row
-    ("0,0,0,-9.8,0,0,0\n0.01,0,0,-9.8,0,0,0,5\n", 3, "wrong number of fields"),
-    ("0,0,0,-9.8,0,0,0\n0.01,0,0,-9.8,0,0,0\n0.01,0,0,-9.8,0,0,0\n", 4, "does not increase"),
+    ("0,0,0,-9.8,0,0,0\n0.01,0,abc,-9.8,0,0,0\n", 3, "acc_y = 'abc' is not a finite number"),
+    ("0,0,0,-9.8,0,0,0\n0.01,0,nan,-9.8,0,0,0\n", 3, "acc_y = 'nan' is not a finite number"),
+    ("0,0,0,-9.8,0,0,0\n0.01,0,-inf,-9.8,0,0,0\n", 3, "acc_y = '-inf' is not a finite number"),
+    ("0,0,0,-9.8,0,0,0\n0.01,0,,-9.8,0,0,0\n", 3, "acc_y is empty"),
+    ("0,0,0,-9.8,0,0,0\n0.01,0,0,-9.8,0,0\n", 3, "6 fields, header has 7"),     # short row
+    ("0,0,0,-9.8,0,0,0\n0.01,0,0,-9.8\n", 3, "4 fields, header has 7"),
+    ("0,0,0,-9.8,0,0,0\n0.01,0,0,-9.8,0,0,0,5\n", 3, "8 fields, header has 7"),   # extra
+    ("0,0,0,-9.8,0,0,0\n0.01,0,0,-9.8,0,0,0,5,6\n0.02,0,0\n", 3, "9 fields, header has 7"),
+    # an extra field in the first row: pandas would silently make column 1 an index
+    ("0,0,0,-9.8,0,0,0,5\n0.01,0,0,-9.8,0,0,0,5\n", 2, "8 fields, header has 7"),
+    ("0,0,0,-9.8,0,0,0,\n0.01,0,0,-9.8,0,0,0,\n", 2, "8 fields, header has 7"),   # trailing ,
+    ("0,0,0,-9.8,0,0,0\n0.01,0,abc,-9.8,0,0,0\n0.02,0,0\n", 3, "acc_y = 'abc'"),  # first bad
+    ("0,0,0,-9.8,0,0,0\n0.01,0,0,-9.8,0\n0.02,0,abc,-9.8,0,0,0\n", 3, "5 fields"),
+    ("0,0,0,-9.8,0,0,0\n0.01,0,0,-9.8,0,0,0\n0.01,0,0,-9.8,0,0,0\n", 4,
+     r"time 0\.01 s does not increase \(previous 0\.01 s\)"),
     ("0,0,0,-9.8,0,0,0\n-0.5,0,0,-9.8,0,0,0\n", 3, "does not increase"),
     ("0,0,0,-9.8,0,0,0\n\n0.02,0,0,-9.8,0,0,0\n", 3, "empty line"),
 ])
 def test_bad_rows_name_file_and_line(tmp_path, body, line, why):
+    """One line: the file, "line N", then the reason (field counts against the header's, the
+    raw text of a bad value)."""
     p = _write(tmp_path, f"{HEADER}\n{body}")
     with pytest.raises(ApmcalError, match=why) as err:
         read_csv(p)
-    assert str(err.value).startswith(f"{p}: line {line}: ")
+    assert str(err.value).startswith(f"{p}: line {line}: ") and "\n" not in str(err.value)
+    assert "np.float64" not in str(err.value)
+
+
+def test_utf8_byte_order_mark_is_skipped(tmp_path):
+    """Excel and Windows tools start UTF-8 files with a byte order mark (EF BB BF)."""
+    body = "0,0,0,-9.8,0,0,0\n0.01,0,0,-9.7,0,0,0\n"
+    p = tmp_path / "bom.csv"
+    p.write_bytes(b"\xef\xbb\xbf" + f"{HEADER}\n{body}".encode())
+    assert sniff_layout(p) == "apmcal"
+    rec = read_csv(p).recordings[0]
+    pd.testing.assert_frame_equal(rec.data, read_csv(_write(tmp_path, f"{HEADER}\n{body}"))
+                                  .recordings[0].data)
+    p.write_bytes(b"\xef\xbb\xbf" + f"{HEADER}\n0,0,0,-9.8,0,0,0\n0.01,0,0\n".encode())
+    with pytest.raises(ApmcalError, match="line 3: 3 fields, header has 7"):
+        read_csv(p)
+    m = tmp_path / "mpu.csv"
+    m.write_bytes(b"\xef\xbb\xbfFs,50\nLogging Type,0\nInitialization time,1\nWaiting time,1\n"
+                  b"ax,ay,az,gx,gy,gz\n1,2,3,4,5,6\n1,2,3,4,5,6\n")
+    assert sniff_layout(m) == "mpu6050" and read_csv(m).recordings[0].rate_hz == 50.0
+    acc = _write(tmp_path, "0.00 1 2 3\n0.01 1 2 3\n", "b_acc.txt")
+    acc.write_bytes(b"\xef\xbb\xbf" + acc.read_bytes())
+    _write(tmp_path, "0.00 1 2 3\n0.01 1 2 3\n", "b_gyro.txt")     # the partner file
+    assert read_csv(acc).recordings[0].data.t.tolist() == [0.0, 0.01]
+
+
+def test_field_counts_in_other_layouts(tmp_path):
+    """Whitespace tables (imu_tk) count against their 4 columns; mpu6050 lines count from the
+    top of the file, its 4 key,value lines included."""
+    acc = _write(tmp_path, "0.00 1 2 3\n0.01 1 2 3 4\n0.02 1 2 3\n", "c_acc.txt")
+    gyr = _write(tmp_path, "0.00 1 2 3\n0.01 1 2 3\n0.02 1 2 3\n", "c_gyro.txt")
+    with pytest.raises(ApmcalError, match="c_acc.txt: line 2: 5 fields, expected 4"):
+        read_imu_tk(acc, gyr)
+    acc.write_text("0.00 1 2 3 9\n0.01 1 2 3 9\n0.02 1 2 3 9\n")      # would become an index
+    with pytest.raises(ApmcalError, match="line 1: 5 fields, expected 4"):
+        read_imu_tk(acc, gyr)
+    gyr.write_text("0.00 1 2 3\n0.01 1 2\n0.02 1 2 3\n")
+    acc.write_text("0.00 1 2 3\n0.01 1 2 3\n0.02 1 2 3\n")
+    with pytest.raises(ApmcalError, match="c_gyro.txt: line 2: 3 fields, expected 4"):
+        read_imu_tk(acc, gyr)
+    p = _write(tmp_path, "Fs,100\nLogging Type,0\nInitialization time,1\nWaiting time,1\n"
+                         "ax,ay,az,gx,gy,gz\n1,2,3,4,5,6\n1,2,3,4,5,6,7\n")
+    with pytest.raises(ApmcalError, match="line 7: 7 fields, header has 6"):
+        read_csv(p)
 
 
 def test_trailing_blank_lines_are_fine(tmp_path):

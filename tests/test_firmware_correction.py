@@ -123,12 +123,16 @@ def test_mag_hand_worked():
                                [[100, 200, 300]], atol=1e-9)
 
 
-def test_mag_zero_or_absent_diagonals_mean_identity():
+def test_mag_absent_diagonals_mean_identity_and_zero_diagonals_mean_ones():
     base = {k: v for k, v in _mag_params().items() if "DIA" not in k and "ODI" not in k}
-    expected = [[90.0, 220.0, 305.0]]
-    np.testing.assert_allclose(fw.correct_mag([[100.0, 200.0, 300.0]], base, "3.2"), expected)
+    np.testing.assert_allclose(fw.correct_mag([[100.0, 200.0, 300.0]], base, "3.2"),
+                               [[90.0, 220.0, 305.0]])
+    # all-zero DIA is (1, 1, 1) but ODI_X = 0.1 still applies (firmware apply_corrections):
+    # M rows (1, 0.1, 0), (0.1, 1, 0), (0, 0, 1) times (90, 220, 305)
     zero = _mag_params(COMPASS_DIA_X=0.0, COMPASS_DIA_Y=0.0, COMPASS_DIA_Z=0.0)
-    np.testing.assert_allclose(fw.correct_mag([[100.0, 200.0, 300.0]], zero, "3.3+"), expected)
+    out = fw.correct_mag([[100.0, 200.0, 300.0]], zero, "3.3+")
+    np.testing.assert_allclose(out, [[112.0, 229.0, 305.0]])
+    np.testing.assert_allclose(fw.uncorrect_mag(out, zero, "3.3+"), [[100, 200, 300]])
 
 
 def test_compass_rotation_rules():

@@ -6,9 +6,12 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pytest
 
-from apmcal.pipeline import Options, calibrate, pick_recording, prepare
-from apmcal.recording import LogContents, Recording
+from apmcal.errors import ApmcalError
+from apmcal.pipeline import Options, calibrate, calibrate_log, pick_recording, prepare
+from apmcal.preprocessing.param_changes import after_param_changes
+from apmcal.recording import LogContents, ParamChange, Recording
 from apmcal.sources import read_log
 
 LOGS = Path(__file__).resolve().parent.parent / "logs"
@@ -52,3 +55,39 @@ def test_firmware_option_drives_the_correction_undo():
     as_logged = prepare(rec).raw.xyz("acc")
     np.testing.assert_allclose(prepare(rec, "3.2").raw.xyz("acc"), as_logged)
     assert np.abs(prepare(rec, "3.3+").raw.xyz("acc") - as_logged).max() > 1e-3
+
+
+def _change(time_s, name="INS_ACCOFFS_X"):
+    return ParamChange(name, 0.1, 0.2, time_s, "PARAM_VALUE at byte 99")
+
+
+def test_samples_before_a_calibration_param_change_are_dropped():
+    rec = _recording("RAW_IMU", ["acc_x", "acc_y", "acc_z"], n=100)     # t = 0 .. 9.9 s
+    kept, (warning,) = after_param_changes(rec, [_change(2.0), _change(5.05, "COMPASS_OFS_X")],
+                                           "x.tlog")
+    assert kept.t[0] == pytest.approx(5.1) and len(kept) == 49
+    assert "COMPASS_OFS_X, INS_ACCOFFS_X" in warning and "49 of 100" in warning
+
+
+def test_param_change_without_a_time_is_refused_naming_the_record():
+    rec = _recording("RAW_IMU", ["acc_x", "acc_y", "acc_z"])
+    with pytest.raises(ApmcalError) as err:
+        after_param_changes(rec, [_change(None)], "x.tlog")
+    assert str(err.value).startswith("x.tlog: PARAM_VALUE at byte 99: INS_ACCOFFS_X changed")
+
+
+def test_param_change_after_the_last_sample_is_refused():
+    rec = _recording("RAW_IMU", ["acc_x", "acc_y", "acc_z"])
+    with pytest.raises(ApmcalError, match="no samples follow"):
+        after_param_changes(rec, [_change(0.85)], "x.tlog")
+
+
+def test_calibrate_log_uses_only_samples_after_a_param_change():
+    contents = read_log(LOGS / "onepos.tlog")
+    rec = pick_recording(contents, None)[0]
+    cut = float(rec.t[0] + 0.5 * rec.duration)
+    contents.param_changes = [_change(cut)]
+    cal, _ = calibrate_log(contents)
+    assert any("only the" in w and f"t={cut:.3f} s" in w for w in cal.report["warnings"])
+    expected = calibrate(replace(rec, data=rec.data[rec.data["t"] > cut]))
+    np.testing.assert_allclose(cal.sensors["gyr"].offset, expected.sensors["gyr"].offset)

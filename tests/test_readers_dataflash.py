@@ -165,3 +165,85 @@ def test_acc_gyr_families_equal_dfreader(tmp_path):
     assert keys == [("ACC", 0, ("acc",)), ("ACC", 1, ("acc",)), ("ACC1", 0, ("acc",)),
                     ("GYR2", 1, ("gyr",))]
     assert ref.compare(c, ref.df_expected(ref.pymavlink_messages(p, None))) == 3 * 30 * 4
+
+
+# --- calibration parameters changed while the IMU samples were being recorded ----------------
+
+def test_parm_change_after_imu_start_bin(tmp_path):
+    """Written with the simulator's DataflashWriter (PARM with TimeUS). The whole list written
+    again mid-log with the same values is no change; a new INS_GYROFFS_Z value after the first
+    IMU record is, with the PARM's own time; a non-calibration parameter is not."""
+    from sitl.logwriter import DataflashWriter
+
+    listing = {"INS_GYROFFS_Z": 0.002, "INS_ACCSCAL_X": 1.02, "COMPASS_DIA_X": 1.0,
+               "LOG_BITMASK": 830.0}
+    p = tmp_path / "change.bin"
+    with DataflashWriter(p) as w:
+        for k, v in listing.items():
+            w.parm(0, k, v)
+        w.parm(0, "INS_ACCSCAL_X", 1.03)          # before the first sample: not a change
+        for k in range(100):
+            t_us = 10_000 * (k + 1)
+            w.imu(t_us, (0, 0, 0), (0, 0, -9.8), 30.0)
+            if k == 40:
+                for name, v in listing.items():
+                    w.parm(t_us, name, v if name != "INS_ACCSCAL_X" else 1.03)
+                w.parm(t_us, "LOG_BITMASK", 0.0)
+            if k == 60:
+                at = w.f.tell()
+                w.parm(t_us + 5, "INS_GYROFFS_Z", -0.001)
+    c = read_log(p)
+    (ch,) = c.param_changes
+    assert (ch.name, ch.old, ch.new) == ("INS_GYROFFS_Z", float(np.float32(0.002)),
+                                         float(np.float32(-0.001)))
+    assert ch.time_s == pytest.approx(0.610005) and ch.where == f"PARM record at byte {at}"
+    assert c.params["INS_GYROFFS_Z"] == ch.new and c.params["LOG_BITMASK"] == 0.0
+
+
+def test_parm_change_without_timeus_bin(tmp_path):
+    """Older logs: PARM has no time column; the change gets the time of the last IMU record
+    before it (TimeMS), and a change back to the first value is a second change."""
+    data = _fmt_record(0x80, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns", 89)
+    data += _fmt_record(129, "PARM", "Nf", "Name,Value", 23)
+    data += _fmt_record(130, "IMU", "Iffffff", "TimeMS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ", 31)
+    parm = lambda n, v: b"\xa3\x95\x81" + struct.pack("<16sf", n.encode(), v)  # noqa: E731
+    data += parm("COMPASS_OFS_X", 40.0) + parm("AHRS_ORIENTATION", 0.0)
+    at = []
+    for k in range(1, 31):
+        data += b"\xa3\x95\x82" + struct.pack("<Iffffff", 20 * k, 0, 0, 0, 0, 0, -9.8)
+        if k in (10, 20):
+            at.append(len(data))
+            data += parm("COMPASS_OFS_X", 41.0 if k == 10 else 40.0)
+    p = tmp_path / "old.bin"
+    p.write_bytes(data)
+    c = read_log(p)
+    assert [(ch.name, ch.old, ch.new, ch.time_s, ch.where) for ch in c.param_changes] == [
+        ("COMPASS_OFS_X", 40.0, 41.0, 0.2, f"PARM record at byte {at[0]}"),
+        ("COMPASS_OFS_X", 41.0, 40.0, 0.4, f"PARM record at byte {at[1]}")]
+
+
+def test_parm_change_text_log(tmp_path):
+    """The text reader: PARM without time (Copter 3.1-style), IMU with TimeMS; the change is
+    placed by line, with the time of the IMU line before it."""
+    lines = ["FMT, 128, 89, FMT, BBnNZ, Type,Length,Name,Format,Columns",
+             "FMT, 129, 23, PARM, Nf, Name,Value",
+             "FMT, 130, 31, IMU, Iffffff, TimeMS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ",
+             "PARM, INS_ACCOFFS_Y, 0.05", "PARM, RATE_RLL_P, 0.15"]
+    for k in range(1, 21):
+        lines.append(f"IMU, {100 * k}, 0, 0, 0, 0, 0, -9.8")
+        if k == 5:
+            lines += ["PARM, INS_ACCOFFS_Y, 0.05", "PARM, RATE_RLL_P, 0.2"]   # no change / not cal
+        if k == 12:
+            lines.append("PARM, INS_ACCOFFS_Y, -0.3")
+            line_no = len(lines)
+    p = tmp_path / "change.log"
+    p.write_text("\n".join(lines) + "\n")
+    c = read_log(p)
+    assert [(ch.name, ch.old, ch.new, ch.time_s, ch.where) for ch in c.param_changes] == [
+        ("INS_ACCOFFS_Y", 0.05, -0.3, 1.2, f"PARM at line {line_no}")]
+    assert c.params["INS_ACCOFFS_Y"] == -0.3
+
+
+@pytest.mark.parametrize("name", DATAFLASH)
+def test_no_param_change_in_real_dataflash(shared_data, name):
+    assert read_log(shared_data / name).param_changes == []

@@ -156,3 +156,79 @@ def test_dispatch_by_content_not_extension(shared_data, tmp_path):
     b = tmp_path / "really_a_bin.tlog"
     b.write_bytes((shared_data / "ardupilot/pixhawk1_copter368.bin").read_bytes())
     assert read_log(t).format == "tlog" and read_log(b).format == "bin"
+
+
+# --- calibration parameters changed while the IMU samples were being recorded ----------------
+
+def _param(name: str, value: float, index: int = 0):
+    return mav2.MAVLink_param_value_message(name.encode(), value, 9, 4, index)
+
+
+def _raw_imu(t_s: float):
+    return mav2.MAVLink_raw_imu_message(int(t_s * 1e6), 0, 0, -1000, 0, 0, 0, 1, 2, 3, 0, 0)
+
+
+def test_param_change_after_imu_start_is_reported(tmp_path):
+    """Written with the simulator's TlogWriter. Only a calibration parameter that takes a new
+    float32 value after the first IMU message counts: not identical repeats of the list (ground
+    stations re-request it), not a change before the samples, not a non-calibration parameter."""
+    from sitl.logwriter import TlogWriter
+
+    m = v2()
+    listing = {"INS_ACCOFFS_X": 0.1, "COMPASS_OFS_Y": -12.5, "AHRS_ORIENTATION": 0.0,
+               "SYSID_THISMAV": 1.0}
+    p = tmp_path / "change.tlog"
+    unix0 = 1.7e9
+    where = {}
+    with TlogWriter(p) as w:
+        for i, (k, v) in enumerate(listing.items()):
+            w.write(unix0, _param(k, v, i).pack(m))
+        w.write(unix0, _param("INS_ACCSCAL_Z", 1.0).pack(m))
+        w.write(unix0, _param("INS_ACCSCAL_Z", 1.01).pack(m))      # before the samples: fine
+        for k in range(1, 11):
+            t = float(k)
+            w.write(unix0 + t, _raw_imu(t).pack(m))
+            if k == 3:   # the GCS downloads the list again: identical values are no change
+                for i, (name, v) in enumerate(listing.items()):
+                    w.write(unix0 + t, _param(name, v, i).pack(m))
+            if k == 5:
+                w.write(unix0 + t, _param("SYSID_THISMAV", 2.0).pack(m))   # not calibration
+                where["x"] = w.f.tell()
+                w.write(unix0 + t, _param("INS_ACCOFFS_X", 0.25).pack(m))
+            if k == 8:
+                where["y"] = w.f.tell()
+                w.write(unix0 + t, _param("COMPASS_OFS_Y", 30.0).pack(m))
+    c = read_log(p)
+    assert [(ch.name, ch.old, ch.new, ch.time_s, ch.where) for ch in c.param_changes] == [
+        ("INS_ACCOFFS_X", float(np.float32(0.1)), 0.25, 5.0, f"PARAM_VALUE at byte {where['x']}"),
+        ("COMPASS_OFS_Y", -12.5, 30.0, 8.0, f"PARAM_VALUE at byte {where['y']}"),
+    ]
+    assert "INS_ACCOFFS_X changed from 0.1 to 0.25 at t=5.000 s (PARAM_VALUE at byte" in str(
+        c.param_changes[0])
+    assert c.params["INS_ACCOFFS_X"] == 0.25 and c.params["SYSID_THISMAV"] == 2.0  # last value
+    assert c.params["INS_ACCSCAL_Z"] == pytest.approx(1.01)
+
+
+def test_no_param_change_in_real_tlogs(shared_data):
+    """In both real sessions the parameter list arrives after the IMU stream has started, some
+    names more than once (sitl_vtol: 1147 PARAM_VALUE for 1053 names): no change is reported."""
+    for name in TLOGS:
+        assert read_log(shared_data / name).param_changes == []
+
+
+@pytest.mark.parametrize("unix0, expected", [(1.7e9, 1.7e9), (12.5, None), (5e9, None)])
+def test_start_time_from_the_first_frame_only_when_a_plausible_date(tmp_path, unix0, expected):
+    """The ground station's clock of the first frame dates the recording (WMM field); a clock
+    never set (seconds since boot) or a timestamp beyond 2100 is no date."""
+    from sitl.logwriter import TlogWriter
+
+    p = tmp_path / "clock.tlog"
+    with TlogWriter(p) as w:
+        for k in range(1, 4):
+            w.write(unix0 + k, _raw_imu(float(k)).pack(v2()))
+    assert read_log(p).start_unix_s == (None if expected is None else pytest.approx(expected + 1))
+
+
+def test_start_time_of_a_real_session(shared_data):
+    assert read_log(shared_data / "ardupilot" / "ardusub_small.tlog").start_unix_s == \
+        pytest.approx(1683220541.055, abs=1e-3)      # 2023-05-04 17:15:41 UTC

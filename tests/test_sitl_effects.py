@@ -160,7 +160,7 @@ def test_motion_contamination_is_small_and_kinematically_consistent():
 
 
 def test_magnetometer_field_hard_soft_iron_interference():
-    lat, lon, alt = 52.0, 10.0, 0.0
+    lat, lon = 52.0, 10.0
     tr = only(lat=lat)
     v, h = run(tr, 0.2)
     f = GeoMag().calculate(glat=lat, glon=lon, alt=0.0, time=2026.0)
@@ -210,7 +210,8 @@ def test_output_does_not_depend_on_chunking():
     from sitl.vehicle import SimVehicle
     outs = []
     for chunk in (0.013, 0.5):
-        v = SimVehicle(Truth.random(11), "tumble", "3.3", record=True, seed=4, duration=5.0)
+        v = SimVehicle(Truth.random(11), "tumble", "3.3", record=True, seed=4, duration=5.0,
+                       start_unix=1780000000)   # same WMM date for both
         v.run_for(3.0, chunk=chunk)
         outs.append(v.history())
     for k in ("raw_acc", "raw_gyr", "raw_mag", "acc", "gyr"):
@@ -250,3 +251,105 @@ def test_scaled_pressure_carries_board_temperature():
     p = v.truth.temperature
     np.testing.assert_allclose(temps, p["ambient_c"] + p["rise_k"] * (1 - np.exp(-t / p["tau_s"])),
                                atol=0.011)
+
+
+# ---- throttle profile (motors script) and mag_interference ----------------------------------
+def _sections(v):
+    return {name: (a, b) for name, a, b in v.motion.sections()}
+
+
+def _mean(h, key, span, margin=0.5):
+    a, b = span
+    m = (h["t"] > a + margin) & (h["t"] < b - margin)
+    return h[key][m].mean(axis=0), int(m.sum())
+
+
+def test_only_the_motors_script_runs_the_motors():
+    from sitl import motion
+    t = np.linspace(0.0, 500.0, 5001)
+    for name in motion.SCRIPTS:
+        thr = motion.build(name, seed=1).throttle(t)
+        if name == "motors":
+            assert thr.max() == 1.0 and thr.min() == 0.0
+        else:
+            assert not thr.any(), name        # exact zeros: other scripts unchanged
+
+
+def test_motors_script_throttle_profile():
+    v, h = run(only(), 61.0, script="motors")
+    secs = _sections(v)
+    assert list(secs) == ["idle", "throttle_up", "full_throttle", "throttle_down", "idle_end"]
+    assert v.motion.duration == 60.0
+    for name, level in (("idle", 0.0), ("full_throttle", 1.0), ("idle_end", 0.0)):
+        a, b = secs[name]
+        assert np.all(h["throttle"][(h["t"] >= a) & (h["t"] < b)] == level), name
+    a, b = secs["throttle_up"]                 # linear ramp 0 → 1
+    m = (h["t"] >= a) & (h["t"] < b)
+    np.testing.assert_allclose(h["throttle"][m], (h["t"][m] - a) / (b - a), atol=1e-12)
+    a, b = secs["throttle_down"]
+    m = (h["t"] >= a) & (h["t"] < b)
+    np.testing.assert_allclose(h["throttle"][m], 1 - (h["t"][m] - a) / (b - a), atol=1e-12)
+
+
+def test_mag_interference_shifts_the_field_by_interference_times_throttle():
+    tr = only("mag_interference", "mag_noise")
+    v, h = run(tr, 60.0, script="motors")
+    secs = _sections(v)
+    idle, n0 = _mean(h, "raw_mag", secs["idle"])
+    full, n1 = _mean(h, "raw_mag", secs["full_throttle"])
+    tol = 5 * tr.mag_noise * np.sqrt(1 / n0 + 1 / n1)
+    i = np.asarray(tr.mag_interference)
+    assert np.linalg.norm(i) > 30                               # visible, not a rounding
+    np.testing.assert_allclose(full - idle, i * 1.0, atol=tol)
+    # over the ramps: raw field = field + i·throttle, slope i per unit throttle
+    for k in range(3):
+        slope = np.polyfit(h["throttle"], h["raw_mag"][:, k], 1)[0]
+        assert slope == pytest.approx(i[k], abs=0.5)
+    # the reported field (neutral parameters, COMPASS_MOTCT 0) carries it too
+    rep_idle, _ = _mean(h, "mag", secs["idle"])
+    rep_full, _ = _mean(h, "mag", secs["full_throttle"])
+    np.testing.assert_allclose(rep_full - rep_idle, i, atol=tol)
+    # effect off: the same throttle profile leaves the field alone
+    v, h = run(only("mag_noise"), 60.0, script="motors")
+    idle, _ = _mean(h, "raw_mag", secs["idle"])
+    full, _ = _mean(h, "raw_mag", secs["full_throttle"])
+    np.testing.assert_allclose(full - idle, 0.0, atol=tol)
+
+
+@pytest.mark.parametrize("motct,per_unit,sign,expect_factor", [
+    (1, 1.0, -1, 0.0),     # COMPASS_MOT = −i per unit throttle: ADDED, cancels the interference
+    (2, 20.0, -1, 0.0),    # per amp (current modelled as 20 A × throttle)
+    (1, 1.0, +1, 2.0),     # wrong sign doubles it (the firmware adds, never subtracts)
+])
+def test_compass_mot_compensates_the_interference(motct, per_unit, sign, expect_factor):
+    from sitl.vehicle import SimVehicle
+    tr = only("mag_interference")
+    v = SimVehicle(tr, "motors", "3.3", record=True, seed=5)
+    v.params.set("INS_GYR_CAL", 0, save=False)
+    v._boot_gyro = None
+    i = np.asarray(tr.mag_interference)
+    v.params.set("COMPASS_MOTCT", motct, save=False)
+    for axis, value in zip("XYZ", sign * i / per_unit):
+        v.params.set(f"COMPASS_MOT_{axis}", value, save=False)
+    v.run_for(60.0)
+    h = v.history()
+    secs = _sections(v)
+    idle, _ = _mean(h, "mag", secs["idle"])
+    full, _ = _mean(h, "mag", secs["full_throttle"])
+    # float32 parameters: 1e-4 relative
+    np.testing.assert_allclose(full - idle, expect_factor * i, atol=1e-3 * np.abs(i).max())
+    up = (h["t"] > secs["throttle_up"][0]) & (h["t"] < secs["throttle_up"][1])
+    np.testing.assert_allclose(h["mag"][up] - h["b_body"][up],
+                               np.outer(h["throttle"][up], expect_factor * i),
+                               atol=1e-3 * np.abs(i).max())
+
+
+def test_sys_status_current_follows_the_throttle():
+    from sitl_helpers import messages
+    v, _ = run(only(), 0.0, script="motors")
+    v.run_for(60.0)
+    st = messages(v, "SYS_STATUS")
+    cur = np.array([m.current_battery for m in st])       # cA
+    t = np.arange(len(st), dtype=float)                   # one per second from t = 0
+    np.testing.assert_allclose(cur, np.floor(v.motion.throttle(t) * 2000 + 1e-9), atol=1)
+    assert cur.max() == 2000 and cur[0] == 0

@@ -158,3 +158,103 @@ def test_parm_file_persistence_and_bad_file(tmp_path):
     bad.write_text("{not json")
     with pytest.raises(SitlError, match="bad.json: not a parameter file"):
         ParamStore("3.2", bad)
+
+
+# ---- compass: COMPASS_ORIENT / COMPASS_EXTERNAL, all-zero COMPASS_DIA, COMPASS_MOT ------------
+# Worked by hand: ROTATION_YAW_90 (2) maps (x, y, z) to (−y, x, z), ROTATION_ROLL_180 (8) to
+# (x, −y, −z). Rules (sitl/firmware.py compass_rotation, from the firmware sources): 3.2 applies
+# COMPASS_ORIENT always, then AHRS_ORIENTATION if internal; 3.3 applies AHRS_ORIENTATION if
+# internal, else COMPASS_ORIENT.
+@pytest.mark.parametrize("gen,external,expect", [
+    ("3.3", 0, [-200.0, 100.0, 300.0]),      # internal: AHRS_ORIENTATION only, ORIENT ignored
+    ("3.3", 1, [100.0, -200.0, -300.0]),     # external: COMPASS_ORIENT only
+    ("3.2", 0, [200.0, 100.0, -300.0]),      # internal: YAW_90 of ROLL_180 of raw
+    ("3.2", 1, [100.0, -200.0, -300.0]),     # external: COMPASS_ORIENT only
+])
+def test_compass_orient_and_external_rules(gen, external, expect):
+    from sitl.firmware import apply_compass
+    p = {"AHRS_ORIENTATION": 2, "COMPASS_ORIENT": 8, "COMPASS_EXTERNAL": external}
+    np.testing.assert_allclose(apply_compass(np.array([[100.0, 200.0, 300.0]]), p, gen),
+                               [expect], atol=1e-12)
+
+
+@pytest.mark.parametrize("gen", ["3.2", "3.3"])
+def test_external_compass_mounted_apart_from_the_board(gen):
+    # board turned yaw 90 (AHRS_ORIENTATION=2 set), external compass mounted upside down
+    tr = only(board_orientation=2, compass_orientation=8)
+    v = SimVehicle(tr, "onepos", gen, record=True)
+    v.params.set("INS_GYR_CAL", 0, save=False)
+    v._boot_gyro = None
+    for name, value in (("AHRS_ORIENTATION", 2), ("COMPASS_EXTERNAL", 1), ("COMPASS_ORIENT", 8)):
+        _set(v, name, value)
+    v.run_for(0.2)
+    h = v.history()
+    bx, by, bz = h["b_body"][0]
+    np.testing.assert_allclose(h["raw_mag"][0], [bx, -by, -bz], atol=1e-9)   # chip frame
+    np.testing.assert_allclose(h["mag"], h["b_body"], atol=1e-9)             # ORIENT undoes it
+    _set(v, "COMPASS_EXTERNAL", 0)            # now the firmware treats it as internal
+    v.run_for(0.1)
+    got = v.history()["mag"][-1]
+    if gen == "3.3":                          # AHRS_ORIENTATION (yaw 90) of (bx, −by, −bz)
+        np.testing.assert_allclose(got, [by, bx, -bz], atol=1e-9)
+    else:                                     # yaw 90 of roll 180 of the chip reading
+        np.testing.assert_allclose(got, [-by, bx, bz], atol=1e-9)
+
+
+def test_all_zero_compass_diagonals_mean_ones_with_offdiagonals_kept():
+    from sitl.firmware import apply_compass
+    raw = np.array([[100.0, 200.0, 300.0]])
+    p = {"COMPASS_OFS_X": 100.0, "COMPASS_DIA_X": 0.0, "COMPASS_DIA_Y": 0.0, "COMPASS_DIA_Z": 0.0,
+         "COMPASS_ODI_X": 0.5, "COMPASS_ODI_Y": 0.0, "COMPASS_ODI_Z": 0.0}
+    # M = [[1, .5, 0], [.5, 1, 0], [0, 0, 1]] applied to (200, 200, 300)
+    np.testing.assert_allclose(apply_compass(raw, p, "3.3"), [[300.0, 300.0, 300.0]])
+    # only ALL three zero is special: DIA = (0, 1, 1) is used as it is
+    p.update(COMPASS_DIA_Y=1.0, COMPASS_DIA_Z=1.0)
+    np.testing.assert_allclose(apply_compass(raw, p, "3.3"), [[100.0, 300.0, 300.0]])
+
+
+def test_vehicle_resets_all_zero_diagonals_to_one_in_ram(tmp_path):
+    tr = only("quantization")
+    _, h = run(tr, 0.1)
+    raw = h["raw_mag"][-1]
+    v = SimVehicle(tr, "operator", "3.3", param_file=tmp_path / "p.json")
+    v.params.set("INS_GYR_CAL", 0, save=False)
+    v._boot_gyro = None
+    v.pop_messages()
+    for axis in "XYZ":                        # the set itself is stored and answered as 0
+        assert _set(v, f"COMPASS_DIA_{axis}", 0.0)[0].param_value == 0.0
+    v.set_interval("RAW_IMU", 10)
+    v.run_for(0.5)
+    m = messages(v, "RAW_IMU")[-1]
+    assert (m.xmag, m.ymag, m.zmag) == tuple(int(x) for x in raw)   # not a zero field
+    v.handle(mavlink.MAVLink_param_request_read_message(1, 1, b"COMPASS_DIA_Y", -1))
+    assert messages(v, "PARAM_VALUE")[0].param_value == 1.0        # firmware set them to 1
+
+
+@pytest.mark.parametrize("motct,drive", [(1, 0.5), (2, 10.0)])
+def test_compass_mot_is_added_and_inside_the_matrix_on_33(motct, drive):
+    from sitl.firmware import apply_compass
+    p = {"COMPASS_MOTCT": motct, "COMPASS_MOT_X": 20.0, "COMPASS_MOT_Y": -4.0,
+         "COMPASS_MOT_Z": 0.0, "COMPASS_DIA_X": 2.0, "COMPASS_DIA_Y": 1.0, "COMPASS_DIA_Z": 1.0}
+    raw = np.array([[100.0, 0.0, 0.0]])
+    thr, cur = (drive, 0.0) if motct == 1 else (0.0, drive)   # the other input is ignored
+    # 3.3 apply_corrections: mag = M·(raw + OFS + MOT·d), so DIA_X doubles the motor term too
+    np.testing.assert_allclose(apply_compass(raw, p, "3.3", thr, cur),
+                               [[2 * (100 + 20 * drive), -4 * drive, 0.0]])
+    # 3.2: raw + OFS + MOT·d (no matrix)
+    np.testing.assert_allclose(apply_compass(raw, p, "3.2", thr, cur),
+                               [[100 + 20 * drive, -4 * drive, 0.0]])
+    p["COMPASS_MOTCT"] = 0                    # disabled: nothing added whatever the drive
+    np.testing.assert_allclose(apply_compass(raw, p, "3.2", 1.0, 50.0), raw)
+
+
+def test_rotation_the_simulator_does_not_model_is_refused_not_fatal(tmp_path):
+    """AHRS_ORIENTATION 38 exists on real firmware but not in the simulator: the set is dropped
+    (the ground station reads back the old value) and the vehicle keeps running."""
+    from sitl.params_store import ParamStore
+
+    store = ParamStore("3.3", tmp_path / "p.json")
+    assert store.set("AHRS_ORIENTATION", 38) is None
+    assert store.set("COMPASS_ORIENT", 2.5) is None
+    assert store.get("AHRS_ORIENTATION") == 0.0
+    assert store.set("AHRS_ORIENTATION", 2) == 2.0

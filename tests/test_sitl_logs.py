@@ -131,3 +131,25 @@ def test_sample_onepos_and_param_variants_readable():
         truth = json.loads(path.with_suffix(".truth.json").read_text())
         assert pv == pytest.approx(truth["params"])
     assert pv["INS_ACCOFFS_X"] == pytest.approx(0.21) and "COMPASS_DIA_X" in pv
+
+
+def test_makelog_motors_bin_logs_motor_offsets(tmp_path):
+    out, truth = tmp_path / "m.bin", tmp_path / "m.json"
+    assert makelog(["--script", "motors", "--duration", "25", "--seed", "4", "--rate", "25",
+                    "--firmware", "3.3", "--disable", "all", "--enable", "mag_interference",
+                    "--set", "COMPASS_MOTCT=1", "--set", "COMPASS_MOT_X=-40",
+                    "--out", str(out), "--truth-out", str(truth)]) == 0
+    d = json.loads(truth.read_text())
+    secs = {name: (a, b) for name, a, b in d["sections"]}
+    assert list(secs) == ["idle", "throttle_up", "full_throttle", "throttle_down", "idle_end"]
+    log = DFReader.DFReader_binary(str(out))
+    rows = []
+    while (m := log.recv_match(type="MAG")) is not None:
+        rows.append((m.TimeUS / 1e6, m.MagX, m.MOX, m.MOY))
+    t, mag_x, mox, moy = map(np.array, zip(*rows))
+    full = (t > secs["full_throttle"][0]) & (t < secs["full_throttle"][1])
+    idle = t < secs["idle"][1]
+    assert np.all(mox[full] == -40) and np.all(mox[idle] == 0) and not moy.any()
+    # the logged field = raw + MOT·throttle: shifts by interference_x − 40 at full throttle
+    i_x = d["effects"]["mag_interference"][0]
+    assert mag_x[full].mean() - mag_x[idle].mean() == pytest.approx(i_x - 40, abs=1.0)

@@ -3,23 +3,41 @@
 A fake link stands in for the vehicle so that every failure mode can be forced; the end-to-end
 run against the simulated vehicle is in test_live_sitl.py.
 """
+import math
+import time
+
 import numpy as np
 import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from apmcal.cli import main
 from apmcal.errors import ApmcalError
-from apmcal.vehicle.paramfile import read_param_file
+from apmcal.sources.live import VehicleLink
+from apmcal.vehicle.paramfile import read_param_file, write_param_file
 from apmcal.vehicle.upload import restore_params, upload_params
 
 
 class FakeLink:
-    """Stores float32 values like ArduPilot; can drop chosen names, or distort their first write."""
+    """Stores float32 values like ArduPilot; can drop chosen names, or distort their first write.
+
+    ``calls`` scripts the n-th set_param (1-based): "interrupt" (Ctrl-C before it is sent),
+    "store_then_interrupt" (Ctrl-C while awaiting the answer to a stored write), "silent" (no
+    answer, nothing stored).
+    """
 
     connection = "fake:vehicle"
 
-    def __init__(self, params, drop=(), distort=()):
+    def __init__(self, params, drop=(), distort=(), calls=None):
         self.params = {k: float(np.float32(v)) for k, v in params.items()}
         self.drop, self.distort = set(drop), set(distort)
+        self.calls = dict(calls or {})
         self.sent = []
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
 
     def fetch_params(self):
         return dict(self.params)
@@ -28,13 +46,21 @@ class FakeLink:
         return self.params.get(name)
 
     def set_param(self, name, value):
+        if not math.isfinite(value):    # as VehicleLink.set_param
+            raise ApmcalError(f"refusing to send non-finite value {value!r}")
+        action = self.calls.get(len(self.sent) + 1)
+        if action == "interrupt":
+            self.sent.append((name, "interrupted"))
+            raise KeyboardInterrupt
         self.sent.append((name, value))
-        if name in self.drop or name not in self.params:
+        if action == "silent" or name in self.drop or name not in self.params:
             return None            # ArduPilot drops unknown names silently: only a timeout
         error = 0.5 if name in self.distort else 0.0    # a one-off corrupted write
         self.distort.discard(name)
         stored = float(np.float32(value + error))
         self.params[name] = stored
+        if action == "store_then_interrupt":
+            raise KeyboardInterrupt
         return stored
 
 
@@ -89,3 +115,233 @@ def test_rollback_that_cannot_be_confirmed_says_how_to_restore(tmp_path):
     link.read_param = lambda name: None          # the vehicle stops answering altogether
     with pytest.raises(ApmcalError, match="apmcal restore"):
         upload_params(link, {"INS_ACCOFFS_X": 0.3, "INS_ACCSCAL_X": 1.05}, tmp_path / "b.param")
+
+
+def as_stored(params):
+    return {k: float(np.float32(v)) for k, v in params.items()}
+
+
+# ----------------------------------------------------------------------------- firmware limits
+# a 3.3+ parameter table (second IMU, COMPASS_DIA, COMPASS_OFFS_MAX) and a 3.2 one (APM 2.x)
+VEHICLE_33 = {**{f"INS_ACC{s}{k}_{a}": v for s in ("", "2") for k, v in (("OFFS", 0.0),
+                                                                          ("SCAL", 1.0))
+                 for a in "XYZ"},
+              **{f"COMPASS_{k}_{a}": v for k, v in (("OFS", 0.0), ("DIA", 1.0), ("ODI", 0.0))
+                 for a in "XYZ"},
+              "COMPASS_OFFS_MAX": 1800.0}
+VEHICLE_32 = {**{f"INS_ACC{k}_{a}": v for k, v in (("OFFS", 0.0), ("SCAL", 1.0)) for a in "XYZ"},
+              **{f"COMPASS_OFS_{a}": 0.0 for a in "XYZ"}}
+
+
+@pytest.mark.parametrize("vehicle, values, name, why", [
+    (VEHICLE_33, {"INS_ACCOFFS_X": 0.1, "INS_ACCSCAL_X": 1.25}, "INS_ACCSCAL_X",
+     "scale 1.2500 outside 0.8..1.2"),
+    (VEHICLE_33, {"INS_ACC2OFFS_Y": -3.6}, "INS_ACC2OFFS_Y", r"\|offset\| 3.600 > 3.5 m/s²"),
+    (VEHICLE_33, {"COMPASS_OFS_X": 1900.0}, "COMPASS_OFS_X", r"\|offset\| 1900.0 > 1800 mGauss"),
+    (VEHICLE_33, {"COMPASS_DIA_Y": 0.1}, "COMPASS_DIA_Y", "diagonal 0.1000 outside 0.2..5.0"),
+    (VEHICLE_33, {"COMPASS_ODI_Z": -1.0}, "COMPASS_ODI_Z", "off-diagonal"),
+    (VEHICLE_32, {"COMPASS_OFS_Z": 450.0}, "COMPASS_OFS_Z", r"> 400 mGauss"),
+    (VEHICLE_32, {"INS_ACCSCAL_Y": 1.15}, "INS_ACCSCAL_Y", r"3.2 limit"),
+])
+def test_out_of_range_value_refused_before_anything_is_written(tmp_path, vehicle, values, name,
+                                                               why):
+    link = FakeLink(vehicle)
+    backup = tmp_path / "b.param"
+    with pytest.raises(ApmcalError, match=why) as err:
+        upload_params(link, values, backup)
+    assert f"param {name}: " in str(err.value) and "nothing was written" in str(err.value)
+    assert "\n" not in str(err.value)
+    assert link.sent == [] and not backup.exists()
+
+
+@pytest.mark.parametrize("vehicle, values", [
+    (VEHICLE_33, {"INS_ACCSCAL_Y": 1.15, "INS_ACC2OFFS_Z": -3.4}),       # 3.2's limit only
+    ({**VEHICLE_33, "COMPASS_OFFS_MAX": 2500.0}, {"COMPASS_OFS_X": 1900.0}),
+    (VEHICLE_33, {f"COMPASS_DIA_{a}": 0.0 for a in "XYZ"}),    # all zero: firmware's "unset"
+])
+def test_in_range_values_are_written(tmp_path, vehicle, values):
+    link = FakeLink(vehicle)
+    report = upload_params(link, values, tmp_path / "b.param")
+    assert report.written == as_stored(values)
+
+
+def test_cli_upload_refuses_out_of_range_param_file_in_one_line(tmp_path, capsys, monkeypatch):
+    import apmcal.sources.live
+
+    link = FakeLink(VEHICLE_33)
+    monkeypatch.setattr(apmcal.sources.live, "VehicleLink", lambda connection, **kw: link)
+    param = tmp_path / "new.param"
+    param.write_text("INS_ACCOFFS_X 0.1\nINS_ACCSCAL_Z 0.7\n")
+    backup = tmp_path / "b.param"
+    assert main(["upload", "fake:vehicle", str(param), "--backup", str(backup)]) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and "param INS_ACCSCAL_Z: scale 0.7000 outside 0.8..1.2" in err[0]
+    assert link.sent == [] and not backup.exists()
+
+
+# ----------------------------------------------------------------------------- restore
+def test_restore_reports_names_the_vehicle_does_not_have(tmp_path):
+    link = FakeLink(BEFORE)
+    backup = tmp_path / "b.param"
+    write_param_file(backup, {**BEFORE, "INS_ACCOFFS_X": 0.4, "OLD_PARAM": 3.0, "GONE_TOO": 1.0})
+    report = restore_params(link, backup)
+    assert report.skipped == ["GONE_TOO", "OLD_PARAM"]
+    assert report.written == {"INS_ACCOFFS_X": float(np.float32(0.4))}
+    assert [n for n, _ in link.sent] == ["INS_ACCOFFS_X"]
+
+
+def test_restore_tries_every_name_then_lists_all_failures(tmp_path):
+    link = FakeLink(BEFORE, drop=["INS_ACCOFFS_X", "INS_ACCSCAL_X"])
+    backup = tmp_path / "b.param"
+    wanted = {**BEFORE, "INS_ACCOFFS_X": 0.4, "INS_ACCOFFS_Y": -0.3, "INS_ACCSCAL_X": 1.02}
+    write_param_file(backup, wanted)
+    with pytest.raises(ApmcalError, match="restore not confirmed for 2 of 3") as err:
+        restore_params(link, backup)
+    assert "INS_ACCOFFS_X" in str(err.value) and "INS_ACCSCAL_X" in str(err.value)
+    assert link.params["INS_ACCOFFS_Y"] == float(np.float32(-0.3))   # tried after a failure
+
+
+def test_restore_of_names_not_in_the_backup_refused_before_writing(tmp_path):
+    link = FakeLink(BEFORE)
+    backup = tmp_path / "b.param"
+    write_param_file(backup, {**BEFORE, "INS_ACCOFFS_X": 0.4})
+    with pytest.raises(ApmcalError, match="not in the backup: NOPE"):
+        restore_params(link, backup, names=["INS_ACCOFFS_X", "NOPE"])
+    assert link.sent == []
+
+
+# ----------------------------------------------------------------------------- NaN on the vehicle
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), float("-inf")])
+def test_non_finite_vehicle_value_backed_up_as_comment_and_not_restored(tmp_path, bad):
+    from pymavlink.mavparm import MAVParmDict
+
+    link = FakeLink({**BEFORE, "BARO_ODD": bad})
+    backup = tmp_path / "b.param"
+    upload_params(link, {"INS_ACCOFFS_X": 0.3}, backup)
+    text = backup.read_text().splitlines()
+    assert f"# BARO_ODD {bad!r} (not finite on the vehicle; not restorable)" in text
+    assert read_param_file(backup) == pytest.approx(BEFORE)       # still loads, without it
+    mavproxy = MAVParmDict()
+    mavproxy.load(str(backup))
+    assert "BARO_ODD" not in mavproxy and len(mavproxy) == len(BEFORE)
+    link.sent.clear()
+    report = restore_params(link, backup)
+    assert report.unrestorable == ["BARO_ODD"] and report.skipped == []
+    assert [n for n, _ in link.sent] == ["INS_ACCOFFS_X"]
+    assert link.params["INS_ACCOFFS_X"] == 0.0
+
+
+def test_rollback_does_not_send_a_non_finite_previous_value(tmp_path):
+    link = FakeLink({**BEFORE, "INS_ACCOFFS_Y": float("nan")}, drop=["INS_ACCSCAL_X"])
+    with pytest.raises(ApmcalError, match="INS_ACCOFFS_Y held a non-finite value") as err:
+        upload_params(link, {"INS_ACCOFFS_Y": 0.2, "INS_ACCSCAL_X": 1.05}, tmp_path / "b.param")
+    assert "apmcal restore" in str(err.value)
+    assert link.params["INS_ACCSCAL_X"] == 1.0
+
+
+# ----------------------------------------------------------------------------- Ctrl-C
+VALUES = {"INS_ACCOFFS_X": 0.3, "INS_ACCOFFS_Y": -0.2, "INS_ACCSCAL_X": 1.05}
+
+
+def interrupted_upload(link, backup) -> ApmcalError:
+    """The ApmcalError upload_params raises; a KeyboardInterrupt escaping it fails the test
+    (instead of stopping pytest)."""
+    try:
+        upload_params(link, VALUES, backup)
+    except ApmcalError as err:
+        return err
+    except KeyboardInterrupt:
+        pytest.fail("KeyboardInterrupt escaped upload_params")
+    pytest.fail("upload_params did not raise")
+
+
+@pytest.mark.parametrize("call, action", [(2, "interrupt"), (2, "store_then_interrupt"),
+                                          (3, "store_then_interrupt"), (1, "store_then_interrupt")])
+def test_interrupted_upload_is_rolled_back(tmp_path, call, action):
+    link = FakeLink(BEFORE, calls={call: action})
+    backup = tmp_path / "b.param"
+    err = interrupted_upload(link, backup)
+    assert str(err) == f"fake:vehicle: interrupted; all changes rolled back from {backup}"
+    assert link.params == as_stored(BEFORE)
+
+
+@pytest.mark.parametrize("rollback", ["interrupt", "silent"])
+def test_interrupted_upload_whose_rollback_fails_names_the_restore_command(tmp_path, rollback):
+    # Ctrl-C on the second write; the first put-back is interrupted again, or goes unanswered
+    link = FakeLink(BEFORE, calls={2: "store_then_interrupt", 3: rollback})
+    link.read_param = lambda name: None          # unanswered put-backs stay unconfirmed
+    backup = tmp_path / "b.param"
+    err = str(interrupted_upload(link, backup))
+    assert err.startswith("fake:vehicle: interrupted; rollback")
+    assert err.endswith(f"restore with 'apmcal restore fake:vehicle {backup}'")
+
+
+# ----------------------------------------------------------------------------- fetch_params
+class FakeMaster:
+    """pymavlink's side of a vehicle with ``n`` parameters: PARAM_REQUEST_LIST answers all but
+    ``lost`` indices; PARAM_REQUEST_READ by index answers all but ``never``."""
+
+    def __init__(self, n, lost=(), never=(), lists_ignored=0):
+        self.n, self.lost, self.never = n, set(lost), set(never)
+        self.queue, self.reads = [], []
+        self.lists_ignored, self.lists = lists_ignored, 0     # the first requests go unanswered
+        self.mav = self
+
+    def _value(self, index, reported_index=None):
+        return mavlink.MAVLink_param_value_message(
+            f"P{index}".encode(), float(index), mavlink.MAV_PARAM_TYPE_REAL32, self.n,
+            index if reported_index is None else reported_index)
+
+    def param_request_list_send(self, target_system, target_component):
+        self.lists += 1
+        if self.lists <= self.lists_ignored:
+            return
+        self.queue += [self._value(i) for i in range(self.n) if i not in self.lost]
+        self.queue.append(self._value(0, reported_index=65535))   # another GCS's read answered
+
+    def param_request_read_send(self, target_system, target_component, param_id, param_index):
+        assert param_id == b"" and param_index >= 0        # by index, not by name
+        self.reads.append(param_index)
+        if param_index not in self.never:
+            self.queue.append(self._value(param_index))
+
+    def recv_match(self, blocking=True, timeout=None):
+        if self.queue:
+            return self.queue.pop(0)
+        time.sleep(min(timeout or 0.01, 0.01))
+        return None
+
+
+def link_to(master):
+    link = VehicleLink.__new__(VehicleLink)      # no socket, no HEARTBEAT
+    link.master, link.connection, link._tlog = master, "fake:vehicle", None
+    link.target_system, link.target_component = 1, 1
+    return link
+
+
+def test_fetch_params_asks_for_lost_indices_one_by_one():
+    master = FakeMaster(50, lost=[3, 17, 49])
+    params = link_to(master).fetch_params(idle_s=0.05)
+    assert params == {f"P{i}": float(i) for i in range(50)}
+    assert master.reads == [3, 17, 49]
+
+
+def test_fetch_params_refuses_a_partial_set():
+    master = FakeMaster(50, lost=[3, 17, 49], never=[17, 49])
+    with pytest.raises(ApmcalError, match=r"2 of 50 parameters never arrived \(param_index 17, "
+                                          r"49\)"):
+        link_to(master).fetch_params(idle_s=0.05, retries=2)
+    assert master.reads == [3, 17, 49, 17, 49]            # each asked for twice
+
+
+def test_fetch_params_sends_an_unanswered_list_request_again():
+    master = FakeMaster(5, lists_ignored=2)
+    assert len(link_to(master).fetch_params(idle_s=0.05, retries=2)) == 5
+    assert master.lists == 3
+
+
+def test_fetch_params_from_a_silent_vehicle_is_one_clear_error():
+    master = FakeMaster(5, lists_ignored=99)
+    with pytest.raises(ApmcalError, match="vehicle sent no parameters"):
+        link_to(master).fetch_params(idle_s=0.05, retries=2)
+    assert master.lists == 3

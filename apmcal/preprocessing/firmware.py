@@ -204,13 +204,18 @@ def uncorrect_gyr(gyr_body: np.ndarray, params: dict[str, float], generation: st
 
 # ----------------------------------------------------------------------------- compass
 def compass_matrix(params: dict[str, float], instance: int = 0) -> np.ndarray:
-    """The soft-iron matrix M(DIA, ODI); identity when DIA/ODI are absent or DIA is all zero."""
+    """The soft-iron matrix M(DIA, ODI); identity when DIA/ODI are absent.
+
+    An all-zero DIA counts as (1, 1, 1) with ODI still applied: Copter 3.3's
+    ``AP_Compass_Backend::apply_corrections`` (and ``correct_field`` later) resets zero diagonals
+    to 1 before building the matrix (not in ardupilot-facts.md; see sitl/firmware.py).
+    """
     names = mag_param_names(instance)
     if not all(n in params for n in names["dia"]):
         return np.eye(3)
     dia = _vector(params, names["dia"])
     if not np.any(dia):
-        return np.eye(3)          # AP_Compass correct_field: zero diagonals mean (1, 1, 1)
+        dia = np.ones(3)
     odi = _vector(params, names["odi"]) if all(n in params for n in names["odi"]) else np.zeros(3)
     return np.array([[dia[0], odi[0], odi[1]],
                      [odi[0], dia[1], odi[2]],

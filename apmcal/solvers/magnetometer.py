@@ -40,16 +40,19 @@ def earth_field_ned(lat_deg: float, lon_deg: float, alt_m: float = 0.0,
 
 
 def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: float | None,
-                           report: dict) -> SensorCalibration:
+                           report: dict, when: datetime.date | None = None) -> SensorCalibration:
     """Robust ellipsoid fit of raw sensor-frame samples [mGauss]; verdict lines into ``report``.
 
     The field magnitude comes from the World Magnetic Model when the site is known; otherwise
     from a sphere fit, which ties the overall scale to the data's own mean radius (offsets and
-    shape are unaffected).
+    shape are unaffected). ``when`` is the recording's date (the field drifts ~0.1 %/year);
+    today when unknown.
     """
     check_coverage(mag)
     if lat_deg is not None and lon_deg is not None:
-        radius, origin = float(np.linalg.norm(earth_field_ned(lat_deg, lon_deg))), "WMM"
+        date = f"recording date {when}" if when else f"today's date {datetime.date.today()}"
+        radius = float(np.linalg.norm(earth_field_ned(lat_deg, lon_deg, when=when)))
+        origin = f"WMM at {date}"
     else:
         radius, origin = sphere_fit(mag)[1], "sphere fit (no --lat/--lon)"
     info: dict = {}

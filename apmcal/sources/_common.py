@@ -11,7 +11,9 @@ import numpy as np
 import pandas as pd
 
 from apmcal.errors import ApmcalError
-from apmcal.recording import ACC, GYR, MAG, LogContents, Recording
+from apmcal.recording import (
+    ACC, CALIBRATION_PARAM_PREFIXES, GYR, MAG, LogContents, ParamChange, Recording,
+)
 
 #: numpy dtype per struct format character (little-endian, packed)
 STRUCT_TO_NUMPY = {
@@ -125,6 +127,57 @@ def _last_per_name(names: np.ndarray) -> np.ndarray:
     """Indices of the last occurrence of each distinct name, in order of those occurrences."""
     _, rev_first = np.unique(names[::-1], return_index=True)
     return np.sort(len(names) - 1 - rev_first)
+
+
+_PREFIXES_BYTES = tuple(p.encode() for p in CALIBRATION_PARAM_PREFIXES)
+
+
+def param_changes(names: np.ndarray, values: np.ndarray, positions: np.ndarray,
+                  first_sample: int | None, describe) -> list[ParamChange]:
+    """Calibration parameters that take a new value after the first sensor sample.
+
+    The firmware corrects each IMU/MAG sample with the parameters in force when it is made
+    (ardupilot-facts.md, "What the telemetry really carries"), so a log in which, say,
+    INS_ACCOFFS_X changes once the samples have begun cannot be un-corrected with one parameter
+    set. A change is a parameter record (PARM, PARAM_VALUE) of a calibration parameter
+    (:data:`~apmcal.recording.CALIBRATION_PARAM_PREFIXES`) that comes after the first sensor
+    sample and whose value differs, at float32 precision (the firmware's storage), from the
+    previous record of that name. Identical repeats (logs write the whole list again, ground
+    stations re-request it) are not changes; non-finite values are ignored (``_params`` warns).
+
+    Parameters
+    ----------
+    names, values : one entry per parameter record, in file order (names bytes or str).
+    positions : file position of each record (byte offset), non-decreasing.
+    first_sample : position of the first IMU/MAG sample, None when there is none.
+    describe : callable(record index) → (time_s or None, where).
+
+    Returns the changes in file order. Cost without changes: one pass over the names; the
+    grouping work is done only when a calibration record follows the first sample.
+    """
+    if first_sample is None or len(names) == 0:
+        return []
+    names = np.asarray(names)
+    pre = _PREFIXES_BYTES if names.dtype.kind == "S" else CALIBRATION_PARAM_PREFIXES
+    cal = np.fromiter((n.startswith(pre) for n in names.tolist()), dtype=np.bool_,
+                      count=len(names))
+    values = np.asarray(values, dtype=np.float64)
+    idx = np.flatnonzero(cal & np.isfinite(values))
+    if len(idx) == 0 or positions[idx[-1]] <= first_sample:
+        return []
+    _, group = np.unique(names[idx], return_inverse=True)
+    order = idx[np.argsort(group, kind="stable")]          # by name, then file order
+    g = np.sort(group, kind="stable")
+    v32 = values[order].astype(np.float32)
+    hit = np.flatnonzero((g[1:] == g[:-1]) & (v32[1:] != v32[:-1])
+                         & (positions[order[1:]] > first_sample)) + 1
+    changes = []
+    for k in hit[np.argsort(order[hit], kind="stable")]:    # file order
+        i = int(order[k])
+        time_s, where = describe(i)
+        changes.append(ParamChange(_name(names[i]), float(values[order[k - 1]]),
+                                   float(values[i]), time_s, where))
+    return changes
 
 
 def drop_zero_sensors(df: pd.DataFrame, label: str, out: LogContents) -> pd.DataFrame:

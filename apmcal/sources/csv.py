@@ -223,12 +223,17 @@ def _mpu6050_header(path):
 def _read_table(path: Path, *, text_columns=(), **kwargs):
     """pandas.read_csv (C parser) with every value numeric and finite; errors name the line.
 
-    The returned frame's index is the file line number of each row.
+    The returned frame's index is the file line number of each row. A UTF-8 byte order mark is
+    skipped. Every row must have as many fields as the header (or ``names``): pandas would
+    otherwise turn extra leading fields into an index, or fill missing ones with NaN, so a bad
+    row gives "line 17: 9 fields, header has 7".
     """
     skip = kwargs.get("skiprows", 0)
-    first_line = skip + (1 if kwargs.get("header", 0) is None else 2)
+    no_header = kwargs.get("header", 0) is None
+    first_line = skip + (1 if no_header else 2)
     try:
-        data = pd.read_csv(path, skip_blank_lines=False, engine="c", **kwargs)
+        data = pd.read_csv(path, skip_blank_lines=False, engine="c", encoding="utf-8-sig",
+                           **kwargs)
     except FileNotFoundError:
         raise ApmcalError("no such file", path) from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -236,30 +241,76 @@ def _read_table(path: Path, *, text_columns=(), **kwargs):
     except pd.errors.EmptyDataError:
         raise ApmcalError("file is empty", path) from None
     except pd.errors.ParserError as exc:
-        m = re.search(r"line (\d+), saw (\d+)", str(exc))
-        where = None
-        if m:
-            where = f"line {int(m.group(1))}"      # pandas counts from the file's first line
-            raise ApmcalError(f"wrong number of fields ({m.group(2)})", path, where) from None
-        raise ApmcalError(f"not a readable CSV table ({exc})", path) from None
+        _check_field_counts(path, kwargs, first_line)      # raises for the first bad row
+        m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", str(exc))
+        if m:   # pandas counts lines from the file's first line
+            raise ApmcalError(f"{m.group(3)} fields, expected {m.group(1)}", path,
+                              f"line {m.group(2)}") from None
+        raise ApmcalError(f"not a readable CSV table ({exc})".replace("\n", " "), path) from None
+    if not isinstance(data.index, pd.RangeIndex):
+        _check_field_counts(path, kwargs, first_line)    # pandas made extra fields an index
     data.columns = [str(c).strip() for c in data.columns]
     data.index = np.arange(len(data)) + first_line
     data = _drop_trailing_blank(data)
     if data.empty:
         raise ApmcalError("no data rows", path)
-    for col in data.columns:
-        if col in text_columns:
-            continue
-        values = pd.to_numeric(data[col], errors="coerce").astype(float)
-        bad = ~np.isfinite(values.to_numpy())
-        if bad.any():
-            line = int(data.index[np.argmax(bad)])
-            raw = data[col].iloc[int(np.argmax(bad))]
-            what = ("empty line" if data.loc[line].isna().all()
-                    else f"{col} = {raw!r} is not a finite number")
-            raise ApmcalError(what, path, f"line {line}")
-        data[col] = values
+    numeric = [c for c in data.columns if c not in text_columns]
+    values = data[numeric].apply(pd.to_numeric, errors="coerce").astype(float)
+    bad = ~np.isfinite(values.to_numpy())
+    if bad.any():
+        row = int(np.flatnonzero(bad.any(axis=1))[0])
+        line = int(data.index[row])
+        _check_field_counts(path, kwargs, first_line, last_line=line)   # a short row?
+        if data.iloc[row].isna().all():
+            raise ApmcalError("empty line", path, f"line {line}")
+        col = numeric[int(np.argmax(bad[row]))]
+        raw = _raw_field(path, kwargs, line, list(data.columns).index(col))
+        what = (f"{col} is empty" if raw is None or not raw.strip()
+                else f"{col} = {raw.strip()!r} is not a finite number")
+        raise ApmcalError(what, path, f"line {line}")
+    data[numeric] = values
     return data
+
+
+def _split(line: str, kwargs) -> list[str]:
+    """Fields of one text line: whitespace-separated for the whitespace ``sep``, else commas."""
+    line = line.rstrip("\r\n")
+    if kwargs.get("sep") == r"\s+":
+        return line.split()
+    return line.split(",") if line.strip() else []
+
+
+def _lines(path: Path):
+    """(line number, text) of every line of a text file (UTF-8, byte order mark skipped)."""
+    with open(path, encoding="utf-8-sig", errors="replace", newline="") as f:
+        yield from enumerate(f, start=1)
+
+
+def _check_field_counts(path: Path, kwargs, first_line: int, last_line: int | None = None):
+    """ApmcalError for the first data row (up to ``last_line``) whose field count differs from
+    the header's (or from ``names``); blank lines are left to the caller. Used only once
+    something is already wrong, so a good file is never read twice."""
+    names = kwargs.get("names")
+    expected, against = (len(names), "expected") if names is not None else (None, "header has")
+    for number, line in _lines(path):
+        if number == first_line - 1 and expected is None:
+            expected = len(_split(line, kwargs))
+        if number < first_line:
+            continue
+        if last_line is not None and number > last_line:
+            return
+        n = len(_split(line, kwargs))
+        if n and expected is not None and n != expected:
+            raise ApmcalError(f"{n} fields, {against} {expected}", path, f"line {number}")
+
+
+def _raw_field(path: Path, kwargs, line: int, index: int) -> str | None:
+    """The text of field ``index`` on file line ``line`` (None when the line is shorter)."""
+    for number, text in _lines(path):
+        if number == line:
+            fields = _split(text, kwargs)
+            return fields[index] if index < len(fields) else None
+    return None
 
 
 def _drop_trailing_blank(data: pd.DataFrame) -> pd.DataFrame:
@@ -274,7 +325,8 @@ def _check_time(t: np.ndarray, path, lines: np.ndarray) -> None:
     bad = np.flatnonzero(np.diff(t) <= 0)
     if bad.size:
         i = bad[0] + 1
-        raise ApmcalError(f"time {t[i]!r} s does not increase (previous {t[i - 1]!r} s)", path,
+        raise ApmcalError(f"time {float(t[i])!r} s does not increase (previous "
+                          f"{float(t[i - 1])!r} s)", path,
                           f"line {int(lines[i])}")
 
 
@@ -345,7 +397,7 @@ def _first_line(path: Path) -> str:
 
 def _open(path: Path):
     try:
-        f = open(path, encoding="utf-8", errors="strict")
+        f = open(path, encoding="utf-8-sig", errors="strict")   # a byte order mark is skipped
         f.readline()
         f.seek(0)
         return f

@@ -13,10 +13,14 @@ ACC / ACCn and GYR / GYRn (per-sample sensor messages, time from TimeUS) → the
 acc-only / gyr-only recordings; MAG / MAG2 / MAG3 (or per ``I``) → separate recordings with message "MAG",
 "MAG2"... holding only mag columns [mGauss]. Time: TimeUS [µs] or TimeMS [ms] → s.
 All are corrected and body frame (ardupilot-facts.md, "Dataflash logs").
+
+PARM records give ``params`` (last value) and ``param_changes``: calibration parameters whose
+value changes after the first sensor record (normally all PARM records come at the start).
 """
 from __future__ import annotations
 
 import re
+from functools import partial
 
 import numpy as np
 import pandas as pd
@@ -25,7 +29,7 @@ from apmcal.errors import ApmcalError
 from apmcal.recording import ACC, GYR, MAG, LogContents
 from apmcal.sources import _framing
 from apmcal.sources._common import (
-    MAX_DAMAGE_OFFSETS, _params, add_recording, cstr, finish, load_bytes,
+    MAX_DAMAGE_OFFSETS, _params, add_recording, cstr, finish, load_bytes, param_changes,
     parse_firmware,
 )
 
@@ -126,13 +130,21 @@ def _decode_segment(buf, offs, length, fmt, cols, keep) -> dict[str, np.ndarray]
     return {c: convert_column(rows[c], f) for c, f in zip(cols, fmt) if keep is None or c in keep}
 
 
-def decode_messages(buf, off, typ, want, columns=None) -> dict[str, dict[str, np.ndarray]]:
+OFFSET_COLUMN = "_offset"    # pseudo-column: byte offset (.bin) or line start (.log) of a record
+
+
+def decode_messages(buf, off, typ, want, columns=None, *, offsets=(), first=None,
+                    segs=None) -> dict[str, dict[str, np.ndarray]]:
     """Decode every record whose name satisfies ``want(name)``: name → column → array.
 
     ``columns(name)`` may return the set of columns to convert (None: all); skipping unused
-    columns keeps memory low on big logs.
+    columns keeps memory low on big logs. Messages named in ``offsets`` get an extra column
+    ``OFFSET_COLUMN``, the byte offset of each record; a dict ``first`` receives name → byte
+    offset of the first decoded record of every name. ``segs``: :func:`_format_segments`, if
+    already computed.
     """
-    segs = _format_segments(buf, off, typ)
+    if segs is None:
+        segs = _format_segments(buf, off, typ)
     # a type's definition holds from its FMT record until the next FMT for the same type
     bounds: dict[int, list] = {}
     for seg in segs:
@@ -151,6 +163,10 @@ def decode_messages(buf, off, typ, want, columns=None) -> dict[str, dict[str, np
                 keep = columns(name) if columns else None
                 cols_data = _decode_segment(buf, off[sel], length, fmt, cols, keep)
                 if cols_data is not None:
+                    if name in offsets:
+                        cols_data[OFFSET_COLUMN] = off[sel]
+                    if first is not None:
+                        first[name] = min(first.get(name, int(off[sel[0]])), int(off[sel[0]]))
                     out.setdefault(name, []).append(cols_data)
     merged = {}
     for name, parts in out.items():
@@ -217,6 +233,31 @@ def _sensor_recordings(out: LogContents, msgs: dict[str, dict[str, np.ndarray]])
             add_recording(out, df, name, inst)
 
 
+def find_param_changes(out: LogContents, msgs, first: dict[str, int], where,
+                       time_before) -> None:
+    """Set ``out.param_changes`` from the PARM records (see
+    :func:`apmcal.sources._common.param_changes`).
+
+    PARM must carry ``OFFSET_COLUMN``; ``first`` gives the position of each message's first
+    record, ``where(position)`` describes a position. Time: the record's own TimeUS/TimeMS,
+    else ``time_before(position)``, the time of the last sensor record before it (or None).
+    """
+    parm = msgs.get("PARM", {})
+    if not all(c in parm for c in ("Name", "Value", OFFSET_COLUMN)):
+        return
+    pos = parm[OFFSET_COLUMN]
+    starts = [p for name, p in first.items() if IMU_RE.match(name)]
+    own_t = _time_s(parm)
+
+    def describe(i):
+        p = int(pos[i])
+        t = float(own_t[i]) if own_t is not None else time_before(p)
+        return t, where(p)
+
+    out.param_changes = param_changes(parm["Name"], parm["Value"], pos,
+                                      min(starts) if starts else None, describe)
+
+
 def build_contents(out: LogContents, msgs: dict[str, dict[str, np.ndarray]]) -> LogContents:
     """Fill ``out`` from decoded dataflash messages (binary or text) and check for IMU data."""
     parm = msgs.get("PARM", {})
@@ -268,7 +309,36 @@ def read_dataflash(path, *, progress: bool = False) -> LogContents:
     off, typ, skipped, damaged = scan(buf)
     if len(off) == 0:
         raise ApmcalError("no dataflash record in the file", str(path), "byte 0")
-    msgs = decode_messages(buf, off, typ, wanted_name, wanted_columns)
-    del off, typ
+    segs = _format_segments(buf, off, typ)
+    first: dict[str, int] = {}
+    msgs = decode_messages(buf, off, typ, wanted_name, wanted_columns, offsets=("PARM",),
+                           first=first, segs=segs)
     out = LogContents(path=str(path), format="bin", bytes_skipped=skipped, damaged_at=damaged)
+    find_param_changes(out, msgs, first, "PARM record at byte {}".format,
+                       partial(_sensor_time_before, buf, off, typ, segs))
+    del off, typ
     return build_contents(out, msgs)
+
+
+def _sensor_time_before(buf, off, typ, segs, pos: int) -> float | None:
+    """Time [s] of the last IMU/ACC/GYR/MAG record before byte ``pos`` (None if none or no
+    time column). Used only for PARM records without a time of their own (older logs)."""
+    sensor = np.zeros(256, dtype=np.bool_)
+    for _, t, _, name, _, _ in segs:
+        sensor[t] = bool(IMU_RE.match(name))
+    end = int(np.searchsorted(off, pos))
+    step = 4096
+    while end > 0:
+        lo = max(0, end - step)
+        hits = np.flatnonzero(sensor[typ[lo:end]])
+        if len(hits):
+            j = lo + int(hits[-1])
+            seg = [s for s in segs if s[1] == typ[j] and s[0] < j]
+            if not seg:
+                return None
+            _, _, length, name, fmt, cols = seg[-1]
+            data = _decode_segment(buf, off[j:j + 1], length, fmt, cols, {"TimeUS", "TimeMS"})
+            t = _time_s(data) if data is not None else None
+            return float(t[0]) if t is not None else None
+        end, step = lo, step * 2
+    return None

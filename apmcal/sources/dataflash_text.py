@@ -5,8 +5,8 @@ Parsing follows pymavlink's DFReader_text: the delimiter is ", " unless the file
 lines; a line is used when its first field names a message defined by an earlier FMT line and it
 has at least as many fields as the format; values are converted with Python's ``int``/``float``
 exactly as DFReader_text does (no multipliers in text logs). Lines that cannot be converted are
-counted as damaged bytes. Recordings are then built as for .bin logs
-(:func:`apmcal.sources.dataflash.build_contents`).
+counted as damaged bytes. Recordings, parameters and parameter changes are then found as for
+.bin logs (:func:`apmcal.sources.dataflash.build_contents`, ``find_param_changes``).
 """
 from __future__ import annotations
 
@@ -15,7 +15,9 @@ import numpy as np
 from apmcal.errors import ApmcalError
 from apmcal.recording import LogContents
 from apmcal.sources._common import MAX_DAMAGE_OFFSETS, load_bytes
-from apmcal.sources.dataflash import build_contents, wanted_name
+from apmcal.sources.dataflash import (
+    IMU_RE, OFFSET_COLUMN, build_contents, find_param_changes, wanted_name,
+)
 
 _INT_CHARS = set("bBhHiIMqQ")
 _FLOAT_CHARS = set("fdgcCeEL")
@@ -66,10 +68,14 @@ def _column(vals: list, conv) -> np.ndarray:
     return np.array(vals, dtype=object)
 
 
-def parse_text(data: bytes, want=wanted_name):
-    """Parse text dataflash bytes: (name → column → array, bytes_skipped, damaged_at)."""
-    first = data.find(b"FMT, ")
-    delim = ", " if first != -1 else ","
+def parse_text(data: bytes, want=wanted_name, *, offsets=(), first=None, formats_out=None):
+    """Parse text dataflash bytes: (name → column → array, bytes_skipped, damaged_at).
+
+    Messages named in ``offsets`` get an extra column ``OFFSET_COLUMN``, the byte offset of
+    each line; a dict ``first`` receives name → byte offset of the first line of every parsed
+    message; a dict ``formats_out`` receives the FMT definitions (name → :class:`_Fmt`).
+    """
+    delim = ", " if data.find(b"FMT, ") != -1 else ","
     formats = {"FMT": _Fmt("FMT", "BBnNZ", "Type,Length,Name,Format,Columns")}
     rows: dict[str, list] = {}
     skipped, damaged = 0, []
@@ -100,8 +106,15 @@ def parse_text(data: bytes, want=wanted_name):
                 int(vals[0]), int(vals[1])
                 formats[vals[2]] = _Fmt(vals[2], vals[3], cols)
             elif want(fmt.name):
-                rows.setdefault(fmt.name, []).append(
-                    [cv(v) for cv, v in zip(fmt.conv, vals[:len(fmt.fmt)])])
+                r = rows.get(fmt.name)
+                if r is None:
+                    r = rows[fmt.name] = []
+                    if first is not None:
+                        first[fmt.name] = pos
+                row = [cv(v) for cv, v in zip(fmt.conv, vals[:len(fmt.fmt)])]
+                if fmt.name in offsets:
+                    row.append(pos)
+                r.append(row)
         except (ValueError, IndexError):
             skipped += nbytes
             if len(damaged) < MAX_DAMAGE_OFFSETS:
@@ -113,8 +126,38 @@ def parse_text(data: bytes, want=wanted_name):
         for j, c in enumerate(fmt.columns[:len(fmt.fmt)]):
             vals = [r[j] for r in rs]
             cols[c] = _column(vals, fmt.conv[j])
+        if name in offsets:
+            cols[OFFSET_COLUMN] = np.array([r[-1] for r in rs], dtype=np.int64)
         msgs[name] = cols
+    if formats_out is not None:
+        formats_out.update(formats)
     return msgs, skipped, damaged
+
+
+def _sensor_time_before(data: bytes, delim: str, formats: dict, names, pos: int) -> float | None:
+    """Time [s] of the last IMU/ACC/GYR/MAG line before byte ``pos`` (None if there is none or it
+    has no TimeUS/TimeMS). Used only for PARM lines without a time of their own (older logs)."""
+    best = (-1, None)
+    for name in names:
+        fmt = formats.get(name)
+        if fmt is None or not IMU_RE.match(name):
+            continue
+        k = data.rfind(b"\n" + (name + delim).encode(), 0, pos)
+        if k <= best[0]:
+            continue
+        line = data[k + 1:data.find(b"\n", k + 1)].decode("utf-8", "replace").split(delim)
+        for col, scale in (("TimeUS", 1e-6), ("TimeMS", 1e-3)):
+            if col in fmt.columns:
+                try:
+                    best = (k, float(line[1 + fmt.columns.index(col)]) * scale)
+                except (ValueError, IndexError):
+                    pass
+                break
+    return best[1]
+
+
+def _line_number(data: bytes, pos: int) -> int:
+    return data.count(b"\n", 0, pos) + 1
 
 
 def read_dataflash_text(path, *, progress: bool = False) -> LogContents:
@@ -128,6 +171,12 @@ def read_dataflash_text(path, *, progress: bool = False) -> LogContents:
     data = load_bytes(path).tobytes()
     if b"FMT," not in data:
         raise ApmcalError("no FMT line: not a dataflash text log", str(path), "byte 0")
-    msgs, skipped, damaged = parse_text(data)
+    first: dict[str, int] = {}
+    formats: dict = {}
+    msgs, skipped, damaged = parse_text(data, offsets=("PARM",), first=first,
+                                        formats_out=formats)
     out = LogContents(path=str(path), format="log", bytes_skipped=skipped, damaged_at=damaged)
+    delim = ", " if data.find(b"FMT, ") != -1 else ","
+    find_param_changes(out, msgs, first, lambda p: f"PARM at line {_line_number(data, p)}",
+                       lambda p: _sensor_time_before(data, delim, formats, list(first), p))
     return build_contents(out, msgs)

@@ -21,6 +21,10 @@ from apmcal.errors import ApmcalError
 IMU_MESSAGE_IDS = {"RAW_IMU": 27, "SCALED_IMU2": 116, "HIGHRES_IMU": 105}
 STREAMED_MESSAGE_IDS = {**IMU_MESSAGE_IDS, "SCALED_PRESSURE": 29}
 
+# PARAM_REQUEST_READs sent before waiting for their answers: a bounded batch, so that the
+# vehicle's request queue (small on a flight controller) is not overrun
+READS_IN_FLIGHT = 20
+
 
 def float32(value: float) -> float:
     """``value`` as the vehicle stores it (PARAM_VALUE carries float32)."""
@@ -91,35 +95,60 @@ class VehicleLink:
         return msg
 
     # -- parameters -------------------------------------------------------------------------
-    def fetch_params(self, timeout_s: float = 20.0, idle_s: float = 2.0) -> dict[str, float]:
-        """All parameters (PARAM_REQUEST_LIST), re-asking by index for any that were lost."""
-        mav = self.master.mav
-        mav.param_request_list_send(self.target_system, self.target_component)
-        params: dict[str, float] = {}
-        seen_index: set[int] = set()
-        count = None
+    def fetch_params(self, timeout_s: float = 20.0, idle_s: float = 2.0,
+                     retries: int = 2) -> dict[str, float]:
+        """All parameters: PARAM_REQUEST_LIST, then each lost index asked for by itself.
+
+        PARAM_VALUE travels unacknowledged, so some may be lost: an unanswered list request is
+        sent again, and each missing index is asked for with PARAM_REQUEST_READ (by
+        param_index), each up to ``retries`` times. The result is the backup and the correction to undo (ardupilot-facts.md "What the telemetry really
+        carries"), so a set still incomplete then raises :class:`ApmcalError` rather than
+        being returned partial.
+        """
+        got = _ParamList()
         deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            msg = self.recv({"PARAM_VALUE"}, idle_s)
-            if msg is None:
-                if count is None:
-                    break
-                missing = sorted(set(range(count)) - seen_index)
-                if not missing:
-                    break
-                for index in missing[:20]:
-                    mav.param_request_read_send(self.target_system, self.target_component,
-                                                b"", index)
-                continue
-            params[_param_name(msg)] = float(msg.param_value)
-            count = msg.param_count
-            seen_index.add(msg.param_index)
-            if count is not None and len(seen_index) >= count:
+        for _ in range(1 + retries):      # the request itself may be lost, or the vehicle busy
+            self.master.mav.param_request_list_send(self.target_system, self.target_component)
+            self._receive_params(got, deadline, idle_s)
+            if got.params:
                 break
-        if not params:
+        if not got.params:
             raise ApmcalError("vehicle sent no parameters (PARAM_REQUEST_LIST unanswered)",
                               self.connection)
-        return params
+        deadline = time.monotonic() + timeout_s
+        for _ in range(retries):
+            if not got.missing() or time.monotonic() >= deadline:
+                break
+            self._request_missing(got, deadline, idle_s)
+        missing = got.missing()
+        if missing:
+            shown = ", ".join(map(str, missing[:20])) + (" ..." if len(missing) > 20 else "")
+            raise ApmcalError(f"{len(missing)} of {got.count} parameters never arrived "
+                              f"(param_index {shown}), even when asked for one by one; "
+                              f"not working from a partial set: try again", self.connection)
+        return got.params
+
+    def _request_missing(self, got: "_ParamList", deadline: float, idle_s: float) -> None:
+        """One PARAM_REQUEST_READ by index for every missing index, a batch at a time."""
+        missing = got.missing()
+        for i in range(0, len(missing), READS_IN_FLIGHT):
+            batch = missing[i:i + READS_IN_FLIGHT]
+            for index in batch:
+                self.master.mav.param_request_read_send(self.target_system,
+                                                        self.target_component, b"", index)
+            self._receive_params(got, deadline, idle_s, until=set(batch))
+
+    def _receive_params(self, got: "_ParamList", deadline: float, idle_s: float,
+                        until: set[int] | None = None) -> None:
+        """Take PARAM_VALUEs into ``got`` until the indices ``until`` (default: all) are in,
+        nothing arrives for ``idle_s``, or ``deadline`` passes."""
+        while (remaining := deadline - time.monotonic()) > 0:
+            msg = self.recv({"PARAM_VALUE"}, min(idle_s, remaining))
+            if msg is None:
+                return
+            got.add(msg)
+            if got.complete() if until is None else until <= got.seen:
+                return
 
     def read_param(self, name: str, timeout_s: float = 1.0, retries: int = 3) -> float | None:
         """One parameter by name (PARAM_REQUEST_READ); None if the vehicle does not answer."""
@@ -192,6 +221,28 @@ class VehicleLink:
 
     def __exit__(self, *exc):
         self.close()
+
+
+class _ParamList:
+    """The PARAM_VALUEs received so far: values by name, and which of the indices
+    0..param_count-1 have arrived."""
+
+    def __init__(self):
+        self.params: dict[str, float] = {}
+        self.seen: set[int] = set()
+        self.count: int | None = None
+
+    def add(self, msg) -> None:
+        self.params[_param_name(msg)] = float(msg.param_value)
+        self.count = msg.param_count
+        if 0 <= msg.param_index < msg.param_count:   # 65535: an answer not from the list
+            self.seen.add(msg.param_index)
+
+    def complete(self) -> bool:
+        return self.count is not None and len(self.seen) >= self.count
+
+    def missing(self) -> list[int]:
+        return [] if self.count is None else sorted(set(range(self.count)) - self.seen)
 
 
 def _param_name(msg) -> str:

@@ -32,8 +32,8 @@ from apmcal.errors import ApmcalError
 from apmcal.recording import LogContents
 from apmcal.sources import _framing
 from apmcal.sources._common import (
-    MAX_DAMAGE_OFFSETS, _params, add_recording, cstr, finish, load_bytes, parse_firmware,
-    struct_dtype,
+    MAX_DAMAGE_OFFSETS, _params, add_recording, cstr, finish, load_bytes, param_changes,
+    parse_firmware, struct_dtype,
 )
 
 IMU_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
@@ -124,6 +124,12 @@ def scan(buf: np.ndarray, names) -> tuple[dict[str, np.ndarray], int, list[int]]
     bytes_skipped : int, bytes that were not part of a valid frame.
     damaged_at : list of byte offsets where skipped runs begin (at most MAX_DAMAGE_OFFSETS).
     """
+    decoded, skipped, damaged, _ = _scan(buf, names)
+    return decoded, skipped, damaged
+
+
+def _scan(buf: np.ndarray, names):
+    """:func:`scan` plus name → byte offset of each decoded frame (same order as its rows)."""
     wanted = np.zeros(1 << 16, dtype=np.bool_)
     ids = {}
     for nm in names:
@@ -132,12 +138,13 @@ def scan(buf: np.ndarray, names) -> tuple[dict[str, np.ndarray], int, list[int]]
         ids[msgid] = (nm, dt)
     off, ln, mid, skipped, damaged = _index(buf, wanted)
     payload = off + 8 + _header_len(buf, off)
-    decoded = {}
+    decoded, offsets = {}, {}
     for msgid, (nm, dt) in ids.items():
         sel = np.flatnonzero(mid == msgid)
         rows = _framing.gather(buf, payload[sel], ln[sel], dt.itemsize)
         decoded[nm] = rows.view(dt).reshape(-1)
-    return decoded, skipped, damaged
+        offsets[nm] = off[sel]
+    return decoded, skipped, damaged, offsets
 
 
 def _int_imu_frame(a: np.ndarray, time_field: str, time_scale: float) -> pd.DataFrame:
@@ -211,6 +218,55 @@ def _metadata(out: LogContents, dec: dict[str, np.ndarray]) -> None:
         out.firmware = f"{out.vehicle} V{(v >> 24) & 255}.{(v >> 16) & 255}.{(v >> 8) & 255}"
 
 
+def _imu_time_s(name: str, row) -> float:
+    """Time [s] of one decoded IMU message, as in its recording's ``t`` column."""
+    if name in ("RAW_IMU", "HIGHRES_IMU"):
+        return float(row["time_usec"]) * 1e-6
+    return float(row["time_boot_ms"]) * 1e-3
+
+
+def _param_changes(out: LogContents, dec: dict[str, np.ndarray],
+                   offsets: dict[str, np.ndarray]) -> None:
+    """Calibration PARAM_VALUEs that change value after the first IMU message.
+
+    PARAM_VALUE carries no vehicle time; ``time_s`` is that of the last IMU message before it
+    (the new value applies from the next sample on), on the recordings' time axis.
+    """
+    firsts = [int(offsets[n][0]) for n in IMU_MESSAGES if len(offsets.get(n, ()))]
+    pv = dec["PARAM_VALUE"]
+    pos = offsets["PARAM_VALUE"]
+
+    def describe(i):
+        p, best = int(pos[i]), (-1, None)
+        for n in IMU_MESSAGES:
+            o = offsets.get(n)
+            j = int(np.searchsorted(o, p)) - 1 if o is not None and len(o) else -1
+            if j >= 0 and o[j] > best[0]:
+                best = (int(o[j]), _imu_time_s(n, dec[n][j]))
+        return best[1], f"PARAM_VALUE at byte {p}"
+
+    out.param_changes = param_changes(pv["param_id"], pv["param_value"], pos,
+                                      min(firsts) if firsts else None, describe)
+
+
+# a .tlog timestamp outside these years is a clock never set (or damage), not a date
+PLAUSIBLE_UNIX_S = (946684800.0, 4102444800.0)      # 2000-01-01 .. 2100-01-01 UTC
+
+
+def _wall_clock_start(buf: np.ndarray, offsets: dict[str, np.ndarray]) -> float | None:
+    """The ground station's clock [s since 1970] at the first decoded frame, if plausible.
+
+    Every .tlog frame is preceded by the 8-byte big-endian time [µs since 1970] at which the
+    ground station logged it (pymavlink mavlogfile); ``offsets`` point at those 8 bytes.
+    """
+    starts = [int(o[0]) for o in offsets.values() if len(o)]
+    if not starts:
+        return None
+    first = min(starts)
+    unix_s = int.from_bytes(buf[first:first + 8].tobytes(), "big") * 1e-6
+    return unix_s if PLAUSIBLE_UNIX_S[0] <= unix_s < PLAUSIBLE_UNIX_S[1] else None
+
+
 def read_tlog_messages(path, names=IMU_MESSAGES) -> tuple[dict[str, np.ndarray], int, list[int]]:
     """Decode all messages ``names`` of a .tlog into structured arrays (raw MAVLink fields).
 
@@ -229,11 +285,14 @@ def read_tlog(path, *, progress: bool = False) -> LogContents:
         Unreadable or empty file, no valid MAVLink frame, or no IMU message.
     """
     buf = load_bytes(path)
-    dec, skipped, damaged = scan(buf, IMU_MESSAGES + META_MESSAGES)
+    dec, skipped, damaged, offsets = _scan(buf, IMU_MESSAGES + META_MESSAGES)
     out = LogContents(path=str(path), format="tlog", bytes_skipped=skipped, damaged_at=damaged)
     if skipped == buf.shape[0]:
         raise ApmcalError("no valid MAVLink frame in the file", str(path), "byte 0")
     _metadata(out, dec)
+    _param_changes(out, dec, offsets)
+    out.start_unix_s = _wall_clock_start(buf, offsets)
+    del offsets
     _imu_recordings(out, dec)
     found = [k for k, v in dec.items() if len(v)]
     return finish(out, found)

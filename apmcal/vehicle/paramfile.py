@@ -16,14 +16,24 @@ from apmcal.errors import ApmcalError
 
 _NAME = re.compile(r"^[A-Za-z0-9_]{1,16}$")     # MAVLink param_id: at most 16 characters
 
+# A backup keeps a non-finite vehicle value as this comment: every loader skips it (no line that
+# cannot be written back), yet the name stays visible and :func:`read_unrestorable` finds it.
+NOT_RESTORABLE = "not finite on the vehicle; not restorable"
+_UNRESTORABLE = re.compile(r"^#\s*([A-Za-z0-9_]{1,16})\s+(\S+)\s+\(" + re.escape(NOT_RESTORABLE)
+                           + r"\)\s*$")
+
 
 def format_value(value: float) -> str:
     """The float32 value of ``value`` with 9 significant digits (round-trips float32 exactly)."""
     return "%.9g" % float(np.float32(value))
 
 
-def write_param_file(path: str | Path, values: dict[str, float], header_comment: str = "") -> None:
+def write_param_file(path: str | Path, values: dict[str, float], header_comment: str = "",
+                     *, comment_non_finite: bool = False) -> None:
     """Write ``values`` as sorted ``NAME VALUE`` lines, ``header_comment`` as ``#`` lines first.
+
+    ``comment_non_finite`` (for backups of what a vehicle holds): a NaN/inf value becomes the
+    line ``# NAME nan (not finite on the vehicle; not restorable)`` instead of an error.
 
     Raises
     ------
@@ -37,9 +47,12 @@ def write_param_file(path: str | Path, values: dict[str, float], header_comment:
         if not _NAME.match(name):
             raise ApmcalError("not a valid parameter name (letters, digits, _; ≤ 16)", path,
                               f"param {name!r}")
-        if not math.isfinite(value):
+        if math.isfinite(value):
+            lines.append(f"{name} {format_value(value)}")
+        elif comment_non_finite:
+            lines.append(f"# {name} {value!r} ({NOT_RESTORABLE})")
+        else:
             raise ApmcalError(f"value {value!r} is not finite", path, f"param {name}")
-        lines.append(f"{name} {format_value(value)}")
     try:
         Path(path).write_text("\n".join(lines) + "\n")
     except OSError as exc:
@@ -84,3 +97,10 @@ def read_param_file(path: str | Path) -> dict[str, float]:
             raise ApmcalError(f"value of {name} is {text_value}, not finite", path, where)
         values[name] = value
     return values
+
+
+def read_unrestorable(path: str | Path) -> list[str]:
+    """Names a backup holds only as ``# NAME nan (not finite ...)`` comments (see
+    :func:`write_param_file`); the file must be readable (:func:`read_param_file` first)."""
+    lines = Path(path).read_text().splitlines()
+    return [m.group(1) for m in map(_UNRESTORABLE.match, lines) if m]

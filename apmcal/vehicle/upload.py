@@ -13,8 +13,13 @@ from pathlib import Path
 import numpy as np
 
 from apmcal.errors import ApmcalError
-from apmcal.sources.live import VehicleLink, float32
-from apmcal.vehicle.paramfile import read_param_file, write_param_file
+from apmcal.preprocessing.firmware import acc_param_names, firmware_generation, mag_param_names
+from apmcal.sources.live import VehicleLink
+from apmcal.vehicle.params import (ACC_OFFSET_MAX, ACC_SCALE_MAX_DEV_32, ACC_SCALE_RANGE,
+                                   COMPASS_OFFS_MAX_DEFAULT, COMPASS_OFS_MAX_32, DIA_RANGE, ODI_MAX)
+from apmcal.vehicle.paramfile import read_param_file, read_unrestorable, write_param_file
+
+INSTANCES = range(3)        # IMU / compass instances 1..3 (suffix "", "2", "3")
 
 
 @dataclass
@@ -22,6 +27,8 @@ class UploadReport:
     written: dict[str, float] = field(default_factory=dict)    # name -> value read back
     previous: dict[str, float] = field(default_factory=dict)   # name -> value before
     backup_path: str = ""
+    skipped: list[str] = field(default_factory=list)       # restore: names the vehicle lacks
+    unrestorable: list[str] = field(default_factory=list)  # restore: NaN/inf in the backup
 
 
 def same_float32(a: float, b: float) -> bool:
@@ -29,9 +36,11 @@ def same_float32(a: float, b: float) -> bool:
     return np.float32(a) == np.float32(b)
 
 
+# ----------------------------------------------------------------------------- checks
 def check_before_writing(values: dict[str, float], vehicle_params: dict[str, float],
                          where: str) -> None:
-    """Refuse the whole upload (nothing written) for unknown names or non-finite values."""
+    """Refuse the whole upload (nothing written) for unknown names, non-finite values, or
+    values outside the firmware's limits."""
     for name, value in values.items():
         if not math.isfinite(value):
             raise ApmcalError(f"value {value!r} is not finite; nothing was written", where,
@@ -39,68 +48,185 @@ def check_before_writing(values: dict[str, float], vehicle_params: dict[str, flo
         if name not in vehicle_params:
             raise ApmcalError("the vehicle has no such parameter (wrong firmware generation?); "
                               "nothing was written", where, f"param {name}")
+    violations = firmware_limit_violations(values, vehicle_params)
+    if violations:
+        name, why = next(iter(violations.items()))
+        more = f" (and {len(violations) - 1} more)" if len(violations) > 1 else ""
+        raise ApmcalError(f"{why}: the firmware would refuse it{more}; nothing was written",
+                          where, f"param {name}")
 
 
+def firmware_limit_violations(values: dict[str, float],
+                              vehicle_params: dict[str, float]) -> dict[str, str]:
+    """name -> reason, for values of ``values`` outside the limits of
+    :mod:`apmcal.vehicle.params` (the same constants :func:`to_ardupilot_params` refuses by;
+    ardupilot-facts.md "How the firmware applies the parameters", "ArduPilot's own
+    calibrators"). The generation and COMPASS_OFFS_MAX come from ``vehicle_params``."""
+    generation = firmware_generation(vehicle_params)
+    merged = {**vehicle_params, **values}      # DIA is judged per instance, after the upload
+    reasons: dict[str, str] = {}
+    for instance in INSTANCES:
+        reasons |= _acc_violations(values, instance, generation)
+        reasons |= _compass_violations(values, merged, instance, generation)
+    return reasons
+
+
+def _acc_violations(values, instance: int, generation: str) -> dict[str, str]:
+    offs_names, scal_names = acc_param_names(instance)
+    reasons = {}
+    for n in [n for n in offs_names if n in values]:
+        if abs(values[n]) > ACC_OFFSET_MAX:
+            reasons[n] = f"|offset| {abs(values[n]):.3f} > {ACC_OFFSET_MAX} m/s²"
+    for n in [n for n in scal_names if n in values]:
+        v = values[n]
+        if not ACC_SCALE_RANGE[0] <= v <= ACC_SCALE_RANGE[1]:
+            reasons[n] = f"scale {v:.4f} outside {ACC_SCALE_RANGE[0]}..{ACC_SCALE_RANGE[1]}"
+        elif generation == "3.2" and abs(v - 1) > ACC_SCALE_MAX_DEV_32:
+            reasons[n] = f"|scale − 1| = {abs(v - 1):.4f} > {ACC_SCALE_MAX_DEV_32} (3.2 limit)"
+    return reasons
+
+
+def _compass_violations(values, merged, instance: int, generation: str) -> dict[str, str]:
+    names = mag_param_names(instance)
+    limit = (COMPASS_OFS_MAX_32 if generation == "3.2"
+             else float(merged.get("COMPASS_OFFS_MAX", COMPASS_OFFS_MAX_DEFAULT)))
+    # all-zero DIA is the firmware's "no soft-iron matrix" (identity), not a zero gain
+    dia_unset = all(merged.get(n) == 0 for n in names["dia"])
+    reasons = {}
+    for n in [n for n in names["ofs"] if n in values]:
+        if abs(values[n]) > limit:
+            reasons[n] = f"|offset| {abs(values[n]):.1f} > {limit:g} mGauss"
+    for n in [n for n in names["dia"] if n in values and not dia_unset]:
+        if not DIA_RANGE[0] <= values[n] <= DIA_RANGE[1]:
+            reasons[n] = f"diagonal {values[n]:.4f} outside {DIA_RANGE[0]}..{DIA_RANGE[1]}"
+    for n in [n for n in names["odi"] if n in values]:
+        if abs(values[n]) >= ODI_MAX:
+            reasons[n] = f"|off-diagonal| {abs(values[n]):.4f} >= {ODI_MAX}"
+    return reasons
+
+
+# ----------------------------------------------------------------------------- upload
 def upload_params(link: VehicleLink, values: dict[str, float], backup_path: str | Path,
                   vehicle_params: dict[str, float] | None = None) -> UploadReport:
     """Back up every parameter, then set ``values`` one by one, verifying each read-back.
 
-    If any write is not confirmed, every parameter already changed is put back to its backed-up
-    value (and that is verified too) before :class:`ApmcalError` is raised: the vehicle is never
-    left half-calibrated.
+    If any write is not confirmed, or the user presses Ctrl-C, every parameter already changed
+    is put back to its backed-up value (and that is verified too) before :class:`ApmcalError`
+    is raised: the vehicle is never left half-calibrated.
     """
     if vehicle_params is None:
         vehicle_params = link.fetch_params()
     check_before_writing(values, vehicle_params, link.connection)
+    # NaN/inf on the vehicle become comment lines: the backup holds nothing restore cannot write
     write_param_file(backup_path, vehicle_params,
-                     f"apmcal backup of all parameters of {link.connection} before upload")
+                     f"apmcal backup of all parameters of {link.connection} before upload",
+                     comment_non_finite=True)
     report = UploadReport(backup_path=str(backup_path),
                           previous={n: vehicle_params[n] for n in values})
-    for name, value in values.items():
-        echoed = link.set_param(name, value)
-        if echoed is None or not same_float32(echoed, value):
-            # The vehicle may have stored something else (or stored it and lost the answer):
-            # the failing name is put back too.
-            _roll_back(link, report, also=name)
-            got = "no answer" if echoed is None else f"read back {echoed!r}"
-            raise ApmcalError(f"write of {value!r} not confirmed ({got}); all changes rolled "
-                              f"back from {backup_path}", link.connection, f"param {name}")
-        report.written[name] = echoed
+    try:
+        failure = _write_all(link, values, report)
+    except KeyboardInterrupt:
+        # the write under way may have been stored: it is put back with the others
+        pending = next((n for n in values if n not in report.written), None)
+        _roll_back(link, report, also=pending, cause="interrupted")
+        raise ApmcalError(f"interrupted; all changes rolled back from {backup_path}",
+                          link.connection) from None
+    if failure is not None:
+        name, value, echoed = failure
+        # The vehicle may have stored something else (or stored it and lost the answer):
+        # the failing name is put back too.
+        _roll_back(link, report, also=name, cause=f"write of {name} not confirmed")
+        got = "no answer" if echoed is None else f"read back {echoed!r}"
+        raise ApmcalError(f"write of {value!r} not confirmed ({got}); all changes rolled "
+                          f"back from {backup_path}", link.connection, f"param {name}")
     return report
 
 
-def _roll_back(link: VehicleLink, report: UploadReport, also: str) -> None:
-    """Put every written name, and the one that failed, back to its backed-up value."""
-    failed = [name for name in [*report.written, also]
-              if not _put_back(link, name, report.previous[name])]
+def _write_all(link: VehicleLink, values: dict[str, float], report: UploadReport):
+    """Set ``values`` in order into ``report.written``; (name, value, echoed) of the first write
+    not confirmed, None when all are."""
+    for name, value in values.items():
+        echoed = link.set_param(name, value)
+        if echoed is None or not same_float32(echoed, value):
+            return name, value, echoed
+        report.written[name] = echoed
+    return None
+
+
+def _roll_back(link: VehicleLink, report: UploadReport, also: str | None, cause: str) -> None:
+    """Put every written name, and ``also`` (the write under way), back to its backed-up value.
+
+    A rollback that fails, or is itself interrupted, names the command that finishes it.
+    """
+    names = [*report.written, *([also] if also is not None else [])]
+    restore = f"restore with 'apmcal restore {link.connection} {report.backup_path}'"
+    try:
+        failed = [name for name in names if _put_back(link, name, report.previous[name]) is None]
+    except KeyboardInterrupt:
+        raise ApmcalError(f"{cause}; rollback interrupted: {restore}", link.connection) from None
     if failed:
-        raise ApmcalError(f"rollback failed for {', '.join(failed)}: restore with "
-                          f"'apmcal restore {link.connection} {report.backup_path}'",
+        lost = [n for n in failed if not math.isfinite(report.previous[n])]
+        note = (f" ({', '.join(lost)} held a non-finite value before, which cannot be written "
+                f"back)" if lost else "")
+        raise ApmcalError(f"{cause}; rollback failed for {', '.join(failed)}{note}: {restore}",
                           link.connection)
 
 
-def _put_back(link: VehicleLink, name: str, value: float) -> bool:
-    """True once the vehicle holds ``value`` for ``name`` (set, or found unchanged)."""
+def _put_back(link: VehicleLink, name: str, value: float) -> float | None:
+    """The value read back once the vehicle holds ``value`` for ``name`` (set, or found
+    unchanged); None when that cannot be confirmed."""
+    if not math.isfinite(value):    # ardupilot-facts.md: NaN is dropped, never stored
+        return None
     echoed = link.set_param(name, value)
     if echoed is None:      # a write the vehicle ignores may still have left the value as it was
         echoed = link.read_param(name)
-    return echoed is not None and same_float32(echoed, value)
+    return echoed if echoed is not None and same_float32(echoed, value) else None
 
 
+# ----------------------------------------------------------------------------- restore
 def restore_params(link: VehicleLink, backup_path: str | Path,
                    names: list[str] | None = None) -> UploadReport:
-    """Put back the values of a backup file (all, or only ``names``), verified by read-back."""
+    """Put back the values of a backup file (all, or only ``names``), verified by read-back.
+
+    Names the vehicle does not have go to ``skipped``, and names the backup holds only as
+    "not restorable" comments to ``unrestorable``. Every other name is tried, even after a
+    failure, so the vehicle ends as close to the backup as possible; then one
+    :class:`ApmcalError` lists every name that could not be confirmed.
+    """
     backup = read_param_file(backup_path)
-    wanted = {n: backup[n] for n in (names or backup)}
+    unrestorable = [n for n in read_unrestorable(backup_path) if n not in backup]
+    wanted = _wanted(backup, unrestorable, names, backup_path)
     current = link.fetch_params()
     changed = {n: v for n, v in wanted.items()
                if n in current and not same_float32(current[n], v)}
     report = UploadReport(backup_path=str(backup_path),
-                          previous={n: current[n] for n in changed})
+                          previous={n: current[n] for n in changed},
+                          skipped=[n for n in wanted if n not in current],
+                          unrestorable=[n for n in unrestorable if names is None or n in names])
+    failed = []
     for name, value in changed.items():
-        echoed = link.set_param(name, value)
-        if echoed is None or not same_float32(echoed, float32(value)):
-            raise ApmcalError(f"restore of {value!r} not confirmed", link.connection,
-                              f"param {name}")
-        report.written[name] = echoed
+        echoed = _put_back(link, name, value)
+        if echoed is None:
+            failed.append(name)
+        else:
+            report.written[name] = echoed
+    if failed:
+        skipped = (f"; {len(report.skipped)} names the vehicle does not have skipped"
+                   if report.skipped else "")
+        raise ApmcalError(f"restore not confirmed for {len(failed)} of {len(changed)} changed "
+                          f"parameters: {', '.join(failed)} (all others restored{skipped})",
+                          link.connection)
     return report
+
+
+def _wanted(backup: dict[str, float], unrestorable: list[str], names: list[str] | None,
+            backup_path) -> dict[str, float]:
+    """The backup's values for ``names`` (all when None); a name it lacks is an error, found
+    before anything is written."""
+    if names is None:
+        return dict(backup)
+    absent = [n for n in names if n not in backup and n not in unrestorable]
+    if absent:
+        raise ApmcalError(f"not in the backup: {', '.join(absent)}; nothing was written",
+                          backup_path)
+    return {n: backup[n] for n in names if n in backup}
