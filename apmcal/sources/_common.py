@@ -132,6 +132,31 @@ def _last_per_name(names: np.ndarray) -> np.ndarray:
 _PREFIXES_BYTES = tuple(p.encode() for p in CALIBRATION_PARAM_PREFIXES)
 
 
+def _is_calibration_name(names: np.ndarray) -> np.ndarray:
+    """Boolean mask: which ``names`` start with a calibration prefix.
+
+    Written by hand for fixed-width byte names (MAVLink param_id, PARM Name): each name is read
+    as 64-bit words and each prefix compared under a byte mask, a few integer operations per
+    name instead of a Python ``str.startswith`` call (which dominated reading a big .tlog).
+    """
+    if names.dtype.kind != "S":          # text logs: Python strings
+        return np.fromiter((str(n).startswith(CALIBRATION_PARAM_PREFIXES) for n in names),
+                           dtype=np.bool_, count=len(names))
+    width = -(-max(names.dtype.itemsize, 16) // 8) * 8          # whole 64-bit words
+    words = np.ascontiguousarray(names.astype(f"S{width}")).view("<u8").reshape(len(names), -1)
+    mask = np.zeros(len(names), dtype=np.bool_)
+    for prefix in _PREFIXES_BYTES:
+        padded = prefix.ljust(width, b"\0")
+        care = (b"\xff" * len(prefix)).ljust(width, b"\0")
+        want = np.frombuffer(padded, "<u8")
+        keep = np.frombuffer(care, "<u8")
+        hit = np.ones(len(names), dtype=np.bool_)
+        for k in np.flatnonzero(keep):                    # only the words the prefix covers
+            hit &= (words[:, k] & keep[k]) == want[k]
+        mask |= hit
+    return mask
+
+
 def param_changes(names: np.ndarray, values: np.ndarray, positions: np.ndarray,
                   first_sample: int | None, describe) -> list[ParamChange]:
     """Calibration parameters that take a new value after the first sensor sample.
@@ -158,9 +183,7 @@ def param_changes(names: np.ndarray, values: np.ndarray, positions: np.ndarray,
     if first_sample is None or len(names) == 0:
         return []
     names = np.asarray(names)
-    pre = _PREFIXES_BYTES if names.dtype.kind == "S" else CALIBRATION_PARAM_PREFIXES
-    cal = np.fromiter((n.startswith(pre) for n in names.tolist()), dtype=np.bool_,
-                      count=len(names))
+    cal = _is_calibration_name(names)
     values = np.asarray(values, dtype=np.float64)
     idx = np.flatnonzero(cal & np.isfinite(values))
     if len(idx) == 0 or positions[idx[-1]] <= first_sample:
