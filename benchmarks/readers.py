@@ -75,7 +75,7 @@ def bench_file(path: Path, skip_pymavlink: bool = False) -> dict:
     res = {"apmcal": warm}
     if skip_pymavlink:
         return res
-    types = ref.TLOG_IMU if kind == "tlog" else None
+    types = ref.TLOG_READ if kind == "tlog" else None
     msgs, t_pm = _timed(ref.pymavlink_messages, path, types)
     expected = ref.tlog_expected(msgs) if kind == "tlog" else ref.df_expected(msgs)
     n = ref.compare(contents, expected)
@@ -89,7 +89,7 @@ def bench_file(path: Path, skip_pymavlink: bool = False) -> dict:
             print("  fasttlogparser not importable: skipped")
         else:
             with _quiet_stdout():   # it prints a BAD_CRC line per damaged packet
-                r, t_f = _timed(fasttlogparser.parseTLog, str(path), whitelist=ref.TLOG_IMU)
+                r, t_f = _timed(fasttlogparser.parseTLog, str(path), whitelist=ref.TLOG_READ)
             got = r[0]
             for name in ref.TLOG_IMU:   # sanity: same number of IMU messages
                 want = sum(1 for m in msgs if m.get_type() == name)

@@ -35,7 +35,7 @@ def v2(signed: bool = False):
 def test_matches_pymavlink(shared_data, name):
     path = shared_data / name
     contents = read_log(path)
-    msgs = ref.pymavlink_messages(path, ref.TLOG_IMU + ["PARAM_VALUE"])
+    msgs = ref.pymavlink_messages(path, ref.TLOG_READ + ["PARAM_VALUE"])
     n = ref.compare(contents, ref.tlog_expected(msgs))
     assert n > 1000
     assert contents.params == ref.expected_params(msgs)
@@ -232,3 +232,23 @@ def test_start_time_from_the_first_frame_only_when_a_plausible_date(tmp_path, un
 def test_start_time_of_a_real_session(shared_data):
     assert read_log(shared_data / "ardupilot" / "ardusub_small.tlog").start_unix_s == \
         pytest.approx(1683220541.055, abs=1e-3)      # 2023-05-04 17:15:41 UTC
+
+
+def test_raw_imu_without_temperature_gets_the_barometers_interpolated(tmp_path):
+    """APM 2.x RAW_IMU carries no temperature: SCALED_PRESSURE's (cdegC) is interpolated to the
+    IMU sample times on the boot clock, NaN outside the barometer's samples, with a note."""
+    from sitl.logwriter import TlogWriter
+
+    p = tmp_path / "baro.tlog"
+    with TlogWriter(p) as w:
+        for k in range(6):                 # barometer at 0, 2, 4 s; IMU at 1, 3, 5 s
+            if k % 2 == 0:
+                temp_cdeg = {0: 2500, 2: 2600, 4: 2800}[k]
+                w.write(1.7e9 + k, mav2.MAVLink_scaled_pressure_message(
+                    k * 1000, 1013.0, 0.0, temp_cdeg).pack(v2()))
+            else:
+                w.write(1.7e9 + k, _raw_imu(float(k)).pack(v2()))
+    c = read_log(p)
+    (rec,) = c.recordings
+    np.testing.assert_array_equal(rec.data["temp"].to_numpy(), [25.5, 27.0, np.nan])
+    assert any("RAW_IMU[0] temp is the barometer's" in m for m in c.messages)

@@ -17,6 +17,7 @@ import numpy as np
 from pymavlink import mavutil
 
 TLOG_IMU = ["RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU"]
+TLOG_READ = TLOG_IMU + ["SCALED_PRESSURE"]      # what the tlog reader turns into recordings
 _DF_IMU = re.compile(r"^(IMU|ACC|GYR|MAG)(\d?)$")
 _XYZ = ("x", "y", "z")
 
@@ -88,7 +89,26 @@ def tlog_expected(msgs: list) -> dict[tuple[str, int], dict[str, np.ndarray]]:
             continue
         inst = inst_of.get(name, m.id if "id" in m.get_fieldnames() else 0)
         groups.setdefault((name, inst), []).append(m)
-    return {k: _tlog_columns(k[0], v) for k, v in groups.items()}
+    out = {k: _tlog_columns(k[0], v) for k, v in groups.items()}
+    baro = [m for m in msgs if m.get_type() == "SCALED_PRESSURE"]
+    for (name, _), cols in out.items():
+        if name != "HIGHRES_IMU" and not np.nan_to_num(cols["temp"]).any():
+            cols["temp"] = _baro_temperature(baro, cols["t"])
+    return out
+
+
+def _baro_temperature(baro: list, t: np.ndarray) -> np.ndarray:
+    """SCALED_PRESSURE temperature [cdegC → °C] linearly interpolated at times t [s], NaN
+    outside the barometer's samples; zeros (no column) without a usable barometer."""
+    tb, temp = [], []
+    for m in baro:
+        if not tb or m.time_boot_ms * 1e-3 > tb[-1]:      # strictly increasing times only
+            tb.append(m.time_boot_ms * 1e-3)
+            temp.append(m.temperature * 0.01)
+    inside = (t >= tb[0]) & (t <= tb[-1]) if len(tb) >= 2 and any(temp) else np.zeros(len(t), bool)
+    if not inside.any():
+        return np.zeros(len(t))
+    return np.where(inside, np.interp(t, tb, temp), np.nan)
 
 
 def df_expected(msgs: list) -> dict[tuple[str, int], dict[str, np.ndarray]]:

@@ -7,7 +7,8 @@ zero-padded (n, wire_length) byte array and decoded all at once through a numpy 
 built from pymavlink's own message definition (same field order and types as pymavlink), so the
 values are bit-identical to pymavlink's.
 
-Damage: the messages read here (IMU, PARAM_VALUE, STATUSTEXT, HEARTBEAT, AUTOPILOT_VERSION) must
+Damage: the messages read here (IMU, PARAM_VALUE, STATUSTEXT, HEARTBEAT, AUTOPILOT_VERSION,
+SCALED_PRESSURE) must
 pass the MAVLink CRC. Other messages are only framed (known msgid, plausible length, next frame
 where expected; else their CRC decides), which saves the CRC on most of the file. Bytes in no
 valid frame are skipped one at a time until framing resumes and are counted in
@@ -18,6 +19,11 @@ Units (ardupilot-facts.md, "What the telemetry really carries"):
 RAW_IMU / SCALED_IMU / SCALED_IMU2 / SCALED_IMU3: acc [mG] → m/s² (× 9.80665/1000), gyro
 [mrad/s] → rad/s, mag [mGauss] as is, temperature [cdegC] → °C. HIGHRES_IMU: SI floats, mag
 [Gauss] → mGauss. Time comes from the message (time_usec [µs] or time_boot_ms [ms]) in s.
+
+Temperature: an integer IMU message without its own (RAW_IMU on APM 2.x firmware carries none)
+gets the barometer's SCALED_PRESSURE temperature [cdegC → °C], linearly interpolated to its sample
+times on the common boot clock (NaN outside the barometer's samples), with a note saying so: on
+an APM 2.8 the barometer sits on the same board and is its only temperature sensor.
 """
 from __future__ import annotations
 
@@ -37,7 +43,8 @@ from apmcal.sources._common import (
 )
 
 IMU_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
-META_MESSAGES = ("PARAM_VALUE", "STATUSTEXT", "HEARTBEAT", "AUTOPILOT_VERSION")
+META_MESSAGES = ("PARAM_VALUE", "STATUSTEXT", "HEARTBEAT", "AUTOPILOT_VERSION",
+                 "SCALED_PRESSURE")
 _SCALED_INSTANCE = {"SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}
 _CHUNK = 1 << 20          # index entries per scan call (bounds index memory)
 
@@ -193,7 +200,27 @@ def _imu_recordings(out: LogContents, dec: dict[str, np.ndarray]) -> None:
                 df = _int_imu_frame(g, "time_usec", 1e-6)
             else:
                 df = _int_imu_frame(g, "time_boot_ms", 1e-3)
+            if "temp" not in df.columns and name != "HIGHRES_IMU":
+                _attach_baro_temperature(out, df, dec.get("SCALED_PRESSURE"), f"{name}[{inst}]")
             add_recording(out, df, name, inst)
+
+
+def _attach_baro_temperature(out: LogContents, df: pd.DataFrame, baro, label: str) -> None:
+    """Add SCALED_PRESSURE's temperature [°C] to ``df`` as ``temp`` (see the module docstring)."""
+    if baro is None or len(baro) < 2 or not baro["temperature"].any():
+        return
+    t_baro = baro["time_boot_ms"].astype(np.float64) * 1e-3
+    keep = np.flatnonzero(np.diff(t_baro, prepend=-np.inf) > 0)   # np.interp needs increasing
+    t_baro, temp = t_baro[keep], baro["temperature"][keep].astype(np.float64) * 0.01
+    t = df["t"].to_numpy()
+    inside = (t >= t_baro[0]) & (t <= t_baro[-1])
+    if not inside.any():     # another clock (a log spliced after a reboot): no common time
+        out.messages.append(f"note: {label} and SCALED_PRESSURE share no time span; "
+                            "no temperature attached")
+        return
+    df["temp"] = np.where(inside, np.interp(t, t_baro, temp), np.nan)
+    out.messages.append(f"note: {label} temp is the barometer's (SCALED_PRESSURE), interpolated "
+                        "to the sample times")
 
 
 def _metadata(out: LogContents, dec: dict[str, np.ndarray]) -> None:
