@@ -122,6 +122,6 @@ class LogContents:
     # calibration parameters (CALIBRATION_PARAM_PREFIXES) that changed value after the first
     # IMU/MAG sample, in file order; ``params`` keeps the last value of each
     param_changes: list[ParamChange] = field(default_factory=list)
-    # wall-clock time of the first record [s since 1970, UTC] when the file carries one (a
-    # .tlog's per-frame timestamps); None otherwise. Dates the WMM field of the recording.
+    # wall-clock time of the first sample [s since 1970, UTC] when the file carries one (a
+    # .tlog's per-frame timestamps, a dataflash GPS fix); None otherwise. Dates the WMM field.
     start_unix_s: float | None = None

@@ -23,8 +23,12 @@ DF_MESSAGES = {
     "MSG": (130, "QZ", "TimeUS,Message"),
     "IMU": (131, "QffffffIIf", "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,ErrG,ErrA,T"),
     "MAG": (132, "QhhhhhhhhhB", "TimeUS,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ,Health"),
+    "GPS": (133, "QBIHBLLf", "TimeUS,Status,GMS,GWk,NSats,Lat,Lng,Alt"),
 }
-_STRUCT = {"Q": "Q", "f": "f", "h": "h", "I": "I", "B": "B", "n": "4s", "N": "16s", "Z": "64s"}
+_STRUCT = {"Q": "Q", "f": "f", "h": "h", "H": "H", "I": "I", "B": "B", "L": "i", "n": "4s",
+           "N": "16s", "Z": "64s"}
+GPS_EPOCH_UNIX_S = 315964800       # 1980-01-06 UTC
+GPS_MINUS_UTC_S = 18               # leap seconds since 1980 (2017 on), as ArduPilot logs them
 
 
 def _struct(fmt: str) -> struct.Struct:
@@ -77,6 +81,15 @@ class DataflashWriter:
         """One MAG record: corrected field, COMPASS_OFS and motor compensation [mGauss]."""
         ints = [int(max(-32768, min(32767, round(v)))) for v in (*field_mgauss, *ofs, *motor)]
         self._record("MAG", time_us, *ints, 1)
+
+    def gps(self, time_us: int, unix_s: float, lat_deg: float, lon_deg: float,
+            alt_m: float) -> None:
+        """One GPS record with a 3D fix at Unix time ``unix_s``: GPS week and ms of the week
+        (GWk, GMS) as ArduPilot logs them; Lat/Lng in 1e-7 degrees."""
+        gps_ms = int(round((unix_s - GPS_EPOCH_UNIX_S + GPS_MINUS_UTC_S) * 1000))
+        week, ms = divmod(gps_ms, 604_800_000)
+        self._record("GPS", time_us, 3, ms, week, 10, int(round(lat_deg * 1e7)),
+                     int(round(lon_deg * 1e7)), float(alt_m))
 
     def close(self) -> None:
         self.f.close()

@@ -6,7 +6,7 @@
 .tlog: PARAM_VALUE of every parameter at the start, STATUSTEXT firmware string, HEARTBEAT 1 Hz,
 SYS_STATUS, RAW_IMU at --rate, SCALED_PRESSURE at 2 Hz.
 .bin : FMT, PARM (all), MSG (firmware string), IMU and MAG (MOX..Z = COMPASS_MOT·throttle or
-       current) at --rate.
+       current) at --rate, GPS (3D fix at the site, GWk/GMS of the start time + t) at 1 Hz.
 Parameters are NEUTRAL (offsets 0, scales 1, INS_GYR_CAL=0 so no boot gyro offsets) unless --set.
 """
 from __future__ import annotations
@@ -57,8 +57,11 @@ def write_bin(v: SimVehicle, out: Path, rate: float, seconds: float) -> None:
             w.parm(0, name, v.params[name])
         w.msg(0, VERSION_TEXT[v.generation])
         ofs = [v.params[f"COMPASS_OFS_{a}"] for a in "XYZ"]
+        site = v.truth.site
 
         def emit(t, m):
+            if m.get_type() == "HEARTBEAT":     # 1 Hz: a GPS fix dates the log (no RTC)
+                w.gps(int(round(t * 1e6)), START_UNIX + t, site["lat"], site["lon"], site["alt"])
             if m.get_type() == "HIGHRES_IMU":
                 us = int(round(t * 1e6))
                 w.imu(us, (m.xgyro, m.ygyro, m.zgyro), (m.xacc, m.yacc, m.zacc), m.temperature)

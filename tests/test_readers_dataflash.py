@@ -247,3 +247,30 @@ def test_parm_change_text_log(tmp_path):
 @pytest.mark.parametrize("name", DATAFLASH)
 def test_no_param_change_in_real_dataflash(shared_data, name):
     assert read_log(shared_data / name).param_changes == []
+
+
+@pytest.mark.parametrize("name", DATAFLASH)
+def test_start_date_equals_dfreaders_gps_clock(shared_data, name):
+    """The log's date comes from its first GPS fix (week + ms of week, both record layouts);
+    pymavlink's DFReader dates its records from GPS the same way, independently. A log whose
+    GPS never has a fix has no date (DFReader's clock then counts from boot)."""
+    from pymavlink import mavutil
+
+    path = shared_data / name
+    first = mavutil.mavlink_connection(str(path)).recv_match(type=list(_SENSOR_TYPES))
+    ours = read_log(path).start_unix_s
+    if first._timestamp < 1e9:          # no GPS time: DFReader's clock is the boot clock
+        assert ours is None
+    else:
+        assert ours == pytest.approx(first._timestamp, abs=0.05)
+
+
+_SENSOR_TYPES = ("IMU", "IMU2", "IMU3", "ACC1", "GYR1", "ACC", "GYR", "MAG", "MAG2")
+
+
+def test_simulated_log_is_dated_by_its_gps_records():
+    """logs/tumble.bin: the simulator's GPS records (GWk/GMS layout) carry its start time."""
+    from pathlib import Path
+
+    log = Path(__file__).resolve().parents[1] / "logs" / "tumble.bin"
+    assert read_log(log).start_unix_s == pytest.approx(1_780_000_000.0, abs=1e-3)

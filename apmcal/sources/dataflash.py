@@ -32,6 +32,7 @@ from apmcal.sources._common import (
     MAX_DAMAGE_OFFSETS, _params, add_recording, cstr, finish, load_bytes, param_changes,
     parse_firmware,
 )
+from apmcal.sources.gps_time import GPS_TIME_COLUMNS, boot_to_unix_offset
 
 # DFReader's FORMAT_TO_STRUCT: format char → (numpy dtype, multiplier)
 DF_FORMATS = {
@@ -44,7 +45,7 @@ DF_FORMATS = {
 }
 
 IMU_RE = re.compile(r"^(IMU|ACC|GYR|MAG)(\d?)$")
-META_NAMES = ("PARM", "MSG")
+META_NAMES = ("PARM", "MSG", "GPS")
 _CHUNK = 1 << 20
 _FMT_DTYPE = np.dtype([("Type", "u1"), ("Length", "u1"), ("Name", "S4"), ("Format", "S16"),
                        ("Columns", "S64")])
@@ -270,6 +271,9 @@ def build_contents(out: LogContents, msgs: dict[str, dict[str, np.ndarray]]) -> 
             out.vehicle, out.firmware = fw
     found = [k for k, v in msgs.items() if any(len(a) for a in v.values())]
     _sensor_recordings(out, msgs)
+    boot_unix = boot_to_unix_offset(msgs.get("GPS", {}))
+    if boot_unix is not None and out.recordings:
+        out.start_unix_s = boot_unix + min(float(r.data["t"].iloc[0]) for r in out.recordings)
     return finish(out, found)
 
 
@@ -278,12 +282,15 @@ SENSOR_COLUMNS = {"TimeUS", "TimeMS", "I", "AccX", "AccY", "AccZ", "GyrX", "GyrY
 
 
 def wanted_columns(name: str):
-    """Columns the reader converts: the sensor columns of IMU-family messages, all otherwise."""
+    """Columns the reader converts: the sensor columns of IMU-family messages, the time columns
+    of GPS, all of the others."""
+    if name == "GPS":
+        return GPS_TIME_COLUMNS
     return SENSOR_COLUMNS if IMU_RE.match(name) else None
 
 
 def wanted_name(name: str) -> bool:
-    """Messages the reader decodes: IMU/ACC/GYR/MAG families, PARM, MSG."""
+    """Messages the reader decodes: IMU/ACC/GYR/MAG families, PARM, MSG, GPS (for the date)."""
     return bool(IMU_RE.match(name)) or name in META_NAMES
 
 
