@@ -1,4 +1,5 @@
-"""Magnetometer calibration: coverage check, field magnitude, robust ellipsoid fit (seed 000)."""
+"""Magnetometer calibration: coverage check, field magnitude, robust ellipsoid fit (seed 000)
+with its second-order bias removed (:mod:`apmcal.solvers.ellipsoid_debias`)."""
 from __future__ import annotations
 
 import datetime
@@ -7,6 +8,7 @@ import numpy as np
 
 from apmcal.errors import ApmcalError
 from apmcal.solvers.ellipsoid import fit_ellipsoid_robust, sphere_fit, verdict
+from apmcal.solvers.ellipsoid_debias import debiased
 from apmcal.solvers.result import SensorCalibration
 
 NT_PER_MGAUSS = 100.0       # 1 mGauss = 0.1 µT = 100 nT
@@ -57,7 +59,11 @@ def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: floa
         radius, origin = sphere_fit(mag)[1], "sphere fit (no --lat/--lon)"
     info: dict = {}
     cal = fit_ellipsoid_robust(mag, radius, info=info)
+    cal, bias_line = debiased(
+        lambda samples: fit_ellipsoid_robust(samples, radius,
+                                             parameterisation=info["parameterisation"]),
+        mag[info["inliers"]], cal, radius)
     report.setdefault("lines", []).append(f"mag: field magnitude {radius:.1f} mGauss from {origin}")
-    report["lines"] += verdict(mag, cal, radius, sensor="mag", info=info)
+    report["lines"] += verdict(mag, cal, radius, sensor="mag", info=info) + [f"mag: {bias_line}"]
     report["mag_field_mgauss"] = radius
     return cal
