@@ -44,6 +44,7 @@ def summarize(contents: LogContents) -> dict:
             "calibration_params_in_force": in_force, "param_count": len(contents.params),
             "bytes_skipped": contents.bytes_skipped, "messages": contents.messages[:20],
             "notes": reader_notes(contents), "recorded_utc": _utc(contents.start_unix_s),
+            "recorded_by": "ground station clock" if contents.format == "tlog" else "GPS time",
             "param_changes": [str(c) for c in contents.param_changes]}
 
 
@@ -78,7 +79,7 @@ def print_summary(summary: dict, console) -> None:
                                 f"{summary['vehicle'] or 'unknown'}; firmware: "
                                 f"{summary['firmware'] or 'unknown'}"))
     if summary.get("recorded_utc"):
-        console.print(Text(f"recorded: {summary['recorded_utc']} (ground station clock)"))
+        console.print(Text(f"recorded: {summary['recorded_utc']} ({summary['recorded_by']})"))
     # compact (no borders, one space between columns): fits 80 columns, so a piped run neither
     # wraps headers nor truncates cells ("acc,gyr,mag")
     table = Table(box=box.SIMPLE_HEAD, padding=(0, 0), collapse_padding=True, show_edge=False,

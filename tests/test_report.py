@@ -66,3 +66,25 @@ def test_solver_report_lines_and_warnings_are_printed():
     assert "acc: b_x, F_xz cannot be separated [bold]" in out
     assert "acc: F_xx NOT determinable" in out
     assert "warning: magnetometer not calibrated [red]" in out
+
+
+def test_recording_date_and_its_source_are_shown():
+    tlog, bin_ = contents(fmt="tlog"), contents(fmt="bin")
+    tlog.start_unix_s = bin_.start_unix_s = 1_780_000_000.5
+    assert "recorded: 2026-05-28T20:26:40+00:00 (ground station clock)" in render(
+        report.print_summary, report.summarize(tlog))
+    assert "recorded: 2026-05-28T20:26:40+00:00 (GPS time)" in render(
+        report.print_summary, report.summarize(bin_))
+    assert "recorded" not in render(report.print_summary, report.summarize(contents()))
+
+
+def test_calibration_parameter_changes_are_warned_in_the_summary():
+    from apmcal.recording import ParamChange
+
+    c = contents()
+    c.param_changes = [ParamChange("INS_ACCOFFS_X", 0.1, 0.25, 5.0, "PARM record at byte 99")]
+    summary = report.summarize(c)
+    assert summary["param_changes"] == [
+        "INS_ACCOFFS_X changed from 0.1 to 0.25 at t=5.000 s (PARM record at byte 99)"]
+    assert ("warning: while recording, INS_ACCOFFS_X changed from 0.1 to 0.25 at t=5.000 s "
+            "(PARM record at byte 99)") in render(report.print_summary, summary)
