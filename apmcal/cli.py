@@ -299,7 +299,7 @@ def cmd_live(args) -> int:
     status, proposal = summarise_and_calibrate(contents, args)
     if args.upload:
         if proposal is None or proposal.rejected:
-            raise ApmcalError("not uploading: the firmware would reject "
+            raise ApmcalError("not uploading: out of the firmware's limits: "
                               + ", ".join(proposal.rejected if proposal else ["everything"]),
                               args.connection)
         upload_values(args.connection, proposal.values, args.backup, params, console)

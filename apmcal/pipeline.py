@@ -173,14 +173,11 @@ def calibrate_log(contents, opts: Options = Options()):
     from apmcal.preprocessing.firmware import firmware_generation
     from apmcal.vehicle.params import to_ardupilot_params, withhold_undetermined
 
-    from apmcal.preprocessing.param_changes import after_param_changes
+    from apmcal.preprocessing.param_changes import split_at_param_changes
 
     recording, mag_recording = pick_recording(contents, opts.instance)
-    recording, change_warnings = after_param_changes(recording, contents.param_changes,
-                                                     contents.path)
-    if mag_recording is not None:
-        mag_recording, _ = after_param_changes(mag_recording, contents.param_changes,
-                                               contents.path)
+    recording, mag_recording, change_warnings = split_at_param_changes(
+        recording, mag_recording, contents.param_changes, contents.path)
     if opts.date is None:
         opts = replace(opts, date=recording_date(contents))
     cal = calibrate(recording, opts)

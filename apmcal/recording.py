@@ -29,8 +29,11 @@ SENSOR_COLUMNS = {"acc": ACC, "gyr": GYR, "mag": MAG}
 #: Parameters the firmware uses to correct (or rotate) the IMU and compass samples it reports
 #: (ardupilot-facts.md, "How the firmware applies the parameters"): a name starting with one of
 #: these is a calibration parameter.
-CALIBRATION_PARAM_PREFIXES = ("INS_ACC", "INS_GYR", "COMPASS_OFS", "COMPASS_DIA", "COMPASS_ODI",
-                              "COMPASS_MOT", "COMPASS_ORIENT", "AHRS_ORIENTATION")
+CALIBRATION_PARAM_PREFIXES = ("INS_ACCOFFS", "INS_ACCSCAL", "INS_ACC2OFFS", "INS_ACC2SCAL",
+                              "INS_ACC3OFFS", "INS_ACC3SCAL", "INS_GYROFFS", "INS_GYR2OFFS",
+                              "INS_GYR3OFFS", "COMPASS_OFS", "COMPASS_DIA", "COMPASS_ODI",
+                              "COMPASS_MOT", "COMPASS_ORIENT", "COMPASS_EXTERN",
+                              "AHRS_ORIENTATION")
 
 
 def is_calibration_param(name: str) -> bool:

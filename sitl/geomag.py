@@ -1,16 +1,16 @@
-"""Earth magnetic field at the home position from the World Magnetic Model (pygeomag).
+"""Earth magnetic field at the home position from the World Magnetic Model.
 
-pygeomag returns the field in nT as north (x), east (y), down (z) components, i.e. already in
-NED; ArduPilot reports the magnetometer in mGauss (1 mGauss = 100 nT, so nT × 0.01).
+The model and its date handling are apmcal's (:mod:`apmcal.geomag`: the WMM of the date's own
+five-year span, the nearest covered year outside them), so the simulated vehicle and the
+calibration agree on the field for any date. Units: mGauss, NED frame.
 """
 from __future__ import annotations
 
 import datetime
 
 import numpy as np
-from pygeomag import GeoMag
 
-NT_TO_MGAUSS = 0.01
+from apmcal import geomag
 
 
 def earth_field_ned(lat_deg: float, lon_deg: float, alt_m: float = 0.0,
@@ -22,18 +22,14 @@ def earth_field_ned(lat_deg: float, lon_deg: float, alt_m: float = 0.0,
     lat_deg, lon_deg : float
         Geodetic latitude / longitude [deg].
     alt_m : float
-        Height above the WGS-84 ellipsoid [m] (pygeomag takes km).
+        Height above the WGS-84 ellipsoid [m].
     year : float
-        Decimal year; must lie within the coefficient file's validity (WMM2025: 2025-2030).
+        Decimal year (outside 2010-2030 the nearest covered year is used).
     """
-    res = GeoMag().calculate(glat=float(lat_deg), glon=float(lon_deg), alt=float(alt_m) / 1000.0,
-                             time=float(year))
-    return np.array([res.x, res.y, res.z]) * NT_TO_MGAUSS
+    return geomag.earth_field_ned(lat_deg, lon_deg, alt_m, year)[0]
 
 
 def decimal_year(unix_s: float) -> float:
     """Unix time [s] → decimal year (UTC), the time argument of the WMM."""
     when = datetime.datetime.fromtimestamp(unix_s, tz=datetime.timezone.utc)
-    start = datetime.datetime(when.year, 1, 1, tzinfo=datetime.timezone.utc)
-    end = datetime.datetime(when.year + 1, 1, 1, tzinfo=datetime.timezone.utc)
-    return when.year + (when - start) / (end - start)
+    return geomag.decimal_year(when)

@@ -44,7 +44,7 @@ def test_method_on_real_recording(shared_data, tmp_path, capsys, name, method, o
                    "--json", str(out)])
     err = capsys.readouterr().err
     if outcome == WORKS:
-        assert status in (0, 1), err        # 1: computed, but the firmware would reject a value
+        assert status in (0, 1), err        # 1: computed, but a value is out of the firmware's limits
         result = json.loads(out.read_text())
         assert result["method"] == needle
         assert {"offset", "matrix", "sigma"} <= set(result["acc"])

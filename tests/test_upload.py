@@ -137,8 +137,18 @@ VEHICLE_32 = {**{f"INS_ACC{k}_{a}": v for k, v in (("OFFS", 0.0), ("SCAL", 1.0))
     (VEHICLE_33, {"INS_ACCOFFS_X": 0.1, "INS_ACCSCAL_X": 1.25}, "INS_ACCSCAL_X",
      "scale 1.2500 outside 0.8..1.2"),
     (VEHICLE_33, {"INS_ACC2OFFS_Y": -3.6}, "INS_ACC2OFFS_Y", r"\|offset\| 3.600 > 3.5 m/s²"),
-    (VEHICLE_33, {"COMPASS_OFS_X": 1900.0}, "COMPASS_OFS_X", r"\|offset\| 1900.0 > 1800 mGauss"),
+    (VEHICLE_33, {"COMPASS_OFS_X": 1900.0}, "COMPASS_OFS_X",
+     r"offset vector length 1900.0 > COMPASS_OFFS_MAX 1800 mGauss"),
+    # each axis within 1800, the vector not: the pre-arm check compares the length
+    (VEHICLE_33, {f"COMPASS_OFS_{a}": 1100.0 for a in "XYZ"}, "COMPASS_OFS_X",
+     r"offset vector length 1905.3 > COMPASS_OFFS_MAX"),
+    # only Y written, but the vehicle already holds a large X: judged as it will be after
+    ({**VEHICLE_33, "COMPASS_OFS_X": 1500.0}, {"COMPASS_OFS_Y": 1200.0}, "COMPASS_OFS_X",
+     r"offset vector length 1920.9"),
     (VEHICLE_33, {"COMPASS_DIA_Y": 0.1}, "COMPASS_DIA_Y", "diagonal 0.1000 outside 0.2..5.0"),
+    # one DIA written to a vehicle whose other two are 0: a singular matrix after the upload
+    ({**VEHICLE_33, "COMPASS_DIA_Y": 0.0, "COMPASS_DIA_Z": 0.0}, {"COMPASS_DIA_X": 1.0},
+     "COMPASS_DIA_Y", "diagonal 0.0000 outside 0.2..5.0"),
     (VEHICLE_33, {"COMPASS_ODI_Z": -1.0}, "COMPASS_ODI_Z", "off-diagonal"),
     (VEHICLE_32, {"COMPASS_OFS_Z": 450.0}, "COMPASS_OFS_Z", r"> 400 mGauss"),
     (VEHICLE_32, {"INS_ACCSCAL_Y": 1.15}, "INS_ACCSCAL_Y", r"3.2 limit"),
@@ -287,10 +297,13 @@ class FakeMaster:
         self.lists_ignored, self.lists = lists_ignored, 0     # the first requests go unanswered
         self.mav = self
 
-    def _value(self, index, reported_index=None):
-        return mavlink.MAVLink_param_value_message(
-            f"P{index}".encode(), float(index), mavlink.MAV_PARAM_TYPE_REAL32, self.n,
+    def _value(self, index, reported_index=None, component=1, count=None):
+        msg = mavlink.MAVLink_param_value_message(
+            f"P{index}".encode(), float(index), mavlink.MAV_PARAM_TYPE_REAL32,
+            self.n if count is None else count,
             index if reported_index is None else reported_index)
+        msg._header = mavlink.MAVLink_header(msg.id, srcSystem=1, srcComponent=component)
+        return msg
 
     def param_request_list_send(self, target_system, target_component):
         self.lists += 1
@@ -345,3 +358,19 @@ def test_fetch_params_from_a_silent_vehicle_is_one_clear_error():
     with pytest.raises(ApmcalError, match="vehicle sent no parameters"):
         link_to(master).fetch_params(idle_s=0.05, retries=2)
     assert master.lists == 3
+
+
+def test_fetch_params_ignores_another_components_parameter_list():
+    """A gimbal (component 154) answers the same request with its own, shorter list: neither its
+    values nor its param_count may enter the autopilot's set."""
+    master = FakeMaster(5, lost=[4])
+    send_list = master.param_request_list_send
+
+    def with_gimbal(*args):
+        send_list(*args)
+        master.queue[:0] = [master._value(i + 100, component=154, count=2, reported_index=i)
+                            for i in range(2)]
+    master.param_request_list_send = with_gimbal
+    params = link_to(master).fetch_params(idle_s=0.05)
+    assert params == {f"P{i}": float(i) for i in range(5)}
+    assert master.reads == [4]

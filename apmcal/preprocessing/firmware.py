@@ -77,6 +77,22 @@ def mag_param_names(instance: int = 0) -> dict[str, list[str] | str]:
             "external": "COMPASS_EXTERNAL" if instance == 0 else f"COMPASS_EXTERN{s}"}
 
 
+def correction_param_names(sensor: str, instance: int = 0) -> set[str]:
+    """Every parameter the firmware's correction of ``sensor`` ("acc", "gyr", "mag") of one
+    instance depends on, AHRS_ORIENTATION included; for the compass also COMPASS_MOT*, which
+    the firmware adds (ardupilot-facts.md "How the firmware applies the parameters")."""
+    if sensor == "acc":
+        offsets, scales = acc_param_names(instance)
+        names = {*offsets, *scales}
+    elif sensor == "gyr":
+        names = set(gyr_param_names(instance))
+    else:
+        m, s = mag_param_names(instance), _suffix(instance)
+        names = {*m["ofs"], *m["dia"], *m["odi"], m["orient"], m["external"], "COMPASS_MOTCT",
+                 *(f"COMPASS_MOT{s}_{a}" for a in AXES)}
+    return names | {"AHRS_ORIENTATION"}
+
+
 def _value(params: dict[str, float], name: str, path: str | None = None) -> float:
     if name not in params:
         raise ApmcalError("parameter missing: needed to undo/apply the firmware correction",

@@ -7,11 +7,10 @@ import datetime
 import numpy as np
 
 from apmcal.errors import ApmcalError
+from apmcal.geomag import decimal_year, earth_field_ned
 from apmcal.solvers.ellipsoid import fit_ellipsoid_robust, sphere_fit, verdict
 from apmcal.solvers.ellipsoid_debias import debiased
 from apmcal.solvers.result import SensorCalibration
-
-NT_PER_MGAUSS = 100.0       # 1 mGauss = 0.1 µT = 100 nT
 
 
 def check_coverage(mag: np.ndarray, min_spread: float = 0.25) -> None:
@@ -30,17 +29,6 @@ def check_coverage(mag: np.ndarray, min_spread: float = 0.25) -> None:
                           f"orientations")
 
 
-def earth_field_ned(lat_deg: float, lon_deg: float, alt_m: float = 0.0,
-                    when: datetime.date | None = None) -> np.ndarray:
-    """World Magnetic Model main field [mGauss] in NED at a site (pygeomag gives nT)."""
-    from pygeomag import GeoMag
-
-    when = when or datetime.date.today()
-    year = when.year + (when.timetuple().tm_yday - 1) / 365.25
-    res = GeoMag().calculate(glat=lat_deg, glon=lon_deg, alt=alt_m / 1000.0, time=year)
-    return np.array([res.x, res.y, res.z]) / NT_PER_MGAUSS
-
-
 def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: float | None,
                            report: dict, when: datetime.date | None = None) -> SensorCalibration:
     """Robust ellipsoid fit of raw sensor-frame samples [mGauss]; verdict lines into ``report``.
@@ -53,8 +41,12 @@ def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: floa
     check_coverage(mag)
     if lat_deg is not None and lon_deg is not None:
         date = f"recording date {when}" if when else f"today's date {datetime.date.today()}"
-        radius = float(np.linalg.norm(earth_field_ned(lat_deg, lon_deg, when=when)))
+        field, note = earth_field_ned(lat_deg, lon_deg, 0.0,
+                                      decimal_year(when or datetime.date.today()))
+        radius = float(np.linalg.norm(field))
         origin = f"WMM at {date}"
+        if note:
+            report.setdefault("warnings", []).append(f"mag: {note}")
     else:
         radius, origin = sphere_fit(mag)[1], "sphere fit (no --lat/--lon)"
     info: dict = {}

@@ -146,9 +146,16 @@ class VehicleLink:
             msg = self.recv({"PARAM_VALUE"}, min(idle_s, remaining))
             if msg is None:
                 return
+            if not self._from_target(msg):   # a gimbal's or companion's own parameter list
+                continue
             got.add(msg)
             if got.complete() if until is None else until <= got.seen:
                 return
+
+    def _from_target(self, msg) -> bool:
+        """True for a message from the vehicle's autopilot (the HEARTBEAT's system/component)."""
+        return (msg.get_srcSystem() == self.target_system
+                and msg.get_srcComponent() == self.target_component)
 
     def read_param(self, name: str, timeout_s: float = 1.0, retries: int = 3) -> float | None:
         """One parameter by name (PARAM_REQUEST_READ); None if the vehicle does not answer."""
@@ -183,7 +190,7 @@ class VehicleLink:
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             msg = self.recv({"PARAM_VALUE"}, deadline - time.monotonic())
-            if msg is not None and _param_name(msg) == name:
+            if msg is not None and _param_name(msg) == name and self._from_target(msg):
                 return float(msg.param_value)
         return None
 

@@ -210,7 +210,10 @@ def _attach_baro_temperature(out: LogContents, df: pd.DataFrame, baro, label: st
     if baro is None or len(baro) < 2 or not baro["temperature"].any():
         return
     t_baro = baro["time_boot_ms"].astype(np.float64) * 1e-3
-    keep = np.flatnonzero(np.diff(t_baro, prepend=-np.inf) > 0)   # np.interp needs increasing
+    # np.interp needs increasing times: a sample is kept only if later than every one before it
+    # (after a reboot the clock restarts; its samples would otherwise mix with the first boot's)
+    before = np.maximum.accumulate(np.concatenate([[-np.inf], t_baro[:-1]]))
+    keep = np.flatnonzero(t_baro > before)
     t_baro, temp = t_baro[keep], baro["temperature"][keep].astype(np.float64) * 0.01
     t = df["t"].to_numpy()
     inside = (t >= t_baro[0]) & (t <= t_baro[-1])

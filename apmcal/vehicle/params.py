@@ -55,7 +55,7 @@ class ParamProposal:
     Attributes
     ----------
     values : name -> value (float32-representable) the firmware would accept
-    rejected : name -> reason, for values the firmware would refuse (whole sensor withheld)
+    rejected : name -> reason, for values out of the firmware's limits (whole sensor withheld)
     notes : human-readable remarks (what could not be represented, and what that costs)
     generation : "3.2" or "3.3+"
     costs : name -> worst-case error of the per-axis representation (m/s², rad/s, mGauss, deg)
@@ -198,10 +198,8 @@ def _compass(cal, params, generation, instance, prop: ParamProposal, field_mgaus
                           f"{field_mgauss:g} mGauss")
     limit = (COMPASS_OFS_MAX_32 if generation == "3.2"
              else float(params.get("COMPASS_OFFS_MAX", COMPASS_OFFS_MAX_DEFAULT)))
-    reasons = {}
-    for n in names["ofs"]:
-        if abs(values[n]) > limit:
-            reasons[n] = f"|offset| {abs(values[n]):.1f} > {limit:g} mGauss"
+    reasons = offset_violations([values[n] for n in names["ofs"]], names["ofs"], limit,
+                                generation)
     for n in names["dia"]:
         if n in values and not DIA_RANGE[0] <= values[n] <= DIA_RANGE[1]:
             reasons[n] = f"diagonal {values[n]:.4f} outside {DIA_RANGE[0]}..{DIA_RANGE[1]}"
@@ -209,6 +207,19 @@ def _compass(cal, params, generation, instance, prop: ParamProposal, field_mgaus
         if n in values and abs(values[n]) >= ODI_MAX:
             reasons[n] = f"|off-diagonal| {abs(values[n]):.4f} >= {ODI_MAX}"
     _accept_or_withhold(prop, values, reasons, "compass")
+
+
+def offset_violations(offsets, names: list[str], limit: float, generation: str) -> dict[str, str]:
+    """name -> reason for compass offsets [mGauss] beyond ``limit``: each axis on 3.2 (the
+    parameter range, ardupilot-facts.md), the length of the offset vector on newer firmware,
+    whose pre-arm check compares ``offsets.length()`` with COMPASS_OFFS_MAX."""
+    if generation == "3.2":
+        return {n: f"|offset| {abs(v):.1f} > {limit:g} mGauss" for n, v in zip(names, offsets)
+                if abs(v) > limit}
+    length = float(np.linalg.norm(offsets))
+    if length > limit:
+        return {names[0]: f"offset vector length {length:.1f} > COMPASS_OFFS_MAX {limit:g} mGauss"}
+    return {}
 
 
 def _accept_or_withhold(prop: ParamProposal, values: dict, reasons: dict, sensor: str) -> None:
@@ -226,7 +237,7 @@ def _accept_or_withhold(prop: ParamProposal, values: dict, reasons: dict, sensor
     for n in values:
         prop.rejected[n] = reasons.get(
             n, f"withheld with the rest of the {sensor} ({first} refused)")
-    prop.notes.append(f"{sensor}: not proposed, the firmware would refuse "
+    prop.notes.append(f"{sensor}: not proposed, out of the firmware's limits: "
                       + "; ".join(f"{n}: {why}" for n, why in reasons.items()))
 
 

@@ -16,7 +16,8 @@ from apmcal.errors import ApmcalError
 from apmcal.preprocessing.firmware import acc_param_names, firmware_generation, mag_param_names
 from apmcal.sources.live import VehicleLink
 from apmcal.vehicle.params import (ACC_OFFSET_MAX, ACC_SCALE_MAX_DEV_32, ACC_SCALE_RANGE,
-                                   COMPASS_OFFS_MAX_DEFAULT, COMPASS_OFS_MAX_32, DIA_RANGE, ODI_MAX)
+                                   COMPASS_OFFS_MAX_DEFAULT, COMPASS_OFS_MAX_32, DIA_RANGE, ODI_MAX,
+                                   offset_violations)
 from apmcal.vehicle.paramfile import read_param_file, read_unrestorable, write_param_file
 
 INSTANCES = range(3)        # IMU / compass instances 1..3 (suffix "", "2", "3")
@@ -52,7 +53,7 @@ def check_before_writing(values: dict[str, float], vehicle_params: dict[str, flo
     if violations:
         name, why = next(iter(violations.items()))
         more = f" (and {len(violations) - 1} more)" if len(violations) > 1 else ""
-        raise ApmcalError(f"{why}: the firmware would refuse it{more}; nothing was written",
+        raise ApmcalError(f"{why}: out of the firmware's limits{more}; nothing was written",
                           where, f"param {name}")
 
 
@@ -61,7 +62,10 @@ def firmware_limit_violations(values: dict[str, float],
     """name -> reason, for values of ``values`` outside the limits of
     :mod:`apmcal.vehicle.params` (the same constants :func:`to_ardupilot_params` refuses by;
     ardupilot-facts.md "How the firmware applies the parameters", "ArduPilot's own
-    calibrators"). The generation and COMPASS_OFFS_MAX come from ``vehicle_params``."""
+    calibrators"). The firmware stores any finite value; these are its parameter ranges and
+    pre-arm checks. The generation and COMPASS_OFFS_MAX come from ``vehicle_params``; compass
+    values are judged as the vehicle will hold them after the upload (a DIA or offset written
+    alone is checked with the other two axes the vehicle has)."""
     generation = firmware_generation(vehicle_params)
     merged = {**vehicle_params, **values}      # DIA is judged per instance, after the upload
     reasons: dict[str, str] = {}
@@ -93,12 +97,14 @@ def _compass_violations(values, merged, instance: int, generation: str) -> dict[
     # all-zero DIA is the firmware's "no soft-iron matrix" (identity), not a zero gain
     dia_unset = all(merged.get(n) == 0 for n in names["dia"])
     reasons = {}
-    for n in [n for n in names["ofs"] if n in values]:
-        if abs(values[n]) > limit:
-            reasons[n] = f"|offset| {abs(values[n]):.1f} > {limit:g} mGauss"
-    for n in [n for n in names["dia"] if n in values and not dia_unset]:
-        if not DIA_RANGE[0] <= values[n] <= DIA_RANGE[1]:
-            reasons[n] = f"diagonal {values[n]:.4f} outside {DIA_RANGE[0]}..{DIA_RANGE[1]}"
+    if any(n in values for n in names["ofs"]):
+        reasons |= offset_violations([merged.get(n, 0.0) for n in names["ofs"]], names["ofs"],
+                                     limit, generation)
+    if any(n in values for n in names["dia"]) and not dia_unset:
+        for n in names["dia"]:
+            if not DIA_RANGE[0] <= merged.get(n, 1.0) <= DIA_RANGE[1]:
+                reasons[n] = (f"diagonal {merged.get(n, 1.0):.4f} outside "
+                              f"{DIA_RANGE[0]}..{DIA_RANGE[1]}")
     for n in [n for n in names["odi"] if n in values]:
         if abs(values[n]) >= ODI_MAX:
             reasons[n] = f"|off-diagonal| {abs(values[n]):.4f} >= {ODI_MAX}"

@@ -1,0 +1,51 @@
+"""Earth's magnetic field from the World Magnetic Model (pygeomag), for any recording date.
+
+pygeomag's default coefficients (WMM2025) refuse dates outside 2025-2030, yet APM 2.x logs date
+from 2012 on. Each date is therefore evaluated with the model of its own five-year span (pygeomag
+ships WMM2010, 2015v2, 2020 and 2025); a date outside every span is evaluated at the nearest end of
+the covered years, and the returned note says so. pygeomag gives nT in north, east, down
+components, i.e. NED; ArduPilot reports mGauss (1 mGauss = 100 nT).
+"""
+from __future__ import annotations
+
+import datetime
+
+import numpy as np
+
+NT_PER_MGAUSS = 100.0
+WMM_YEARS = (2010.0, 2030.0)        # first and last year the shipped models cover
+_LAST_INSIDE = WMM_YEARS[1] - 1e-6
+
+
+def decimal_year(when: datetime.date | datetime.datetime) -> float:
+    """A date (UTC) as a decimal year, the WMM's time argument."""
+    start = datetime.date(when.year, 1, 1)
+    days = (datetime.date(when.year + 1, 1, 1) - start).days
+    day = (when.date() if isinstance(when, datetime.datetime) else when) - start
+    seconds = 0.0
+    if isinstance(when, datetime.datetime):
+        seconds = when.hour * 3600 + when.minute * 60 + when.second + when.microsecond * 1e-6
+    return when.year + (day.days + seconds / 86400.0) / days
+
+
+def earth_field_ned(lat_deg: float, lon_deg: float, alt_m: float,
+                    year: float) -> tuple[np.ndarray, str | None]:
+    """WMM main field [mGauss] in NED at a site and decimal year, and a note when the year lies
+    outside the models' years (the field is then that of the nearest covered year).
+
+    Parameters
+    ----------
+    lat_deg, lon_deg : geodetic latitude / longitude [deg]
+    alt_m : height above the WGS-84 ellipsoid [m] (pygeomag takes km)
+    year : decimal year, e.g. 2026.41
+    """
+    from pygeomag import GeoMag
+
+    used = float(np.clip(year, WMM_YEARS[0], _LAST_INSIDE))
+    note = None
+    if used != year:
+        note = (f"{year:.1f} lies outside the World Magnetic Model years "
+                f"{WMM_YEARS[0]:.0f}-{WMM_YEARS[1]:.0f}: field of {used:.1f} used")
+    res = GeoMag(base_year=int(used)).calculate(glat=float(lat_deg), glon=float(lon_deg),
+                                                 alt=float(alt_m) / 1000.0, time=used)
+    return np.array([res.x, res.y, res.z]) / NT_PER_MGAUSS, note

@@ -1,0 +1,56 @@
+"""World Magnetic Model for any recording date: the model of the date's own span, a note and the
+nearest covered year outside them, and a calibration that does not stop on an old log."""
+from __future__ import annotations
+
+import datetime
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pygeomag import GeoMag
+
+from apmcal.geomag import decimal_year, earth_field_ned
+from apmcal.pipeline import Options, calibrate_log
+from apmcal.sources import read_log
+
+LOGS = Path(__file__).resolve().parents[1] / "logs"
+ACCRA = (5.6037, -0.187)
+
+
+@pytest.mark.parametrize("year, model", [(2012.5, "WMM_2010.COF"), (2018.5, "WMM_2015v2.COF"),
+                                         (2022.5, "WMM_2020.COF"), (2026.5, "WMM_2025.COF")])
+def test_each_date_is_evaluated_with_the_model_of_its_span(year, model):
+    want = GeoMag(coefficients_file=f"wmm/{model}").calculate(
+        glat=ACCRA[0], glon=ACCRA[1], alt=0.06, time=year)
+    field, note = earth_field_ned(*ACCRA, 60.0, year)
+    np.testing.assert_allclose(field, np.array([want.x, want.y, want.z]) / 100.0, rtol=1e-12)
+    assert note is None
+
+
+@pytest.mark.parametrize("year, used", [(2003.0, 2010.0), (2034.2, 2030.0 - 1e-6)])
+def test_dates_outside_the_models_use_the_nearest_covered_year_with_a_note(year, used):
+    field, note = earth_field_ned(*ACCRA, 0.0, year)
+    np.testing.assert_allclose(field, earth_field_ned(*ACCRA, 0.0, used)[0])
+    assert note.startswith(f"{year:.1f} lies outside the World Magnetic Model years 2010-2030")
+
+
+def test_decimal_year():
+    assert decimal_year(datetime.date(2026, 1, 1)) == 2026.0
+    assert decimal_year(datetime.datetime(2024, 7, 2, 0, 0)) == pytest.approx(2024 + 183 / 366)
+
+
+def test_an_old_recording_is_calibrated_with_the_field_of_its_date(tmp_path):
+    """The sample session with its ground-station clock moved to 2018 (an APM 2.x era log)."""
+    data = bytearray((LOGS / "ferraris.tlog").read_bytes())
+    unix_2018 = datetime.datetime(2018, 6, 1, tzinfo=datetime.timezone.utc).timestamp()
+    data[:8] = struct.pack(">Q", int(unix_2018 * 1e6))
+    log = tmp_path / "old.tlog"
+    log.write_bytes(bytes(data))
+    cal, _ = calibrate_log(read_log(log), Options(lat_deg=ACCRA[0], lon_deg=ACCRA[1]))
+    assert "mag" in cal.sensors
+    assert "mag: field magnitude" in " ".join(cal.report["lines"])
+    assert "WMM at recording date 2018-06-01" in " ".join(cal.report["lines"])
+    field_2018 = np.linalg.norm(earth_field_ned(*ACCRA, 0.0, decimal_year(
+        datetime.date(2018, 6, 1)))[0])
+    assert cal.report["mag_field_mgauss"] == pytest.approx(field_2018)
