@@ -101,9 +101,9 @@ class VehicleLink:
 
         PARAM_VALUE travels unacknowledged, so some may be lost: an unanswered list request is
         sent again, and each missing index is asked for with PARAM_REQUEST_READ (by
-        param_index), each up to ``retries`` times. The result is the backup and the correction to undo (ardupilot-facts.md "What the telemetry really
-        carries"), so a set still incomplete then raises :class:`ApmcalError` rather than
-        being returned partial.
+        param_index), each up to ``retries`` times. The result is the backup and the correction
+        to undo (ardupilot-facts.md "What the telemetry really carries"), so a set still
+        incomplete then raises :class:`ApmcalError` rather than being returned partial.
         """
         got = _ParamList()
         deadline = time.monotonic() + timeout_s
