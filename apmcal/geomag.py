@@ -14,11 +14,14 @@ import numpy as np
 
 NT_PER_MGAUSS = 100.0
 WMM_YEARS = (2010.0, 2030.0)        # first and last year the shipped models cover
-_LAST_INSIDE = WMM_YEARS[1] - 1e-6
+LAST_EPOCH = 2025                   # WMM2025 covers 2025.0 to 2030.0 inclusive
 
 
 def decimal_year(when: datetime.date | datetime.datetime) -> float:
-    """A date (UTC) as a decimal year, the WMM's time argument."""
+    """A date, or a datetime (UTC; an aware one is converted to UTC), as a decimal year, the
+    WMM's time argument."""
+    if isinstance(when, datetime.datetime) and when.tzinfo is not None:
+        when = when.astimezone(datetime.timezone.utc)
     start = datetime.date(when.year, 1, 1)
     days = (datetime.date(when.year + 1, 1, 1) - start).days
     day = (when.date() if isinstance(when, datetime.datetime) else when) - start
@@ -41,11 +44,11 @@ def earth_field_ned(lat_deg: float, lon_deg: float, alt_m: float,
     """
     from pygeomag import GeoMag
 
-    used = float(np.clip(year, WMM_YEARS[0], _LAST_INSIDE))
+    used = float(np.clip(year, *WMM_YEARS))
     note = None
     if used != year:
-        note = (f"{year:.1f} lies outside the World Magnetic Model years "
-                f"{WMM_YEARS[0]:.0f}-{WMM_YEARS[1]:.0f}: field of {used:.1f} used")
-    res = GeoMag(base_year=int(used)).calculate(glat=float(lat_deg), glon=float(lon_deg),
+        note = (f"{year:.3f} lies outside the World Magnetic Model years "
+                f"{WMM_YEARS[0]:.0f}-{WMM_YEARS[1]:.0f}: field of {used:.0f} used")
+    res = GeoMag(base_year=min(int(used), LAST_EPOCH)).calculate(glat=float(lat_deg), glon=float(lon_deg),
                                                  alt=float(alt_m) / 1000.0, time=used)
     return np.array([res.x, res.y, res.z]) / NT_PER_MGAUSS, note

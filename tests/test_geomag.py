@@ -28,16 +28,25 @@ def test_each_date_is_evaluated_with_the_model_of_its_span(year, model):
     assert note is None
 
 
-@pytest.mark.parametrize("year, used", [(2003.0, 2010.0), (2034.2, 2030.0 - 1e-6)])
+@pytest.mark.parametrize("year, used", [(2003.0, 2010.0), (2034.2, 2030.0)])
 def test_dates_outside_the_models_use_the_nearest_covered_year_with_a_note(year, used):
     field, note = earth_field_ned(*ACCRA, 0.0, year)
     np.testing.assert_allclose(field, earth_field_ned(*ACCRA, 0.0, used)[0])
-    assert note.startswith(f"{year:.1f} lies outside the World Magnetic Model years 2010-2030")
+    assert note == (f"{year:.3f} lies outside the World Magnetic Model years 2010-2030: field "
+                    f"of {used:.0f} used")
+
+
+@pytest.mark.parametrize("year", [2010.0, 2030.0])
+def test_the_ends_of_the_covered_years_are_inside(year):
+    assert earth_field_ned(*ACCRA, 0.0, year)[1] is None
 
 
 def test_decimal_year():
     assert decimal_year(datetime.date(2026, 1, 1)) == 2026.0
     assert decimal_year(datetime.datetime(2024, 7, 2, 0, 0)) == pytest.approx(2024 + 183 / 366)
+    new_york = datetime.timezone(datetime.timedelta(hours=-5))
+    assert decimal_year(datetime.datetime(2025, 12, 31, 22, 0, tzinfo=new_york)) == \
+        pytest.approx(2026 + 3 / 24 / 365)          # 03:00 UTC on 1 January 2026
 
 
 def test_an_old_recording_is_calibrated_with_the_field_of_its_date(tmp_path):

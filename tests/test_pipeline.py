@@ -130,3 +130,23 @@ def test_calibrate_log_uses_only_samples_after_a_param_change():
     assert any("only the" in w and f"t={cut:.3f} s" in w for w in cal.report["warnings"])
     expected = calibrate(replace(rec, data=rec.data[rec.data["t"] > cut]))
     np.testing.assert_allclose(cal.sensors["gyr"].offset, expected.sensors["gyr"].offset)
+
+
+def test_an_accelerometer_change_costs_the_compass_nothing():
+    imu = _recording("RAW_IMU", IMU_COLS, n=100)
+    imu_kept, mag, (warning,) = split_at_param_changes(imu, None, [_change(6.0)], "x.tlog")
+    assert len(mag) == 100 and mag.sensors == ["mag"]
+    assert imu_kept.sensors == ["acc", "gyr"] and imu_kept.t[0] == pytest.approx(6.1)
+    assert warning.startswith("acc/gyr: correction parameters changed")
+
+
+def test_a_compass_change_with_a_second_compass_carrying_message_cuts_only_compasses():
+    """HIGHRES_IMU is calibrated, RAW_IMU of the same instance is the other compass source: a
+    compass change cuts neither message's accelerometer, and the compass calibrated is the IMU's
+    own (as without changes)."""
+    high, raw = _recording("HIGHRES_IMU", IMU_COLS, n=100), _recording("RAW_IMU", IMU_COLS, n=50)
+    imu_kept, mag, warnings = split_at_param_changes(high, raw, [_change(6.0, "COMPASS_OFS_X")],
+                                                     "x.tlog")
+    assert len(imu_kept) == 100 and imu_kept.sensors == ["acc", "gyr"]
+    assert mag.message == "HIGHRES_IMU" and mag.sensors == ["mag"] and len(mag) == 39
+    assert len(warnings) == 1

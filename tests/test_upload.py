@@ -151,6 +151,9 @@ VEHICLE_32 = {**{f"INS_ACC{k}_{a}": v for k, v in (("OFFS", 0.0), ("SCAL", 1.0))
      "COMPASS_DIA_Y", "diagonal 0.0000 outside 0.2..5.0"),
     (VEHICLE_33, {"COMPASS_ODI_Z": -1.0}, "COMPASS_ODI_Z", "off-diagonal"),
     (VEHICLE_32, {"COMPASS_OFS_Z": 450.0}, "COMPASS_OFS_Z", r"> 400 mGauss"),
+    # every axis within 3.2's ±400, the vector beyond config.h's COMPASS_OFFSETS_MAX (600)
+    (VEHICLE_32, {f"COMPASS_OFS_{a}": 390.0 for a in "XYZ"}, "COMPASS_OFS_X",
+     r"offset vector length 675.5 > the pre-arm limit of this firmware 600 mGauss"),
     (VEHICLE_32, {"INS_ACCSCAL_Y": 1.15}, "INS_ACCSCAL_Y", r"3.2 limit"),
 ])
 def test_out_of_range_value_refused_before_anything_is_written(tmp_path, vehicle, values, name,
@@ -374,3 +377,27 @@ def test_fetch_params_ignores_another_components_parameter_list():
     params = link_to(master).fetch_params(idle_s=0.05)
     assert params == {f"P{i}": float(i) for i in range(5)}
     assert master.reads == [4]
+
+
+def _heartbeat(component, autopilot):
+    msg = mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GIMBAL if autopilot == 8 else
+                                            mavlink.MAV_TYPE_QUADROTOR, autopilot, 0, 0, 4, 3)
+    msg._header = mavlink.MAVLink_header(msg.id, srcSystem=1, srcComponent=component)
+    return msg
+
+
+def test_the_target_is_the_autopilot_not_the_first_heartbeat():
+    master = FakeMaster(0)
+    master.queue = [_heartbeat(154, mavlink.MAV_AUTOPILOT_INVALID),
+                    _heartbeat(1, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA)]
+    link = link_to(master)
+    link.target_system = link.target_component = None
+    link.wait_heartbeat(1.0)
+    assert (link.target_system, link.target_component) == (1, 1)
+
+
+def test_only_non_autopilot_heartbeats_is_one_clear_error():
+    master = FakeMaster(0)
+    master.queue = [_heartbeat(154, mavlink.MAV_AUTOPILOT_INVALID)]
+    with pytest.raises(ApmcalError, match="no autopilot HEARTBEAT within 0.3 s"):
+        link_to(master).wait_heartbeat(0.3)

@@ -22,16 +22,21 @@ def split_at_param_changes(imu: Recording, mag: Recording | None, changes: list[
     """(IMU recording, magnetometer recording or None, warnings), each cut after the last
     change of its own correction parameters.
 
-    When one message carries accelerometer, gyro and compass (RAW_IMU) and a compass parameter
-    changed, the compass columns become a recording of their own, so that a compass upload does
-    not cost the accelerometer its samples. A compass that cannot be kept loses only itself
-    (a warning); an IMU that cannot be kept is an :class:`ApmcalError`.
+    The compass is cut on its own: when the IMU's message also carries it (RAW_IMU), its columns
+    become a recording of their own (the one calibrated, as without changes), and a separate
+    compass recording keeps only its compass columns. So a compass upload does not cost the
+    accelerometer its samples, nor an accelerometer calibration the compass. A compass that
+    cannot be kept loses only itself (a warning); an IMU that cannot be kept is an
+    :class:`ApmcalError`.
     """
-    if not changes:
+    if not _relevant(changes, imu, ("acc", "gyr", "mag")) and (
+            mag is None or not _relevant(changes, mag, ("mag",))):
         return imu, mag, []
-    if mag is None and imu.has("mag") and _relevant(changes, imu, ("mag",)):
-        mag = replace(imu, data=imu.data[["t", *MAG]].copy())
+    if imu.has("mag"):
+        mag = imu
         imu = replace(imu, data=imu.data.drop(columns=MAG))
+    if mag is not None:
+        mag = replace(mag, data=mag.data[["t", *MAG]].copy())
     imu, warnings = after_param_changes(imu, changes, path)
     if mag is not None:
         try:

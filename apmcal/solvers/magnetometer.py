@@ -77,7 +77,8 @@ def held_out_line(mag: np.ndarray, radius: float, parameterisation: str,
         check_coverage(train)
         cal = fit_ellipsoid_robust(train, radius, parameterisation=parameterisation)
     except ApmcalError as err:
-        return f"mag: no held-out score (the fitting half alone: {err.why})"
+        return (f"mag: no held-out score: half of the samples is not enough for a fit of its "
+                f"own ({err.why})")
     raw, calibrated = relative_mse(test, None, radius), relative_mse(test, cal, radius)
     return (f"mag: relative MSE of |calibrated| (seed 000) raw {raw:.3g} → {calibrated:.3g} on "
             f"held-out samples (odd blocks of {n_blocks}, fitted on the even ones)")

@@ -100,9 +100,12 @@ def tlog_expected(msgs: list) -> dict[tuple[str, int], dict[str, np.ndarray]]:
 def _baro_temperature(baro: list, t: np.ndarray) -> np.ndarray:
     """SCALED_PRESSURE temperature [cdegC → °C] linearly interpolated at times t [s], NaN
     outside the barometer's samples; zeros (no column) without a usable barometer."""
+    times = [m.time_boot_ms * 1e-3 for m in baro]
+    if any(b < a for a, b in zip(times, times[1:])) or np.any(np.diff(t) < 0):
+        return np.zeros(len(t))                           # a reboot: nothing attached
     tb, temp = [], []
     for m in baro:
-        if not tb or m.time_boot_ms * 1e-3 > tb[-1]:      # strictly increasing times only
+        if not tb or m.time_boot_ms * 1e-3 > tb[-1]:      # repeated times once only
             tb.append(m.time_boot_ms * 1e-3)
             temp.append(m.temperature * 0.01)
     inside = (t >= tb[0]) & (t <= tb[-1]) if len(tb) >= 2 and any(temp) else np.zeros(len(t), bool)

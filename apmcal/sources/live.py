@@ -24,6 +24,7 @@ STREAMED_MESSAGE_IDS = {**IMU_MESSAGE_IDS, "SCALED_PRESSURE": 29}
 # PARAM_REQUEST_READs sent before waiting for their answers: a bounded batch, so that the
 # vehicle's request queue (small on a flight controller) is not overrun
 READS_IN_FLIGHT = 20
+MAV_AUTOPILOT_INVALID = 8       # HEARTBEAT.autopilot of anything that is not a flight controller
 
 
 def float32(value: float) -> float:
@@ -85,11 +86,19 @@ class VehicleLink:
             self._tlog.write(struct.pack(">Q", int(time.time() * 1e6)) + msg.get_msgbuf())
 
     def wait_heartbeat(self, timeout_s: float):
-        """The first HEARTBEAT; sets the target system and component from it."""
-        msg = self.recv({"HEARTBEAT"}, timeout_s)
-        if msg is None:
-            raise ApmcalError(f"no HEARTBEAT within {timeout_s:g} s: is the vehicle connected?",
-                              self.connection)
+        """The first HEARTBEAT of an autopilot; sets the target system and component from it.
+
+        Ground stations, gimbals and companion computers send HEARTBEAT too, with autopilot
+        MAV_AUTOPILOT_INVALID: their parameters are not the vehicle's, so they are passed over.
+        """
+        deadline = time.monotonic() + timeout_s
+        while True:
+            msg = self.recv({"HEARTBEAT"}, max(deadline - time.monotonic(), 0.0))
+            if msg is None:
+                raise ApmcalError(f"no autopilot HEARTBEAT within {timeout_s:g} s: is the "
+                                  "vehicle connected?", self.connection)
+            if msg.autopilot != MAV_AUTOPILOT_INVALID:
+                break
         self.target_system = msg.get_srcSystem()
         self.target_component = msg.get_srcComponent()
         return msg

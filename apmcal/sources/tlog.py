@@ -210,12 +210,14 @@ def _attach_baro_temperature(out: LogContents, df: pd.DataFrame, baro, label: st
     if baro is None or len(baro) < 2 or not baro["temperature"].any():
         return
     t_baro = baro["time_boot_ms"].astype(np.float64) * 1e-3
-    # np.interp needs increasing times: a sample is kept only if later than every one before it
-    # (after a reboot the clock restarts; its samples would otherwise mix with the first boot's)
-    before = np.maximum.accumulate(np.concatenate([[-np.inf], t_baro[:-1]]))
-    keep = np.flatnonzero(t_baro > before)
-    t_baro, temp = t_baro[keep], baro["temperature"][keep].astype(np.float64) * 0.01
     t = df["t"].to_numpy()
+    if np.any(np.diff(t_baro) < 0) or np.any(np.diff(t) < 0):
+        # a reboot restarts both clocks: a time no longer says which boot a sample is from
+        out.messages.append(f"note: {label}: the clock jumps back (a reboot?); no barometer "
+                            "temperature attached")
+        return
+    keep = np.flatnonzero(np.diff(t_baro, prepend=-np.inf) > 0)   # np.interp: no repeats
+    t_baro, temp = t_baro[keep], baro["temperature"][keep].astype(np.float64) * 0.01
     inside = (t >= t_baro[0]) & (t <= t_baro[-1])
     if not inside.any():     # another clock (a log spliced after a reboot): no common time
         out.messages.append(f"note: {label} and SCALED_PRESSURE share no time span; "

@@ -42,7 +42,9 @@ ACC_OFFSET_MAX = 3.5            # m/s², INS_ACCOFFS range
 ACC_SCALE_RANGE = (0.8, 1.2)    # INS_ACCSCAL range
 ACC_SCALE_MAX_DEV_32 = 0.1      # 3.2's own 6-face fit rejected |scale − 1| > 0.1
 COMPASS_OFS_MAX_32 = 400.0      # mGauss, 3.2
-COMPASS_OFFS_MAX_DEFAULT = 1800.0   # mGauss, COMPASS_OFFS_MAX default on newer firmware
+# Copter config.h before COMPASS_OFFS_MAX existed (3.2 included): "max compass offset length",
+# the pre-arm check's limit on |COMPASS_OFS| [mGauss]
+COMPASS_OFFSETS_LENGTH_MAX_OLD = 600.0
 DIA_RANGE = (0.2, 5.0)
 ODI_MAX = 1.0                   # |ODI| must stay below 1
 TYPICAL_FIELD_MGAUSS = 500.0    # for the compass cost figures when no field strength is given
@@ -196,9 +198,7 @@ def _compass(cal, params, generation, instance, prop: ParamProposal, field_mgaus
         prop.notes.append(f"compass: {why} no COMPASS_DIA/ODI, only offsets are proposed; the "
                           f"dropped soft-iron matrix costs up to {cost:.1f} mGauss at "
                           f"{field_mgauss:g} mGauss")
-    limit = (COMPASS_OFS_MAX_32 if generation == "3.2"
-             else float(params.get("COMPASS_OFFS_MAX", COMPASS_OFFS_MAX_DEFAULT)))
-    reasons = offset_violations([values[n] for n in names["ofs"]], names["ofs"], limit,
+    reasons = offset_violations([values[n] for n in names["ofs"]], names["ofs"], params,
                                 generation)
     for n in names["dia"]:
         if n in values and not DIA_RANGE[0] <= values[n] <= DIA_RANGE[1]:
@@ -209,17 +209,26 @@ def _compass(cal, params, generation, instance, prop: ParamProposal, field_mgaus
     _accept_or_withhold(prop, values, reasons, "compass")
 
 
-def offset_violations(offsets, names: list[str], limit: float, generation: str) -> dict[str, str]:
-    """name -> reason for compass offsets [mGauss] beyond ``limit``: each axis on 3.2 (the
-    parameter range, ardupilot-facts.md), the length of the offset vector on newer firmware,
-    whose pre-arm check compares ``offsets.length()`` with COMPASS_OFFS_MAX."""
+def offset_violations(offsets, names: list[str], params: dict[str, float],
+                      generation: str) -> dict[str, str]:
+    """name -> reason for compass offsets [mGauss] the firmware's checks reject.
+
+    The pre-arm check compares the length of the offset vector with COMPASS_OFFS_MAX, or, on
+    firmware without that parameter, with config.h's COMPASS_OFFSETS_MAX (600); 3.2 also bounds
+    each axis to ±400 (ardupilot-facts.md "How the firmware applies the parameters").
+    """
+    reasons = {}
     if generation == "3.2":
-        return {n: f"|offset| {abs(v):.1f} > {limit:g} mGauss" for n, v in zip(names, offsets)
-                if abs(v) > limit}
+        reasons = {n: f"|offset| {abs(v):.1f} > {COMPASS_OFS_MAX_32:g} mGauss"
+                   for n, v in zip(names, offsets) if abs(v) > COMPASS_OFS_MAX_32}
+    if "COMPASS_OFFS_MAX" in params:
+        limit, what = float(params["COMPASS_OFFS_MAX"]), "COMPASS_OFFS_MAX"
+    else:
+        limit, what = COMPASS_OFFSETS_LENGTH_MAX_OLD, "the pre-arm limit of this firmware"
     length = float(np.linalg.norm(offsets))
-    if length > limit:
-        return {names[0]: f"offset vector length {length:.1f} > COMPASS_OFFS_MAX {limit:g} mGauss"}
-    return {}
+    if length > limit and names[0] not in reasons:
+        reasons[names[0]] = f"offset vector length {length:.1f} > {what} {limit:g} mGauss"
+    return reasons
 
 
 def _accept_or_withhold(prop: ParamProposal, values: dict, reasons: dict, sensor: str) -> None:

@@ -16,8 +16,7 @@ from apmcal.errors import ApmcalError
 from apmcal.preprocessing.firmware import acc_param_names, firmware_generation, mag_param_names
 from apmcal.sources.live import VehicleLink
 from apmcal.vehicle.params import (ACC_OFFSET_MAX, ACC_SCALE_MAX_DEV_32, ACC_SCALE_RANGE,
-                                   COMPASS_OFFS_MAX_DEFAULT, COMPASS_OFS_MAX_32, DIA_RANGE, ODI_MAX,
-                                   offset_violations)
+                                   DIA_RANGE, ODI_MAX, offset_violations)
 from apmcal.vehicle.paramfile import read_param_file, read_unrestorable, write_param_file
 
 INSTANCES = range(3)        # IMU / compass instances 1..3 (suffix "", "2", "3")
@@ -92,14 +91,12 @@ def _acc_violations(values, instance: int, generation: str) -> dict[str, str]:
 
 def _compass_violations(values, merged, instance: int, generation: str) -> dict[str, str]:
     names = mag_param_names(instance)
-    limit = (COMPASS_OFS_MAX_32 if generation == "3.2"
-             else float(merged.get("COMPASS_OFFS_MAX", COMPASS_OFFS_MAX_DEFAULT)))
     # all-zero DIA is the firmware's "no soft-iron matrix" (identity), not a zero gain
     dia_unset = all(merged.get(n) == 0 for n in names["dia"])
     reasons = {}
     if any(n in values for n in names["ofs"]):
         reasons |= offset_violations([merged.get(n, 0.0) for n in names["ofs"]], names["ofs"],
-                                     limit, generation)
+                                     merged, generation)
     if any(n in values for n in names["dia"]) and not dia_unset:
         for n in names["dia"]:
             if not DIA_RANGE[0] <= merged.get(n, 1.0) <= DIA_RANGE[1]:
