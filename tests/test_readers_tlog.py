@@ -273,3 +273,27 @@ def test_barometer_temperature_is_not_attached_across_a_clock_restart(tmp_path):
     assert any("clock jumps back" in m for m in c.messages)
     msgs = ref.pymavlink_messages(p, ref.TLOG_READ)
     assert ref.compare(c, ref.tlog_expected(msgs)) > 0
+
+
+@pytest.mark.parametrize("version", ["v1", "v2"])
+def test_only_the_autopilots_parameters_are_read(tmp_path, version):
+    """A gimbal (component 154, autopilot INVALID) sends its own parameter list, with a name the
+    autopilot also has: the vehicle's parameters are the autopilot's alone (component 1)."""
+    from sitl.logwriter import TlogWriter
+
+    dialect = mav1 if version == "v1" else mav2
+    autopilot = dialect.MAVLink(None, srcSystem=1, srcComponent=1)
+    gimbal = dialect.MAVLink(None, srcSystem=1, srcComponent=154)
+    p = tmp_path / "components.tlog"
+    with TlogWriter(p) as w:
+        w.write(1.7e9, dialect.MAVLink_heartbeat_message(26, 8, 0, 0, 4, 3).pack(gimbal))
+        w.write(1.7e9, dialect.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3).pack(autopilot))
+        for mav, value in ((autopilot, 0.25), (gimbal, 7.0)):
+            w.write(1.7e9, dialect.MAVLink_param_value_message(b"INS_ACCOFFS_X", value, 9, 1,
+                                                               0).pack(mav))
+        w.write(1.7e9 + 1, mav2.MAVLink_raw_imu_message(10**6, 0, 0, -1000, 0, 0, 0, 1, 2, 3, 0, 0)
+                .pack(v2()))
+    c = read_log(p)
+    assert c.params == {"INS_ACCOFFS_X": 0.25}
+    assert "note: 1 PARAM_VALUE from components other than the autopilot (1/1) ignored" in \
+        c.messages

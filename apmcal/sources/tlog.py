@@ -55,6 +55,7 @@ _MAV_TYPE_VEHICLE = {1: "ArduPlane", 2: "ArduCopter", 3: "ArduCopter", 4: "ArduC
                      20: "ArduPlane", 21: "ArduPlane", 22: "ArduPlane", 23: "ArduPlane",
                      24: "ArduPlane", 25: "ArduPlane", 29: "ArduCopter", 5: "AntennaTracker"}
 MAV_AUTOPILOT_ARDUPILOTMEGA = 3
+MAV_AUTOPILOT_INVALID = 8          # ground stations, gimbals, companion computers
 
 
 @lru_cache(maxsize=1)
@@ -228,6 +229,30 @@ def _attach_baro_temperature(out: LogContents, df: pd.DataFrame, baro, label: st
                         "to the sample times")
 
 
+def _frame_sources(buf: np.ndarray, off: np.ndarray) -> np.ndarray:
+    """(system id << 8 | component id) of the frames starting at ``off`` (the timestamp)."""
+    v1 = buf[off + 8] == _framing.MAV1_MAGIC
+    sysid = np.where(v1, buf[off + 11], buf[off + 13]).astype(np.int32)
+    return (sysid << 8) | np.where(v1, buf[off + 12], buf[off + 14])
+
+
+def _keep_autopilot_params(out: LogContents, buf: np.ndarray, dec: dict[str, np.ndarray],
+                           offsets: dict[str, np.ndarray]) -> None:
+    """Keep only the autopilot's PARAM_VALUEs (those of the first HEARTBEAT whose autopilot is
+    not MAV_AUTOPILOT_INVALID); a gimbal's or companion computer's own parameter list is not
+    the vehicle's. Without such a HEARTBEAT every PARAM_VALUE is kept."""
+    hb, pv = dec["HEARTBEAT"], dec["PARAM_VALUE"]
+    autopilots = np.flatnonzero(hb["autopilot"] != MAV_AUTOPILOT_INVALID)
+    if len(autopilots) == 0 or len(pv) == 0:
+        return
+    source = _frame_sources(buf, offsets["HEARTBEAT"][autopilots[:1]])[0]
+    mine = _frame_sources(buf, offsets["PARAM_VALUE"]) == source
+    if not mine.all():
+        out.messages.append(f"note: {int(np.sum(~mine))} PARAM_VALUE from components other than "
+                            f"the autopilot ({source >> 8}/{source & 255}) ignored")
+        dec["PARAM_VALUE"], offsets["PARAM_VALUE"] = pv[mine], offsets["PARAM_VALUE"][mine]
+
+
 def _metadata(out: LogContents, dec: dict[str, np.ndarray]) -> None:
     """Parameters, STATUSTEXT messages, vehicle and firmware."""
     pv = dec["PARAM_VALUE"]
@@ -321,6 +346,7 @@ def read_tlog(path, *, progress: bool = False) -> LogContents:
     out = LogContents(path=str(path), format="tlog", bytes_skipped=skipped, damaged_at=damaged)
     if skipped == buf.shape[0]:
         raise ApmcalError("no valid MAVLink frame in the file", str(path), "byte 0")
+    _keep_autopilot_params(out, buf, dec, offsets)
     _metadata(out, dec)
     _param_changes(out, dec, offsets)
     out.start_unix_s = _wall_clock_start(buf, offsets)
