@@ -51,7 +51,7 @@ def split_at_param_changes(imu: Recording, mag: Recording | None, changes: list[
 def after_param_changes(recording: Recording, changes: list[ParamChange],
                         path: str) -> tuple[Recording, list[str]]:
     """The samples of ``recording`` after the last change of a parameter its correction uses
-    (:func:`correction_params`), and warnings.
+    (:func:`enters_correction_of`), and warnings.
 
     Raises
     ------
@@ -87,8 +87,8 @@ def after_param_changes(recording: Recording, changes: list[ParamChange],
     return replace(recording, data=kept), [warning]
 
 
-def correction_params(sensors, instance: int):
-    """Predicate: does a parameter name enter the firmware correction of these sensors?"""
+def enters_correction_of(sensors, instance: int):
+    """Predicate on a parameter name: does it enter the firmware correction of these sensors?"""
     from apmcal.preprocessing.firmware import correction_param_names
 
     try:
@@ -99,6 +99,6 @@ def correction_params(sensors, instance: int):
 
 
 def _relevant(changes: list[ParamChange], recording: Recording, sensors) -> list[ParamChange]:
-    uses = correction_params([s for s in sensors if s in ("acc", "gyr", "mag")],
-                             recording.instance)
+    uses = enters_correction_of([s for s in sensors if s in ("acc", "gyr", "mag")],
+                                recording.instance)
     return [c for c in changes if uses(c.name)]

@@ -26,20 +26,6 @@ from apmcal.solvers.result import SensorCalibration
 DEFAULT_PAIRS = 4
 
 
-def noise_free_samples(samples: np.ndarray, cal: SensorCalibration,
-                       radius: float) -> np.ndarray:
-    """Samples moved onto the fitted ellipsoid, each along its own calibrated direction."""
-    calibrated = cal.apply(samples)
-    directions = calibrated / np.linalg.norm(calibrated, axis=1, keepdims=True)
-    return cal.invert(radius * directions)
-
-
-def radial_noise_sigma(samples: np.ndarray, cal: SensorCalibration, radius: float) -> float:
-    """Robust (MAD) standard deviation of |calibrated| − radius [calibrated units]."""
-    e = np.linalg.norm(cal.apply(samples), axis=1) - radius
-    return float(1.4826 * np.median(np.abs(e - np.median(e))))
-
-
 def second_order_bias(fit: Callable[[np.ndarray], SensorCalibration], samples: np.ndarray,
                       cal: SensorCalibration, radius: float, pairs: int = DEFAULT_PAIRS,
                       rng=None) -> tuple[np.ndarray, np.ndarray]:
@@ -56,8 +42,12 @@ def second_order_bias(fit: Callable[[np.ndarray], SensorCalibration], samples: n
         The fit's result on ``samples``.
     """
     rng = np.random.default_rng(0) if rng is None else rng
-    clean_calibrated = cal.apply(noise_free_samples(samples, cal, radius))
-    sigma = radial_noise_sigma(samples, cal, radius)
+    calibrated = cal.apply(samples)
+    magnitude = np.linalg.norm(calibrated, axis=1, keepdims=True)
+    # each sample moved onto the fitted ellipsoid along its own calibrated direction
+    clean_calibrated = radius * calibrated / magnitude
+    e = magnitude[:, 0] - radius                                  # radial residuals
+    sigma = float(1.4826 * np.median(np.abs(e - np.median(e))))   # robust (MAD) σ
     offsets, matrices = [], []
     for _ in range(pairs):
         noise = rng.normal(scale=sigma, size=clean_calibrated.shape)   # calibrated frame

@@ -145,16 +145,8 @@ def _accelerometer(cal, r, generation, instance, prop: ParamProposal) -> None:
     prop.notes.append(f"accelerometer: per-axis scale only (no cross-axis parameter); worst-case "
                       f"error over all gravity directions {cost:.4f} m/s²")
     values = dict(zip(offs_names, offset)) | dict(zip(scal_names, scale))
-    reasons = {}
-    for n, v in zip(offs_names, offset):
-        if abs(v) > ACC_OFFSET_MAX:
-            reasons[n] = f"|offset| {abs(v):.3f} > {ACC_OFFSET_MAX} m/s²"
-    for n, v in zip(scal_names, scale):
-        if not ACC_SCALE_RANGE[0] <= v <= ACC_SCALE_RANGE[1]:
-            reasons[n] = f"scale {v:.4f} outside {ACC_SCALE_RANGE[0]}..{ACC_SCALE_RANGE[1]}"
-        elif generation == "3.2" and abs(v - 1) > ACC_SCALE_MAX_DEV_32:
-            reasons[n] = f"|scale − 1| = {abs(v - 1):.4f} > {ACC_SCALE_MAX_DEV_32} (3.2 limit)"
-    _accept_or_withhold(prop, values, reasons, "accelerometer")
+    _accept_or_withhold(prop, values, acc_violations(values, instance, generation),
+                        "accelerometer")
 
 
 def _gyroscope(cal, r, generation, instance, prop: ParamProposal, params) -> None:
@@ -200,13 +192,37 @@ def _compass(cal, params, generation, instance, prop: ParamProposal, field_mgaus
                           f"{field_mgauss:g} mGauss")
     reasons = offset_violations([values[n] for n in names["ofs"]], names["ofs"], params,
                                 generation)
-    for n in names["dia"]:
-        if n in values and not DIA_RANGE[0] <= values[n] <= DIA_RANGE[1]:
+    _accept_or_withhold(prop, values, reasons | soft_iron_violations(values, names), "compass")
+
+
+# The firmware stores any finite value; these are its parameter ranges, its own calibrators'
+# acceptance limits and its pre-arm checks. Each checks the names present in ``values``.
+def acc_violations(values: dict[str, float], instance: int, generation: str) -> dict[str, str]:
+    """name -> reason for INS_ACC*OFFS / INS_ACC*SCAL values of one IMU instance."""
+    offs_names, scal_names = acc_param_names(instance)
+    reasons = {}
+    for n in [n for n in offs_names if n in values]:
+        if abs(values[n]) > ACC_OFFSET_MAX:
+            reasons[n] = f"|offset| {abs(values[n]):.3f} > {ACC_OFFSET_MAX} m/s²"
+    for n in [n for n in scal_names if n in values]:
+        v = values[n]
+        if not ACC_SCALE_RANGE[0] <= v <= ACC_SCALE_RANGE[1]:
+            reasons[n] = f"scale {v:.4f} outside {ACC_SCALE_RANGE[0]}..{ACC_SCALE_RANGE[1]}"
+        elif generation == "3.2" and abs(v - 1) > ACC_SCALE_MAX_DEV_32:
+            reasons[n] = f"|scale − 1| = {abs(v - 1):.4f} > {ACC_SCALE_MAX_DEV_32} (3.2 limit)"
+    return reasons
+
+
+def soft_iron_violations(values: dict[str, float], names: dict) -> dict[str, str]:
+    """name -> reason for COMPASS_DIA / COMPASS_ODI values (``names``: mag_param_names)."""
+    reasons = {}
+    for n in [n for n in names["dia"] if n in values]:
+        if not DIA_RANGE[0] <= values[n] <= DIA_RANGE[1]:
             reasons[n] = f"diagonal {values[n]:.4f} outside {DIA_RANGE[0]}..{DIA_RANGE[1]}"
-    for n in names["odi"]:
-        if n in values and abs(values[n]) >= ODI_MAX:
+    for n in [n for n in names["odi"] if n in values]:
+        if abs(values[n]) >= ODI_MAX:
             reasons[n] = f"|off-diagonal| {abs(values[n]):.4f} >= {ODI_MAX}"
-    _accept_or_withhold(prop, values, reasons, "compass")
+    return reasons
 
 
 def offset_violations(offsets, names: list[str], params: dict[str, float],

@@ -15,8 +15,7 @@ import numpy as np
 from apmcal.errors import ApmcalError
 from apmcal.preprocessing.firmware import acc_param_names, firmware_generation, mag_param_names
 from apmcal.sources.live import VehicleLink
-from apmcal.vehicle.params import (ACC_OFFSET_MAX, ACC_SCALE_MAX_DEV_32, ACC_SCALE_RANGE,
-                                   DIA_RANGE, ODI_MAX, offset_violations)
+from apmcal.vehicle.params import acc_violations, offset_violations, soft_iron_violations
 from apmcal.vehicle.paramfile import read_param_file, read_unrestorable, write_param_file
 
 INSTANCES = range(3)        # IMU / compass instances 1..3 (suffix "", "2", "3")
@@ -69,23 +68,8 @@ def firmware_limit_violations(values: dict[str, float],
     merged = {**vehicle_params, **values}      # DIA is judged per instance, after the upload
     reasons: dict[str, str] = {}
     for instance in INSTANCES:
-        reasons |= _acc_violations(values, instance, generation)
+        reasons |= acc_violations(values, instance, generation)
         reasons |= _compass_violations(values, merged, instance, generation)
-    return reasons
-
-
-def _acc_violations(values, instance: int, generation: str) -> dict[str, str]:
-    offs_names, scal_names = acc_param_names(instance)
-    reasons = {}
-    for n in [n for n in offs_names if n in values]:
-        if abs(values[n]) > ACC_OFFSET_MAX:
-            reasons[n] = f"|offset| {abs(values[n]):.3f} > {ACC_OFFSET_MAX} m/s²"
-    for n in [n for n in scal_names if n in values]:
-        v = values[n]
-        if not ACC_SCALE_RANGE[0] <= v <= ACC_SCALE_RANGE[1]:
-            reasons[n] = f"scale {v:.4f} outside {ACC_SCALE_RANGE[0]}..{ACC_SCALE_RANGE[1]}"
-        elif generation == "3.2" and abs(v - 1) > ACC_SCALE_MAX_DEV_32:
-            reasons[n] = f"|scale − 1| = {abs(v - 1):.4f} > {ACC_SCALE_MAX_DEV_32} (3.2 limit)"
     return reasons
 
 
@@ -97,15 +81,10 @@ def _compass_violations(values, merged, instance: int, generation: str) -> dict[
     if any(n in values for n in names["ofs"]):
         reasons |= offset_violations([merged.get(n, 0.0) for n in names["ofs"]], names["ofs"],
                                      merged, generation)
+    judged = {n: values[n] for n in names["odi"] if n in values}
     if any(n in values for n in names["dia"]) and not dia_unset:
-        for n in names["dia"]:
-            if not DIA_RANGE[0] <= merged.get(n, 1.0) <= DIA_RANGE[1]:
-                reasons[n] = (f"diagonal {merged.get(n, 1.0):.4f} outside "
-                              f"{DIA_RANGE[0]}..{DIA_RANGE[1]}")
-    for n in [n for n in names["odi"] if n in values]:
-        if abs(values[n]) >= ODI_MAX:
-            reasons[n] = f"|off-diagonal| {abs(values[n]):.4f} >= {ODI_MAX}"
-    return reasons
+        judged |= {n: merged.get(n, 1.0) for n in names["dia"]}   # all three, as they will be
+    return reasons | soft_iron_violations(judged, names)
 
 
 # ----------------------------------------------------------------------------- upload
