@@ -6,19 +6,27 @@ from sitl.truth import DEFAULT_SITE, Truth
 
 def add_truth_args(ap) -> None:
     ap.add_argument("--seed", type=int, default=0, help="error draw and noise seed")
-    ap.add_argument("--truth", help="LOAD the injected errors from this JSON (else drawn by seed)")
+    src = ap.add_mutually_exclusive_group()
+    src.add_argument("--truth", help="LOAD the injected errors from this JSON (else drawn by seed)")
+    src.add_argument("--twin", metavar="TWIN.json",
+                     help="LOAD the injected errors of a simulated twin of a real session: a twin "
+                     "written by `apmcal gap --write-twin` (a truth file; its extra keys such as "
+                     "\"twin\" are ignored)")
     ap.add_argument("--disable", default="", help="effects to switch off, comma-separated "
-                    "('all' for every effect)")
-    ap.add_argument("--enable", default="", help="effects to switch on, comma-separated")
+                    "('all' for every effect; sitl names or `apmcal gap` diagnosis names)")
+    ap.add_argument("--enable", default="", help="effects to switch on, comma-separated "
+                    "(sitl names or diagnosis names, e.g. bias_drift, cross_axis)")
     ap.add_argument("--lat", type=float, default=DEFAULT_SITE["lat"], help="home latitude [deg]")
     ap.add_argument("--lon", type=float, default=DEFAULT_SITE["lon"], help="home longitude [deg]")
     ap.add_argument("--alt", type=float, default=DEFAULT_SITE["alt"], help="home height [m]")
 
 
 def make_truth(args) -> Truth:
-    """Truth from --truth or --seed, then --lat/--lon/--alt (only when drawn) and switches."""
-    if args.truth:
-        truth = Truth.load(args.truth)
+    """Truth from --truth / --twin or --seed, then --lat/--lon/--alt (only when drawn) and
+    switches (sitl effect names or diagnosis names, see :data:`sitl.truth.DIAGNOSIS_EFFECTS`)."""
+    path = args.truth or getattr(args, "twin", None)
+    if path:
+        truth = Truth.load(path)       # only the "effects" block is read
     else:
         truth = Truth.random(args.seed, dict(DEFAULT_SITE, lat=args.lat, lon=args.lon,
                                              alt=args.alt))

@@ -1,25 +1,46 @@
 """Streaming IMU error model: true board-frame motion in, raw sensor samples out.
 
-Per sample at the internal rate fs (1 kHz like the MPU-6000 on APM 2.x), in the SENSOR frame:
+Per sample at the model rate fs (1 kHz like the MPU-6000 on APM 2.x inside :class:`SimVehicle`;
+any rate works, e.g. a real log's 50-400 Hz for a twin), in the SENSOR frame:
 
 accelerometer  s = F_a·f(t − τ) + k2_a ⊙ (F_a f)² + b_a + c_a·ΔT + n_a
-gyroscope      w = F_g·ω + k2_g ⊙ (F_g ω)² + b_g + b1·t + rw(t) + G·f + c_g·ΔT + n_g
+gyroscope      w = F_g·ω + k2_g ⊙ (F_g ω)² + b_g + b1·t + rw(t) + d_tri(t)·[1 1 1] + G·f
+                   + c_g·ΔT + n_g
 magnetometer   m = S·B_board + h + i·throttle + n_m
 
-then for acc/gyro the on-chip 20 Hz 2nd-order Butterworth low-pass (MPU-6000 DLPF, INS_MPU6K_FILTER
-on APM 2.x) and the ADC quantization (4096 LSB/g, 16.4 LSB/(°/s), with range saturation).
+then for acc/gyro the on-chip 2nd-order Butterworth low-pass (MPU-6000 DLPF at 20 Hz,
+INS_MPU6K_FILTER on APM 2.x; ``lowpass_hz`` a float or per sensor) and the ADC quantization
+(4096 LSB/g, 16.4 LSB/(°/s), with range saturation).
 F_a, F_g, S come from :class:`sitl.truth.Truth`; every term is switchable by effect name.
-Noise: white with one-sided density N, so σ per sample = N·√(fs/2). Each random term has its own
-seeded generator so the output does not depend on how time is chunked.
+
+- ΔT = T − ``temperature["ambient_c"]``, T the warm-up curve :meth:`ImuErrorModel.temperature`
+  or an explicit per-sample board temperature passed to :meth:`accel` / :meth:`gyro` (a twin
+  passes the real log's temperatures).
+- Noise n_a, n_g: white with one-sided density N, so σ per sample = N·√(fs/2) at any fs; n_m has
+  σ = ``mag_noise`` per sample. Each of N, σ_m and the random-walk q (rw increments q·√dt) is a
+  float or one value per sensor axis. Gaussian, or with ``uniform_noise`` on uniform in
+  [−√3σ, √3σ] — the same σ (ArduPilot SITL's ``noise·rand_float()``).
+- d_tri (``triangle_drift``, ArduPilot SITL's gyro_drift()): with P = 2·time_min [minutes] and
+  u = fmod(t/60, P), d_tri = u·radians(speed) for u < P/2, else (P − u)·radians(speed) [rad/s],
+  the same on all three axes (t = seconds since boot).
+- The Butterworth low-pass needs its cutoff below the Nyquist frequency fs/2: a cutoff at or
+  above it (a slow log rate) skips that sensor's filter, without error — the samples are then
+  as if already filtered on the chip.
+- Compass interference i is per unit throttle; :class:`SimVehicle` reports a battery current of
+  ``FULL_THROTTLE_CURRENT_A`` (20 A) × throttle, so i = 20 × the per-amp coefficient.
+
+Each random term has its own seeded generator so the output does not depend on how time is
+chunked.
 """
 from __future__ import annotations
 
 import numpy as np
 from scipy.signal import butter, lfilter, lfilter_zi
 
-from sitl.truth import Truth
+from sitl.truth import Truth, per_axis
 
 DEG = np.pi / 180.0
+SQRT3 = np.sqrt(3.0)
 
 
 class ImuErrorModel:
@@ -29,7 +50,7 @@ class ImuErrorModel:
     ----------
     truth : Truth
     fs : float
-        Internal sample rate [Hz].
+        Model sample rate [Hz] (the rate of the samples passed in).
     seed : int
         Seeds the noise / random-walk generators (independent of the truth draw).
     """
@@ -41,7 +62,11 @@ class ImuErrorModel:
                     zip(("acc", "gyro", "rw", "mag"), ss.spawn(4))}
         self.f_acc, self.f_gyr, self.s_mag = truth.acc_forward(), truth.gyro_forward(), truth.mag_forward()
         self.rw_state = np.zeros(3)
-        self.b, self.a = butter(2, truth.lowpass_hz / (fs / 2))
+        # (b, a) per sensor; None: cutoff at/above Nyquist, no filter
+        self.filters = {}
+        for key in ("acc", "gyro"):
+            wn = truth.lowpass_cutoff(key) / (fs / 2)
+            self.filters[key] = butter(2, wn) if wn < 1 else None
         self.zi = {"acc": None, "gyro": None}
 
     # ---- helpers ---------------------------------------------------------------------------
@@ -52,12 +77,36 @@ class ImuErrorModel:
             return np.full(np.shape(t), p["ambient_c"], dtype=float)
         return p["ambient_c"] + p["rise_k"] * (1 - np.exp(-np.asarray(t) / p["tau_s"]))
 
+    def _delta_t(self, t: np.ndarray, temperature) -> np.ndarray:
+        """ΔT [K] from ambient: of the explicit ``temperature`` series, else of the curve."""
+        temp = self.temperature(t) if temperature is None else np.asarray(temperature, float)
+        return np.broadcast_to(temp, np.shape(t)) - self.truth.temperature["ambient_c"]
+
+    def _noise(self, key: str, shape: tuple, level: np.ndarray, scale: float = 1.0) -> np.ndarray:
+        """White noise of per-axis σ = level·scale: Gaussian, or uniform of the same σ
+        (uniform_noise). Evaluated as draw·level·scale, in that order (bit-stable output)."""
+        if self.truth.on("uniform_noise"):
+            return self.rng[key].uniform(-SQRT3, SQRT3, shape) * level * scale
+        return self.rng[key].standard_normal(shape) * level * scale
+
+    def triangle_drift(self, t: np.ndarray) -> np.ndarray:
+        """ArduPilot SITL gyro drift [rad/s] (n,) at t [s since boot] (zeros when off)."""
+        t = np.asarray(t, float)
+        if not self.truth.on("triangle_drift"):
+            return np.zeros(np.shape(t))
+        p = self.truth.triangle_drift
+        period = 2.0 * float(p["time_min"])
+        minutes = np.fmod(t / 60.0, period)
+        ramp = np.where(minutes < period / 2, minutes, period - minutes)
+        return ramp * np.radians(float(p["speed_dps_per_min"]))
+
     def _lowpass(self, key: str, x: np.ndarray) -> np.ndarray:
-        if not self.truth.on("lowpass_filter"):
+        if not self.truth.on("lowpass_filter") or self.filters[key] is None:
             return x
+        b, a = self.filters[key]
         if self.zi[key] is None:  # start settled on the first sample (sensor powered long ago)
-            self.zi[key] = lfilter_zi(self.b, self.a)[:, None] * x[0][None, :]
-        y, self.zi[key] = lfilter(self.b, self.a, x, axis=0, zi=self.zi[key])
+            self.zi[key] = lfilter_zi(b, a)[:, None] * x[0][None, :]
+        y, self.zi[key] = lfilter(b, a, x, axis=0, zi=self.zi[key])
         return y
 
     def _quantize(self, x: np.ndarray, lsb: float, full_scale: float) -> np.ndarray:
@@ -68,8 +117,12 @@ class ImuErrorModel:
                                                                 full_scale * lsb) / lsb
 
     # ---- the three sensors -------------------------------------------------------------------
-    def accel(self, t: np.ndarray, f_board: np.ndarray) -> np.ndarray:
-        """Raw accelerometer [m/s², sensor frame] from true specific force f(t − τ) [m/s², board]."""
+    def accel(self, t: np.ndarray, f_board: np.ndarray, temperature=None) -> np.ndarray:
+        """Raw accelerometer [m/s², sensor frame] from true specific force f(t − τ) [m/s², board].
+
+        ``temperature``: optional board temperature [°C] per sample (n,), used instead of the
+        warm-up curve for temperature_drift.
+        """
         tr = self.truth
         s = f_board @ self.f_acc.T
         if tr.on("scale_nonlinearity"):
@@ -77,17 +130,22 @@ class ImuErrorModel:
         if tr.on("acc_bias"):
             s = s + np.asarray(tr.acc_bias)
         if tr.on("temperature_drift"):
-            dt = self.temperature(t) - tr.temperature["ambient_c"]
-            s = s + np.outer(dt, tr.temperature["acc_coef"])
+            s = s + np.outer(self._delta_t(t, temperature), tr.temperature["acc_coef"])
         if tr.on("acc_noise"):
-            s = s + self.rng["acc"].standard_normal(s.shape) * tr.acc_noise * np.sqrt(self.fs / 2)
+            s = s + self._noise("acc", s.shape, per_axis(tr.acc_noise, "acc_noise"),
+                                np.sqrt(self.fs / 2))
         s = self._lowpass("acc", s)
         g0 = 9.80665
         q = tr.quantization
         return self._quantize(s, q["acc_lsb_per_g"] / g0, q["acc_range_g"] * g0)
 
-    def gyro(self, t: np.ndarray, w_board: np.ndarray, f_board: np.ndarray) -> np.ndarray:
-        """Raw gyroscope [rad/s, sensor frame] from true rate [rad/s] and specific force, board."""
+    def gyro(self, t: np.ndarray, w_board: np.ndarray, f_board: np.ndarray,
+             temperature=None) -> np.ndarray:
+        """Raw gyroscope [rad/s, sensor frame] from true rate [rad/s] and specific force, board.
+
+        ``temperature``: optional board temperature [°C] per sample (n,), used instead of the
+        warm-up curve for temperature_drift.
+        """
         tr = self.truth
         w = w_board @ self.f_gyr.T
         if tr.on("scale_nonlinearity"):
@@ -97,23 +155,31 @@ class ImuErrorModel:
         if tr.on("gyro_bias_drift"):
             w = w + np.outer(t, tr.gyro_bias_drift)          # seed 002 eq. 5: b0 + b1·t
         if tr.on("gyro_bias_random_walk"):
-            steps = self.rng["rw"].standard_normal(w.shape) * tr.gyro_bias_random_walk / np.sqrt(self.fs)
+            q = per_axis(tr.gyro_bias_random_walk, "gyro_bias_random_walk")
+            steps = self.rng["rw"].standard_normal(w.shape) * q / np.sqrt(self.fs)
             walk = self.rw_state + np.cumsum(steps, axis=0)
             self.rw_state = walk[-1].copy()
             w = w + walk
+        if tr.on("triangle_drift"):
+            w = w + self.triangle_drift(t)[:, None]          # the same on all three axes
         if tr.on("g_sensitivity"):
             w = w + f_board @ np.asarray(tr.g_sensitivity).T
         if tr.on("temperature_drift"):
-            dt = self.temperature(t) - tr.temperature["ambient_c"]
-            w = w + np.outer(dt, tr.temperature["gyro_coef"])
+            w = w + np.outer(self._delta_t(t, temperature), tr.temperature["gyro_coef"])
         if tr.on("gyro_noise"):
-            w = w + self.rng["gyro"].standard_normal(w.shape) * tr.gyro_noise * np.sqrt(self.fs / 2)
+            w = w + self._noise("gyro", w.shape, per_axis(tr.gyro_noise, "gyro_noise"),
+                                np.sqrt(self.fs / 2))
         w = self._lowpass("gyro", w)
         q = tr.quantization
         return self._quantize(w, q["gyro_lsb_per_dps"] / DEG, q["gyro_range_dps"] * DEG)
 
     def mag(self, b_board: np.ndarray, throttle: np.ndarray) -> np.ndarray:
-        """Raw magnetometer [mGauss, sensor frame] from the true field [mGauss, board frame]."""
+        """Raw magnetometer [mGauss, sensor frame] from the true field [mGauss, board frame].
+
+        ``throttle`` (0..1) per sample drives mag_interference [mGauss per unit throttle]; the
+        simulator's battery current is ``FULL_THROTTLE_CURRENT_A`` (20 A) × throttle, so a
+        per-amp coefficient [mGauss/A] is ``mag_interference`` / 20.
+        """
         tr = self.truth
         m = b_board @ self.s_mag.T
         if tr.on("mag_hard_iron"):
@@ -121,5 +187,5 @@ class ImuErrorModel:
         if tr.on("mag_interference"):
             m = m + np.outer(throttle, tr.mag_interference)
         if tr.on("mag_noise"):
-            m = m + self.rng["mag"].standard_normal(m.shape) * tr.mag_noise
+            m = m + self._noise("mag", m.shape, per_axis(tr.mag_noise, "mag_noise"))
         return m

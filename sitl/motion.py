@@ -10,7 +10,12 @@ Face names follow imucal / Ferraris: "x_p" = x axis reads +g (x up, nose up), "x
 
 Each segment also carries a throttle (0..1), constant or a linear ramp over the segment
 (:meth:`Motion.throttle`); it drives the mag_interference effect and COMPASS_MOT. Only the
-``motors`` script runs the motors: every other script is at throttle 0 throughout.
+``motors`` and ``diagnosis`` scripts run the motors: every other script is at throttle 0
+throughout.
+
+``diagnosis`` (the ``apmcal gap`` benchmark session) is the Ferraris session followed by the
+``motors`` section, level and still: one session that exercises every effect, compass
+interference included.
 """
 from __future__ import annotations
 
@@ -31,7 +36,8 @@ POSES = {
 }
 # ArduPilot accelcal ACCELCAL_VEHICLE_POS values (param1 of MAV_CMD_ACCELCAL_VEHICLE_POS)
 ACCELCAL_POSES = {1: "level", 2: "left", 3: "right", 4: "nosedown", 5: "noseup", 6: "back"}
-SCRIPTS = ("ferraris", "ardupilot6", "onepos", "tumble", "warmup", "operator", "motors")
+SCRIPTS = ("ferraris", "ardupilot6", "onepos", "tumble", "warmup", "operator", "motors",
+           "diagnosis")
 
 
 def pose_matrix(name: str, yaw_deg: float = 0.0) -> np.ndarray:
@@ -255,12 +261,32 @@ def motors(seconds: float = 60.0, idle_s: float = 5.0, full_s: float = 5.0) -> M
     """Motors run while the vehicle is held still and level (like ArduPilot's compassmot):
     idle at throttle 0, a linear ramp to full throttle, a hold at full throttle, a ramp back
     down and idle again. The ramps share what ``seconds`` leaves after the three holds."""
+    return motors_section(Motion(), seconds, idle_s, full_s)
+
+
+def motors_section(m: Motion, seconds: float = 60.0, idle_s: float = 5.0,
+                   full_s: float = 5.0) -> Motion:
+    """Append the :func:`motors` profile to ``m``, holding its current pose (sections idle,
+    throttle_up, full_throttle, throttle_down, idle_end; ``seconds`` in all)."""
     ramp = max((seconds - 2 * idle_s - full_s) / 2.0, 1.0)
-    return (Motion().hold(idle_s, "idle")
+    return (m.hold(idle_s, "idle")
             .hold(ramp, "throttle_up", throttle=(0.0, 1.0))
             .hold(full_s, "full_throttle", throttle=1.0)
             .hold(ramp, "throttle_down", throttle=(1.0, 0.0))
             .hold(idle_s, "idle_end"))
+
+
+def diagnosis(move_s: float = 3.0, motors_s: float = 60.0) -> Motion:
+    """The diagnosis benchmark session: :func:`ferraris` (six faces, then −360° about x, y, z),
+    then level and still the :func:`motors` section (idle 5 s, ramp up, 5 s full throttle, ramp
+    down, idle 5 s; ``motors_s`` in all) — every effect, compass interference included, in one
+    session. The Ferraris session ends at z_a, which is level: a "transition" to level is only
+    added if it did not."""
+    m = ferraris(move_s=move_s)
+    level = pose_matrix("level")
+    if Rotation.from_matrix(m.end_pose().T @ level).magnitude() > 1e-9:
+        m.move_to(level, move_s)
+    return motors_section(m, motors_s)
 
 
 def operator() -> Motion:
@@ -269,7 +295,8 @@ def operator() -> Motion:
 
 
 def build(name: str, seed: int = 0, duration: float | None = None) -> Motion:
-    """The named script (``SCRIPTS``); ``duration`` stretches holds-only scripts."""
+    """The named script (``SCRIPTS``); ``duration`` stretches onepos, warmup, tumble and motors
+    (ignored by the fixed sessions ferraris, ardupilot6, operator and diagnosis)."""
     if name == "ferraris":
         return ferraris()
     if name == "ardupilot6":
@@ -284,4 +311,6 @@ def build(name: str, seed: int = 0, duration: float | None = None) -> Motion:
         return operator()
     if name == "motors":
         return motors(duration or 60.0)
+    if name == "diagnosis":              # fixed length, like ferraris: duration is ignored
+        return diagnosis()
     raise ValueError(f"unknown script {name!r}; known: {', '.join(SCRIPTS)}")

@@ -16,17 +16,19 @@ acc_cross_axis         α_yz, α_zy, α_zx [rad] (seed 002 §2.1)     0.005 (cro
 acc_misalignment       rotation vector sensor vs board [rad]      0.01
 gyro_bias              offset at t=0 [rad/s]                      0.02 (≈1 °/s, spec ±20 °/s)
 gyro_bias_drift        linear drift [rad/s per s] (seed 002 eq.5) 2e-6
-gyro_bias_random_walk  rate random walk [rad/s/√s]                fixed 2e-5
+gyro_bias_random_walk  rate random walk [rad/s/√s] (or per axis)  fixed 2e-5
 gyro_scale             diagonal factor − 1                        0.01 (±3 %)
 gyro_misalignment      γ_yz, γ_zy, γ_zx, γ_xz, γ_xy, γ_yx [rad]   0.005 (seed 002 §2.2 T_g)
 g_sensitivity          3×3 [rad/s per m/s²]                       1.8e-4 (0.1 °/s/g)
-acc_noise              density [m/s²/√Hz]                         fixed 3.9e-3 (400 µg/√Hz)
-gyro_noise             density [rad/s/√Hz]                        fixed 8.7e-5 (0.005 °/s/√Hz)
+acc_noise              density [m/s²/√Hz] (or per axis)           fixed 3.9e-3 (400 µg/√Hz)
+gyro_noise             density [rad/s/√Hz] (or per axis)          fixed 8.7e-5 (0.005 °/s/√Hz)
 temperature_drift      warm-up +12 K, τ 240 s; acc 2e-3 m/s²/K,   coefficients per axis
-                       gyro 1.7e-4 rad/s/K per axis
+                       gyro 1.7e-4 rad/s/K per axis (ΔT of the curve, or of an explicit
+                       board temperature series given to the error model)
 quantization           4096 LSB/g, 16.4 LSB/(°/s) (±8 g, ±2000 °/s APM ranges) — fixed;
                        also RAW_IMU truncation toward zero (off: rounded to nearest)
 lowpass_filter         2nd-order Butterworth, 20 Hz (INS_MPU6K_FILTER)             — fixed
+                       (``lowpass_hz`` one cutoff or per sensor; skipped at/above Nyquist)
 scale_nonlinearity     quadratic k2 (out += k2·x²): acc [1/(m/s²)] 2e-4, gyro [s/rad] 1e-4
 time_offset            accelerometer later than gyro [s]          fixed 0.002
 motion_contamination   tremor 0.05° at 4-9 Hz + sway 0.3° at 0.1-0.5 Hz (hand-held holds)
@@ -35,8 +37,50 @@ local_gravity          WGS-84 normal gravity at lat/height (off → 9.80665)
 mag_hard_iron          offset [mGauss]                            80
 mag_soft_iron          symmetric matrix − I                       0.05 diag, 0.03 off-diag
 mag_interference       field per unit throttle [mGauss]           60
-mag_noise              per-sample σ [mGauss]                      fixed 3
+mag_noise              per-sample σ [mGauss] (or per axis)        fixed 3
+uniform_noise          acc/gyro/mag white noise drawn UNIFORM     OFF by default (ArduPilot
+                       with the same σ (half-width √3·σ)          SITL quirk)
+triangle_drift         gyro triangle wave, same on all 3 axes:    OFF by default (ArduPilot
+                       speed [°/s per minute], half-period [min]  SITL quirk); fixed 0.05, 5
 =====================  =========================================  ==============================
+
+Per-axis parameters: ``acc_noise``, ``gyro_noise``, ``mag_noise`` and ``gyro_bias_random_walk``
+are a float (all three sensor axes) or a 3-list (x, y, z of the sensor). ``lowpass_hz`` is a float
+(accelerometer and gyroscope) or ``{"acc": hz, "gyro": hz}``; a cutoff at or above the Nyquist
+frequency of the model's rate skips that filter (see :mod:`sitl.errors_model`).
+
+The two ArduPilot SITL quirks (``SIMULATOR_QUIRKS``) reproduce what the real ArduPilot simulator
+(libraries/AP_InertialSensor/AP_InertialSensor_SITL.cpp) does to its sensors, so a log from it
+can be twinned: its noise is ``noise·rand_float()``, uniform in [−noise, noise] (set σ =
+noise/√3 here to mimic SIM_ACC1_RND / SIM_GYR1_RND = noise), and its gyro drift is a triangle
+wave of period 2·SIM_DRIFT_TIME minutes rising at SIM_DRIFT_SPEED °/s per minute (defaults 0.05
+°/s/min, 5 min: peak 0.25 °/s at 5 min), added to all three axes. They are off in ``Truth()`` and
+``Truth.random()`` and a truth file without them loads with them off; ``with_effects(enable=
+["all"])`` switches them on like every other effect.
+
+Diagnosis names (``apmcal gap``) — :data:`DIAGNOSIS_EFFECTS` maps each canonical "unmodelled
+effect" of the diagnosis to the sitl switches above; ``with_effects`` and the CLI's
+``--enable/--disable`` accept either vocabulary:
+
+=====================  ===========================================
+diagnosis name         sitl switches
+=====================  ===========================================
+bias_drift             gyro_bias_drift
+bias_random_walk       gyro_bias_random_walk
+cross_axis             acc_cross_axis
+gyro_scale             gyro_scale, gyro_misalignment (*)
+every other name       the sitl effect of the same name
+=====================  ===========================================
+
+(*) "gyro_scale" is also a sitl switch: given to ``with_effects`` / the CLI it means the sitl
+switch alone (existing behaviour); pass ``prefer="diagnosis"`` to ``with_effects`` (or
+:func:`expand_effects`) to read it as the diagnosis name. :data:`NOMINAL_EFFECTS` are the switches
+of the nominal model the diagnosis always fits (biases, accelerometer scale, white noise, hard
+and soft iron).
+
+Compass interference: the simulator's battery current is ``FULL_THROTTLE_CURRENT_A`` (20 A) ×
+throttle, so ``mag_interference`` [mGauss per unit throttle] = 20 × [mGauss per A]
+(COMPASS_MOTCT=2 per-amp coefficients).
 
 Mounting (not effects): ``board_orientation`` is how the board (IMU and internal compass) is
 turned in the vehicle, an ArduPilot Rotation value, so AHRS_ORIENTATION = board_orientation
@@ -63,7 +107,85 @@ EFFECTS = (
     "g_sensitivity", "acc_noise", "gyro_noise", "temperature_drift", "quantization",
     "lowpass_filter", "scale_nonlinearity", "time_offset", "motion_contamination", "earth_rate",
     "local_gravity", "mag_hard_iron", "mag_soft_iron", "mag_interference", "mag_noise",
+    "uniform_noise", "triangle_drift",
 )
+
+# quirks of ArduPilot's own simulator, not of real boards: off unless switched on
+SIMULATOR_QUIRKS = ("uniform_noise", "triangle_drift")
+
+# canonical "unmodelled effect" names of the diagnosis (apmcal gap) → the sitl switches each one
+# stands for; names not listed under a different sitl name map to the sitl effect of that name
+DIAGNOSIS_EFFECTS: dict[str, tuple[str, ...]] = {
+    "temperature_drift": ("temperature_drift",),
+    "bias_drift": ("gyro_bias_drift",),
+    "bias_random_walk": ("gyro_bias_random_walk",),
+    "g_sensitivity": ("g_sensitivity",),
+    "cross_axis": ("acc_cross_axis",),
+    "gyro_scale": ("gyro_scale", "gyro_misalignment"),
+    "scale_nonlinearity": ("scale_nonlinearity",),
+    "earth_rate": ("earth_rate",),
+    "local_gravity": ("local_gravity",),
+    "quantization": ("quantization",),
+    "lowpass_filter": ("lowpass_filter",),
+    "time_offset": ("time_offset",),
+    "motion_contamination": ("motion_contamination",),
+    "mag_interference": ("mag_interference",),
+    "uniform_noise": ("uniform_noise",),
+    "triangle_drift": ("triangle_drift",),
+}
+
+# the switches of the nominal model the diagnosis always fits (not "unmodelled effects")
+NOMINAL_EFFECTS = ("acc_bias", "acc_scale", "gyro_bias", "acc_noise", "gyro_noise",
+                   "mag_hard_iron", "mag_soft_iron", "mag_noise")
+
+# the simulator's battery current is FULL_THROTTLE_CURRENT_A × throttle [A] (SYS_STATUS, MAG
+# MOX..Z with COMPASS_MOTCT=2), so mag_interference [mGauss per unit throttle] = 20 × [mGauss/A]
+FULL_THROTTLE_CURRENT_A = 20.0
+
+# ArduPilot SITL defaults SIM_DRIFT_SPEED [°/s per minute], SIM_DRIFT_TIME [minutes]
+ARDUPILOT_DRIFT = {"speed_dps_per_min": 0.05, "time_min": 5.0}
+
+
+def expand_effects(names, prefer: str = "sitl") -> list[str]:
+    """sitl switch names of ``names`` (sitl switches or diagnosis names; "all" kept as is).
+
+    ``prefer="sitl"``: a name that is a sitl switch means that switch (so "gyro_scale" is the
+    sitl gyro_scale alone); ``prefer="diagnosis"``: a diagnosis name is expanded first ("gyro_scale"
+    → gyro_scale, gyro_misalignment). Unknown names raise SitlError listing both vocabularies.
+    """
+    if prefer not in ("sitl", "diagnosis"):
+        raise ValueError(f"prefer must be 'sitl' or 'diagnosis', got {prefer!r}")
+    out: list[str] = []
+    for name in names:
+        if name == "all":
+            out.append(name)
+        elif prefer == "diagnosis" and name in DIAGNOSIS_EFFECTS:
+            out.extend(DIAGNOSIS_EFFECTS[name])
+        elif name in EFFECTS:
+            out.append(name)
+        elif name in DIAGNOSIS_EFFECTS:
+            out.extend(DIAGNOSIS_EFFECTS[name])
+        else:
+            raise SitlError(f"unknown effect {name!r}; sitl effects: {', '.join(EFFECTS)}; "
+                            f"diagnosis names: {', '.join(DIAGNOSIS_EFFECTS)}")
+    return out
+
+
+def default_enabled() -> dict:
+    """Every effect on except the ArduPilot simulator quirks."""
+    return {e: e not in SIMULATOR_QUIRKS for e in EFFECTS}
+
+
+def per_axis(value, name: str = "parameter") -> np.ndarray:
+    """A float or a 3-list as a (3,) float array (one value per sensor axis)."""
+    try:
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        a = None
+    if a is None or a.shape not in ((), (3,)):
+        raise SitlError(f"{name} must be a number or a list of 3 numbers, got {value!r}")
+    return np.broadcast_to(a, (3,)).copy()
+
 
 # default site: Accra (seed 002 was recorded in Ghana), 60 m; year None: the WMM epoch is the
 # date of the vehicle's own clock (SimVehicle start_unix), as for a real vehicle
@@ -78,7 +200,7 @@ def _zeros(n=3):
 class Truth:
     """Every injected error parameter plus which effects are on (see module docstring)."""
 
-    enabled: dict = field(default_factory=lambda: {e: True for e in EFFECTS})
+    enabled: dict = field(default_factory=default_enabled)
     seed: int = 0
     site: dict = field(default_factory=lambda: dict(DEFAULT_SITE))
     board_orientation: int = 0
@@ -89,12 +211,12 @@ class Truth:
     acc_misalignment: list = _zeros()
     gyro_bias: list = _zeros()
     gyro_bias_drift: list = _zeros()
-    gyro_bias_random_walk: float = 2e-5
+    gyro_bias_random_walk: float | list = 2e-5           # or per axis [x, y, z]
     gyro_scale: list = field(default_factory=lambda: [1.0, 1.0, 1.0])
     gyro_misalignment: list = _zeros(6)
     g_sensitivity: list = field(default_factory=lambda: np.zeros((3, 3)).tolist())
-    acc_noise: float = 3.9e-3
-    gyro_noise: float = 8.7e-5
+    acc_noise: float | list = 3.9e-3                     # or per axis [x, y, z]
+    gyro_noise: float | list = 8.7e-5
     temperature: dict = field(default_factory=lambda: {
         "ambient_c": 25.0, "rise_k": 12.0, "tau_s": 240.0,
         "acc_coef": [0.0] * 3, "gyro_coef": [0.0] * 3})
@@ -102,7 +224,7 @@ class Truth:
                                                         "gyro_lsb_per_dps": 16.4,
                                                         "acc_range_g": 8.0,
                                                         "gyro_range_dps": 2000.0})
-    lowpass_hz: float = 20.0
+    lowpass_hz: float | dict = 20.0                      # or {"acc": hz, "gyro": hz}
     scale_nonlinearity: dict = field(default_factory=lambda: {"acc": [0.0] * 3,
                                                               "gyro": [0.0] * 3})
     time_offset: float = 0.002
@@ -111,7 +233,8 @@ class Truth:
     mag_hard_iron: list = _zeros()
     mag_soft_iron: list = field(default_factory=lambda: np.eye(3).tolist())
     mag_interference: list = _zeros()
-    mag_noise: float = 3.0
+    mag_noise: float | list = 3.0
+    triangle_drift: dict = field(default_factory=lambda: dict(ARDUPILOT_DRIFT))
 
     # ---- construction -------------------------------------------------------------------
     @classmethod
@@ -136,25 +259,41 @@ class Truth:
         t.mag_hard_iron, t.mag_soft_iron, t.mag_interference = n(80.0), soft.tolist(), n(60.0)
         return t
 
-    def with_effects(self, enable: list[str] | None = None, disable: list[str] | None = None
-                     ) -> "Truth":
-        """Switch effects by canonical name ("all" for every one); ``disable`` is applied first,
-        so disable=["all"], enable=["acc_bias"] isolates one effect. Unknown names raise
-        SitlError."""
+    def with_effects(self, enable: list[str] | None = None, disable: list[str] | None = None,
+                     prefer: str = "sitl") -> "Truth":
+        """Switch effects by name ("all" for every one, the simulator quirks included);
+        ``disable`` is applied first, so disable=["all"], enable=["acc_bias"] isolates one effect.
+
+        Names are sitl switches (:data:`EFFECTS`) or diagnosis names (:data:`DIAGNOSIS_EFFECTS`,
+        expanded to their switches); ``prefer`` decides the one name in both vocabularies,
+        "gyro_scale" (see :func:`expand_effects`). Unknown names raise SitlError.
+        """
         for names, state in ((disable or [], False), (enable or [], True)):
-            for name in names:
+            for name in expand_effects(names, prefer):
                 if name == "all":
                     self.enabled = {e: state for e in EFFECTS}
-                    continue
-                if name not in EFFECTS:
-                    raise SitlError(f"unknown effect {name!r}; known: {', '.join(EFFECTS)}")
-                self.enabled[name] = state
+                else:
+                    self.enabled[name] = state
         return self
 
     def on(self, effect: str) -> bool:
         return bool(self.enabled.get(effect, False))
 
     # ---- derived quantities ---------------------------------------------------------------
+    def lowpass_cutoff(self, sensor: str) -> float:
+        """Low-pass cutoff [Hz] of "acc" or "gyro" (``lowpass_hz`` a float or a per-sensor dict)."""
+        hz = self.lowpass_hz
+        if isinstance(hz, dict):
+            try:
+                return float(hz[sensor])
+            except (KeyError, TypeError, ValueError):
+                raise SitlError(f"lowpass_hz needs a number for {sensor!r}, got {hz!r}") from None
+        try:
+            return float(hz)
+        except (TypeError, ValueError):
+            raise SitlError(f"lowpass_hz must be a number or {{'acc': hz, 'gyro': hz}}, "
+                            f"got {hz!r}") from None
+
     def gravity(self) -> float:
         """Local gravity magnitude [m/s²] (WGS-84 normal gravity when local_gravity is on)."""
         if self.on("local_gravity"):
@@ -222,7 +361,29 @@ class Truth:
         unknown = set(t.enabled) - set(EFFECTS)
         if unknown:
             raise SitlError(f"unknown effects {sorted(unknown)}", path)
+        # a file older than an effect (uniform_noise, triangle_drift) loads with it off
+        t.enabled = {e: bool(t.enabled.get(e, False)) for e in EFFECTS}
+        try:
+            t.check()
+        except SitlError as exc:
+            raise SitlError(str(exc), path) from None
         return t
+
+    def check(self) -> None:
+        """Raise SitlError when a parameter has the wrong shape (per-axis values, low-pass)."""
+        for name in ("acc_noise", "gyro_noise", "mag_noise", "gyro_bias_random_walk"):
+            per_axis(getattr(self, name), name)
+        for sensor in ("acc", "gyro"):
+            hz = self.lowpass_cutoff(sensor)
+            if not hz > 0:
+                raise SitlError(f"lowpass_hz must be positive, got {self.lowpass_hz!r}")
+        try:
+            float(self.triangle_drift["speed_dps_per_min"])
+            if not float(self.triangle_drift["time_min"]) > 0:
+                raise ValueError
+        except (KeyError, TypeError, ValueError):
+            raise SitlError("triangle_drift must be {'speed_dps_per_min': x, 'time_min': > 0}, "
+                            f"got {self.triangle_drift!r}") from None
 
 
 def _expm(rotvec) -> np.ndarray:

@@ -17,7 +17,7 @@ from sitl import firmware, motion
 from sitl.errors_model import ImuErrorModel
 from sitl.geomag import decimal_year, earth_field_ned
 from sitl.params_store import ParamStore
-from sitl.truth import Truth
+from sitl.truth import FULL_THROTTLE_CURRENT_A, Truth
 
 VERSION_TEXT = {"3.2": "ArduCopter V3.2.1 (sitl)", "3.3": "ArduCopter V3.3.3 (sitl)"}
 RAW_SENSORS_MSGS = {"3.2": ("RAW_IMU", "SCALED_PRESSURE"),
@@ -171,8 +171,8 @@ class SimVehicle:
         return thr
 
     def current_at(self, t) -> np.ndarray:
-        """Battery current [A] at times t: modelled as 20 A × throttle."""
-        return self.throttle_at(t) * 20.0
+        """Battery current [A] at times t: modelled as FULL_THROTTLE_CURRENT_A (20 A) × throttle."""
+        return self.throttle_at(t) * FULL_THROTTLE_CURRENT_A
 
     def motor_offset(self, t) -> np.ndarray:
         """The firmware's COMPASS_MOT·(throttle or current) at times t (MAG MOX..Z) [mGauss]."""
@@ -211,9 +211,9 @@ class SimVehicle:
         p = self.params.as_dict()
         s["acc"] = firmware.apply_accel(s["raw_acc"], p, gen)
         s["gyr"] = firmware.apply_gyro(s["raw_gyr"], p, gen)
-        # battery current modelled as 20 A × throttle (also reported in SYS_STATUS)
+        # battery current modelled as FULL_THROTTLE_CURRENT_A × throttle (also in SYS_STATUS)
         s["mag"] = firmware.apply_compass(s["raw_mag"], p, gen, s["throttle"],
-                                          s["throttle"] * 20.0)
+                                          s["throttle"] * FULL_THROTTLE_CURRENT_A)
         if gen != "3.2":   # second IMU: same sensor, its own INS_ACC2*/INS_GYR2* parameters
             p2 = {k.replace("INS_ACC2", "INS_ACC").replace("INS_GYR2OFFS", "INS_GYROFFS"): v
                   for k, v in p.items() if "2" in k}

@@ -19,7 +19,7 @@ def test_effect_names_are_the_canonical_list():
         "g_sensitivity", "acc_noise", "gyro_noise", "temperature_drift", "quantization",
         "lowpass_filter", "scale_nonlinearity", "time_offset", "motion_contamination",
         "earth_rate", "local_gravity", "mag_hard_iron", "mag_soft_iron", "mag_interference",
-        "mag_noise")
+        "mag_noise", "uniform_noise", "triangle_drift")
 
 
 def test_all_off_is_ideal_level_sensor():
@@ -266,10 +266,10 @@ def _mean(h, key, span, margin=0.5):
 
 def test_only_the_motors_script_runs_the_motors():
     from sitl import motion
-    t = np.linspace(0.0, 500.0, 5001)
+    t = np.linspace(0.0, 600.0, 6001)
     for name in motion.SCRIPTS:
         thr = motion.build(name, seed=1).throttle(t)
-        if name == "motors":
+        if name in ("motors", "diagnosis"):     # diagnosis = ferraris + the motors section
             assert thr.max() == 1.0 and thr.min() == 0.0
         else:
             assert not thr.any(), name        # exact zeros: other scripts unchanged
@@ -353,3 +353,101 @@ def test_sys_status_current_follows_the_throttle():
     t = np.arange(len(st), dtype=float)                   # one per second from t = 0
     np.testing.assert_allclose(cur, np.floor(v.motion.throttle(t) * 2000 + 1e-9), atol=1)
     assert cur.max() == 2000 and cur[0] == 0
+
+
+# ---- per-axis parameters and any model rate (what the diagnosis twin needs) ------------------
+def test_per_axis_noise_gives_per_axis_sigma():
+    from sitl_helpers import still
+    acc_n, gyr_n, mag_n = [1e-3, 4e-3, 1.6e-2], [2e-5, 1e-4, 5e-4], [1.0, 3.0, 9.0]
+    tr = only("acc_noise", "gyro_noise", "mag_noise", acc_noise=acc_n, gyro_noise=gyr_n,
+              mag_noise=mag_n)
+    h = still(tr, 40.0)
+    half = np.sqrt(1000 / 2)
+    np.testing.assert_allclose(h["acc"].std(axis=0), np.array(acc_n) * half, rtol=0.03)
+    np.testing.assert_allclose(h["gyr"].std(axis=0), np.array(gyr_n) * half, rtol=0.03)
+    np.testing.assert_allclose(h["mag"].std(axis=0), mag_n, rtol=0.03)
+
+
+def test_per_axis_random_walk():
+    from sitl_helpers import still
+    q = [1e-5, 4e-5, 1.6e-4]
+    h = still(only("gyro_bias_random_walk", gyro_bias_random_walk=q), 400.0, fs=100.0)
+    inc = h["gyr"][100::100] - h["gyr"][:-100:100]          # 1 s increments: variance q² · 1 s
+    np.testing.assert_allclose(inc.var(axis=0) / np.square(q), 1.0, atol=0.2)
+
+
+def test_scalar_noise_is_bit_identical_to_the_same_value_per_axis():
+    from sitl_helpers import still
+    a = still(only("acc_noise", "gyro_noise", "mag_noise", "gyro_bias_random_walk"), 1.0)
+    tr = only("acc_noise", "gyro_noise", "mag_noise", "gyro_bias_random_walk")
+    for name in ("acc_noise", "gyro_noise", "mag_noise", "gyro_bias_random_walk"):
+        setattr(tr, name, [getattr(tr, name)] * 3)
+    b = still(tr, 1.0)
+    for k in ("acc", "gyr", "mag"):
+        assert np.array_equal(a[k], b[k]) and a[k].std() > 0
+
+
+@pytest.mark.parametrize("fs", [50.0, 200.0, 400.0])
+def test_noise_density_meaning_at_any_rate(fs):
+    from sitl_helpers import still
+    tr = only("acc_noise", "gyro_noise")
+    h = still(tr, 20000 / fs, fs=fs)
+    np.testing.assert_allclose(h["acc"].std(axis=0) / (tr.acc_noise * np.sqrt(fs / 2)), 1.0,
+                               atol=0.04)
+    np.testing.assert_allclose(h["gyr"].std(axis=0) / (tr.gyro_noise * np.sqrt(fs / 2)), 1.0,
+                               atol=0.04)
+
+
+def _sine_gain(model, sensor, freq, fs, n=4000):
+    t = np.arange(n) / fs
+    x = np.zeros((n, 3))
+    x[:, 0] = np.sin(2 * np.pi * freq * t)
+    y = model.accel(t, x) if sensor == "acc" else model.gyro(t, x, np.zeros((n, 3)))
+    return np.sqrt(2) * y[n // 2:, 0].std()
+
+
+def test_lowpass_per_sensor_cutoffs():
+    fs = 400.0
+    m = ImuErrorModel(only("lowpass_filter", lowpass_hz={"acc": 10.0, "gyro": 60.0}), fs)
+    for sensor, fc in (("acc", 10.0), ("gyro", 60.0)):
+        gain = 1 / np.sqrt(1 + (np.tan(np.pi * 30.0 / fs) / np.tan(np.pi * fc / fs)) ** 4)
+        assert _sine_gain(m, sensor, 30.0, fs) == pytest.approx(gain, rel=0.01), sensor
+
+
+@pytest.mark.parametrize("cutoff", [25.0, 40.0])
+def test_lowpass_at_or_above_nyquist_is_skipped(cutoff):
+    fs = 50.0                                              # Nyquist 25 Hz
+    tr = only("lowpass_filter", lowpass_hz=cutoff)
+    m = ImuErrorModel(tr, fs)                              # no error from scipy's butter
+    assert _sine_gain(m, "acc", 7.0, fs) == pytest.approx(1.0, abs=1e-9)
+    assert _sine_gain(m, "gyro", 7.0, fs) == pytest.approx(1.0, abs=1e-9)
+    # just below Nyquist the filter is applied (and attenuates a 7 Hz tone at a 5 Hz cutoff)
+    m = ImuErrorModel(only("lowpass_filter", lowpass_hz={"acc": 5.0, "gyro": cutoff}), fs)
+    assert _sine_gain(m, "acc", 7.0, fs) < 0.7
+    assert _sine_gain(m, "gyro", 7.0, fs) == pytest.approx(1.0, abs=1e-9)
+
+
+def test_per_axis_and_per_sensor_parameters_roundtrip_and_are_checked(tmp_path):
+    import json
+    from sitl.errors import SitlError
+    tr = Truth.random(2)
+    tr.acc_noise, tr.mag_noise, tr.gyro_bias_random_walk = [1e-3, 2e-3, 3e-3], [1, 2, 3], [1e-5] * 3
+    tr.lowpass_hz = {"acc": 42.0, "gyro": 98.0}
+    tr.save(tmp_path / "t.json")
+    assert Truth.load(tmp_path / "t.json") == tr
+    d = json.loads((tmp_path / "t.json").read_text())
+    for key, bad in (("acc_noise", [1e-3, 2e-3]), ("gyro_noise", "loud"),
+                     ("lowpass_hz", {"acc": 20.0}), ("lowpass_hz", -5.0)):
+        e = dict(d["effects"], **{key: bad})
+        (tmp_path / "bad.json").write_text(json.dumps({"effects": e}))
+        with pytest.raises(SitlError, match=key):
+            Truth.load(tmp_path / "bad.json")
+
+
+def test_battery_current_constant_is_20_amps_per_unit_throttle():
+    from sitl import FULL_THROTTLE_CURRENT_A
+    assert FULL_THROTTLE_CURRENT_A == 20.0
+    v, _ = run(only(), 0.0, script="motors")
+    t = np.array([0.0, 10.0, 16.25, 27.5, 60.0])
+    np.testing.assert_allclose(v.current_at(t), FULL_THROTTLE_CURRENT_A * v.motion.throttle(t))
+    assert v.current_at(27.5)[0] == 20.0
