@@ -8,6 +8,11 @@ A :class:`Recording` is one sensor instance (IMU 0, IMU 1, ...) from one source.
     gyr_x, gyr_y, gyr_z    [rad/s]
     mag_x, mag_y, mag_z    [mGauss]  (only when the source has a magnetometer on this instance)
     temp                   [°C]      (only when present)
+    current                [A]       battery current, linearly interpolated at the sample times,
+                                     NaN outside the span of the current records (only when the
+                                     log carries a usable one: dataflash BAT/CURR, tlog
+                                     SYS_STATUS; see the readers). Not a sensor: ``sensors``
+                                     never lists it.
 
 Columns that the source does not carry are absent, never filled with zeros. ``corrected`` says
 whether the firmware already applied its INS_*/COMPASS_* parameters (ArduPilot's RAW_IMU, IMU and

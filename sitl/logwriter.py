@@ -16,7 +16,9 @@ from pathlib import Path
 HEAD = b"\xa3\x95"
 FMT_TYPE = 128
 
-# name → (type id, DFReader format, columns); units: Gyr rad/s, Acc m/s², T degC, Mag mGauss
+# name → (type id, DFReader format, columns); units: Gyr rad/s, Acc m/s², T degC, Mag mGauss,
+# BAT Volt V and Curr A as float32 (the newer firmware's BAT layout, e.g. "Qfffffcf" on Copter
+# 3.6: libraries/AP_BattMonitor/LogStructure.h, units V and A, no multiplier), cut to these three
 DF_MESSAGES = {
     "FMT": (FMT_TYPE, "BBnNZ", "Type,Length,Name,Format,Columns"),
     "PARM": (129, "QNf", "TimeUS,Name,Value"),
@@ -24,6 +26,7 @@ DF_MESSAGES = {
     "IMU": (131, "QffffffIIf", "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,ErrG,ErrA,T"),
     "MAG": (132, "QhhhhhhhhhB", "TimeUS,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ,Health"),
     "GPS": (133, "QBIHBLLf", "TimeUS,Status,GMS,GWk,NSats,Lat,Lng,Alt"),
+    "BAT": (134, "Qff", "TimeUS,Volt,Curr"),
 }
 _STRUCT = {"Q": "Q", "f": "f", "h": "h", "H": "H", "I": "I", "B": "B", "L": "i", "n": "4s",
            "N": "16s", "Z": "64s"}
@@ -55,7 +58,7 @@ class TlogWriter:
 
 
 class DataflashWriter:
-    """Write a binary dataflash log with FMT, PARM, MSG, IMU and MAG records."""
+    """Write a binary dataflash log with FMT, PARM, MSG, IMU, MAG, GPS and BAT records."""
 
     def __init__(self, path):
         self.f = open(Path(path), "wb")
@@ -90,6 +93,10 @@ class DataflashWriter:
         week, ms = divmod(gps_ms, 604_800_000)
         self._record("GPS", time_us, 3, ms, week, 10, int(round(lat_deg * 1e7)),
                      int(round(lon_deg * 1e7)), float(alt_m))
+
+    def bat(self, time_us: int, volt: float, curr_a: float) -> None:
+        """One BAT record: battery voltage [V] and current [A] (float32)."""
+        self._record("BAT", time_us, float(volt), float(curr_a))
 
     def close(self) -> None:
         self.f.close()

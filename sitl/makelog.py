@@ -6,7 +6,8 @@
 .tlog: PARAM_VALUE of every parameter at the start, STATUSTEXT firmware string, HEARTBEAT 1 Hz,
 SYS_STATUS, RAW_IMU at --rate, SCALED_PRESSURE at 2 Hz.
 .bin : FMT, PARM (all), MSG (firmware string), IMU and MAG (MOX..Z = COMPASS_MOT·throttle or
-       current) at --rate, GPS (3D fix at the site, GWk/GMS of the start time + t) at 1 Hz.
+       current) at --rate, GPS (3D fix at the site, GWk/GMS of the start time + t) at 1 Hz,
+       BAT (Volt 12.6 V, Curr = the simulated current, 20 A × throttle) at 10 Hz.
 Parameters are NEUTRAL (offsets 0, scales 1, INS_GYR_CAL=0 so no boot gyro offsets) unless --set.
 """
 from __future__ import annotations
@@ -21,6 +22,8 @@ from sitl.logwriter import DataflashWriter, TlogWriter
 from sitl.vehicle import SimVehicle, VERSION_TEXT
 
 START_UNIX = 1_780_000_000.0     # fixed start time (2026-05-28) so logs are byte-reproducible
+BAT_RATE_HZ = 10.0               # BAT records per second (.bin)
+BAT_VOLT = 12.6                  # constant battery voltage [V] (a full 3S pack)
 
 
 def make_vehicle(args) -> SimVehicle:
@@ -58,6 +61,7 @@ def write_bin(v: SimVehicle, out: Path, rate: float, seconds: float) -> None:
         w.msg(0, VERSION_TEXT[v.generation])
         ofs = [v.params[f"COMPASS_OFS_{a}"] for a in "XYZ"]
         site = v.truth.site
+        bat_due = [0]                       # index k of the next BAT record, due at k / 10 Hz
 
         def emit(t, m):
             if m.get_type() == "HEARTBEAT":     # 1 Hz: a GPS fix dates the log (no RTC)
@@ -67,6 +71,9 @@ def write_bin(v: SimVehicle, out: Path, rate: float, seconds: float) -> None:
                 w.imu(us, (m.xgyro, m.ygyro, m.zgyro), (m.xacc, m.yacc, m.zacc), m.temperature)
                 w.mag(us, (m.xmag * 1000, m.ymag * 1000, m.zmag * 1000), ofs,
                       v.motor_offset(t)[0])
+                if t >= bat_due[0] / BAT_RATE_HZ - 1e-9:   # with the first IMU sample due
+                    w.bat(us, BAT_VOLT, float(v.current_at(t)[0]))
+                    bat_due[0] = int(t * BAT_RATE_HZ + 1e-9) + 1
         _drain(v, seconds, emit)
 
 

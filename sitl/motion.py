@@ -97,9 +97,30 @@ class Motion:
     def throttle(self, t) -> np.ndarray:
         """Throttle (0..1) at times t (n,); beyond the last segment its end value holds."""
         t = np.atleast_1d(np.asarray(t, float))
-        out = np.zeros(len(t))
-        if not any(any(s.throttle) for s in self.segments):
-            return out                       # motors never run: exact zeros, no arithmetic
+        table = self._throttle_table()
+        if table is None:
+            return np.zeros(len(t))          # motors never run: exact zeros, no arithmetic
+        t0, duration, start, end = table
+        seg = np.clip(np.searchsorted(t0, t, side="right") - 1, 0, len(t0) - 1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = np.where(duration[seg] > 0,
+                         np.clip((t - t0[seg]) / duration[seg], 0.0, 1.0), 1.0)
+        return start[seg] + (end[seg] - start[seg]) * u
+
+    def _throttle_table(self):
+        """Segment starts, durations and throttle ends as arrays (cached per segment count;
+        the throttle is asked for at every logged sample), or None when no motor runs."""
+        cached = getattr(self, "_throttle_cache", None)
+        if cached is not None and cached[0] == len(self.segments):
+            return cached[1]
+        table = None
+        if any(any(s.throttle) for s in self.segments):
+            table = (np.array([s.t0 for s in self.segments]),
+                     np.array([s.duration for s in self.segments]),
+                     np.array([s.throttle[0] for s in self.segments], float),
+                     np.array([s.throttle[1] for s in self.segments], float))
+        self._throttle_cache = (len(self.segments), table)
+        return table                       # motors never run: exact zeros, no arithmetic
         starts = np.array([s.t0 for s in self.segments])
         seg = np.clip(np.searchsorted(starts, t, side="right") - 1, 0, len(self.segments) - 1)
         for k in np.unique(seg):

@@ -218,6 +218,75 @@ def drop_zero_sensors(df: pd.DataFrame, label: str, out: LogContents) -> pd.Data
     return df
 
 
+#: name of the optional battery current column [A] (see :mod:`apmcal.recording`)
+CURRENT_COLUMN = "current"
+
+
+def current_series(t_s, amps, what: str,
+                   out: LogContents) -> tuple[np.ndarray, np.ndarray] | None:
+    """Battery current records ready to be interpolated: (time [s], current [A]), or None.
+
+    Records with a non-finite time or current are left out. None, with a note in
+    ``out.messages``, when no record is non-zero (no current sensor fitted: ArduPilot then logs
+    zeros, as for an absent compass, see :func:`drop_zero_sensors`), when the time goes back (a
+    reboot restarts the clock: a time no longer says which boot a record is from) or when fewer
+    than two distinct times remain (no span to interpolate over). Of records sharing one time
+    the first is kept (``np.interp`` needs increasing times).
+
+    Parameters
+    ----------
+    t_s : record times [s] on the recordings' time axis, in file order.
+    amps : battery current of each record [A].
+    what : the records' name for the notes, e.g. "BAT Curr".
+    out : receives the notes.
+    """
+    t_s, amps = np.asarray(t_s, dtype=np.float64), np.asarray(amps, dtype=np.float64)
+    ok = np.isfinite(t_s) & np.isfinite(amps)
+    t_s, amps = t_s[ok], amps[ok]
+    if not amps.any():
+        out.messages.append(f"note: {what} is zero in every record (no current sensor?); "
+                            "no current column")
+        return None
+    if np.any(np.diff(t_s) < 0):
+        out.messages.append(f"note: {what}: the clock jumps back (a reboot?); no current column")
+        return None
+    keep = np.flatnonzero(np.diff(t_s, prepend=-np.inf) > 0)
+    if len(keep) < 2:
+        out.messages.append(f"note: {what} has fewer than two record times; no current column")
+        return None
+    return t_s[keep], amps[keep]
+
+
+def attach_current(out: LogContents, df: pd.DataFrame, t_cur: np.ndarray, amps: np.ndarray,
+                   label: str, what: str) -> bool:
+    """Add the battery current [A] at the sample times to ``df`` as column ``current``.
+
+    Linear interpolation between the records (``t_cur`` increasing, from :func:`current_series`),
+    NaN outside their span. Nothing is added, with a note, when the samples' clock jumps back
+    (a reboot) or no sample lies within the records' span. Returns True when the column was
+    added.
+    """
+    t = df["t"].to_numpy(dtype=np.float64)
+    if np.any(np.diff(t) < 0):
+        out.messages.append(f"note: {label}: the clock jumps back (a reboot?); no {what} "
+                            "current attached")
+        return False
+    # t is sorted: the samples within [t_cur[0], t_cur[-1]] are one run, found by bisection
+    if np.searchsorted(t, t_cur[-1], "right") <= np.searchsorted(t, t_cur[0], "left"):
+        out.messages.append(f"note: {label} and {what} share no time span; no current attached")
+        return False
+    df[CURRENT_COLUMN] = np.interp(t, t_cur, amps, left=np.nan, right=np.nan)
+    return True
+
+
+def note_current(out: LogContents, what: str) -> None:
+    """One note naming the source of the ``current`` column, when some recording has it."""
+    n = sum(CURRENT_COLUMN in r.data.columns for r in out.recordings)
+    if n:
+        out.messages.append(f"note: battery current [A] from {what}, interpolated to the sample "
+                            f"times of {n} recording(s) (column {CURRENT_COLUMN})")
+
+
 def _default_index(df: pd.DataFrame) -> bool:
     ix = df.index
     return isinstance(ix, pd.RangeIndex) and ix.start == 0 and ix.step == 1

@@ -14,6 +14,11 @@ acc-only / gyr-only recordings; MAG / MAG2 / MAG3 (or per ``I``) → separate re
 "MAG2"... holding only mag columns [mGauss]. Time: TimeUS [µs] or TimeMS [ms] → s.
 All are corrected and body frame (ardupilot-facts.md, "Dataflash logs").
 
+Battery current: the first battery's current (BAT, or CURR on Copter 3.x; see
+:func:`_battery_records`) is linearly interpolated to every recording's sample times as the
+optional column ``current`` [A] (NaN outside the records' span); no column, with a note, when it
+is zero in every record (no current sensor fitted) or the clock jumps back.
+
 PARM records give ``params`` (last value) and ``param_changes``: calibration parameters whose
 value changes after the first sensor record (normally all PARM records come at the start).
 """
@@ -29,8 +34,8 @@ from apmcal.errors import ApmcalError
 from apmcal.recording import ACC, GYR, MAG, LogContents
 from apmcal.sources import _framing
 from apmcal.sources._common import (
-    MAX_DAMAGE_OFFSETS, _params, add_recording, cstr, finish, load_bytes, param_changes,
-    parse_firmware,
+    MAX_DAMAGE_OFFSETS, _params, add_recording, attach_current, cstr, current_series, finish,
+    load_bytes, note_current, param_changes, parse_firmware,
 )
 from apmcal.sources.gps_time import GPS_TIME_COLUMNS, boot_to_unix_offset
 
@@ -45,7 +50,8 @@ DF_FORMATS = {
 }
 
 IMU_RE = re.compile(r"^(IMU|ACC|GYR|MAG)(\d?)$")
-META_NAMES = ("PARM", "MSG", "GPS")
+CURRENT_NAMES = ("BAT", "CURR")      # battery monitor messages, newer first (_battery_records)
+META_NAMES = ("PARM", "MSG", "GPS") + CURRENT_NAMES
 _CHUNK = 1 << 20
 _FMT_DTYPE = np.dtype([("Type", "u1"), ("Length", "u1"), ("Name", "S4"), ("Format", "S16"),
                        ("Columns", "S64")])
@@ -234,6 +240,71 @@ def _sensor_recordings(out: LogContents, msgs: dict[str, dict[str, np.ndarray]])
             add_recording(out, df, name, inst)
 
 
+# columns read from BAT/CURR: time, current, and the battery instance of newer BAT records
+# ("Instance" on 4.0/4.1 as in ardusub_small.BIN, "Inst" later)
+CURRENT_COLUMNS = {"TimeUS", "TimeMS", "Curr", "Instance", "Inst"}
+_INT_KINDS = "iu"
+
+
+def _current_amps(curr: np.ndarray) -> np.ndarray:
+    """A BAT/CURR ``Curr`` column in A.
+
+    Copter 3.x logs CURR.Curr as an int16 in centi-amps: ArduCopter/Log.pde (3.2) defines CURR
+    "IhIhhhf" and writes ``current_amps : (int16_t) (battery.current_amps() * 100.0f)``;
+    libraries/DataFlash/DataFlash.h (3.3) keeps ``int16_t current_amps`` in CURR "QhhhHfh". The
+    real logs in shared/data/ardupilot agree: copter311_nan.log "IhIhhhf",
+    pixhawk_3imu_log171.bin "IhhhHfh", pxf_copter_mag.BIN "QhhhHfh", in flight values such as
+    1464 (14.64 A) next to Volt 1549 (15.49 V, also ×100). Later, libraries/DataFlash/LogFile.cpp
+    writes CURR's ``current_amps : battery.current_amps(0)`` as a float in A, and BAT
+    (libraries/AP_BattMonitor/LogStructure.h, "QBfffffcfB", unit "A", no multiplier for Curr;
+    pixhawk1_copter368.bin "Qfffffcf", ardusub_small.BIN "QBfffffcfB") is a float in A too. So
+    an integer column (format h/H/i/I in a .bin, parsed with ``int`` from a text log) is
+    centi-amps (× 0.01), a float column (f, or c already scaled by its 0.01 multiplier) is A.
+    """
+    if curr.dtype.kind in _INT_KINDS:
+        return curr.astype(np.float64) * 0.01
+    return np.asarray(curr, dtype=np.float64)
+
+
+def _battery_records(msgs) -> tuple[np.ndarray, np.ndarray, str] | None:
+    """(time [s], current [A], source name) of the first battery's records, or None.
+
+    BAT (newer firmware) is preferred to CURR (Copter 3.x); BAT2 (a second battery on 3.6) is
+    not read. Instance-numbered BAT records (an ``Instance``/``Inst`` column) are those of every
+    battery: only the lowest instance, the first battery, is kept.
+    """
+    for name in CURRENT_NAMES:
+        cols = msgs.get(name, {})
+        t = _time_s(cols)
+        if t is None or "Curr" not in cols or len(t) == 0:
+            continue
+        curr = cols["Curr"]
+        inst = next((c for c in ("Instance", "Inst") if c in cols), None)
+        if inst is not None:
+            first = cols[inst] == np.min(cols[inst])
+            t, curr = t[first], curr[first]
+        return t, _current_amps(curr), f"{name}.Curr"
+    return None
+
+
+def _attach_battery_current(out: LogContents, msgs) -> None:
+    """Add the ``current`` column [A] to every recording (see the module docstring)."""
+    try:
+        records = _battery_records(msgs)
+    except (TypeError, ValueError):     # a text log whose FMT makes Curr or the time a string
+        out.messages.append("note: battery time or current is not numeric; no current column")
+        return
+    if records is None:
+        return
+    t, amps, what = records
+    series = current_series(t, amps, what, out)
+    if series is None:
+        return
+    for r in out.recordings:
+        attach_current(out, r.data, *series, f"{r.message}[{r.instance}]", what)
+    note_current(out, what)
+
+
 def find_param_changes(out: LogContents, msgs, first: dict[str, int], where,
                        time_before) -> None:
     """Set ``out.param_changes`` from the PARM records (see
@@ -271,6 +342,7 @@ def build_contents(out: LogContents, msgs: dict[str, dict[str, np.ndarray]]) -> 
             out.vehicle, out.firmware = fw
     found = [k for k, v in msgs.items() if any(len(a) for a in v.values())]
     _sensor_recordings(out, msgs)
+    _attach_battery_current(out, msgs)
     boot_unix = boot_to_unix_offset(msgs.get("GPS", {}))
     if boot_unix is not None and out.recordings:
         out.start_unix_s = boot_unix + min(float(r.data["t"].iloc[0]) for r in out.recordings)
@@ -283,14 +355,17 @@ SENSOR_COLUMNS = {"TimeUS", "TimeMS", "I", "AccX", "AccY", "AccZ", "GyrX", "GyrY
 
 def wanted_columns(name: str):
     """Columns the reader converts: the sensor columns of IMU-family messages, the time columns
-    of GPS, all of the others."""
+    of GPS, time, current and instance of BAT/CURR, all of the others."""
     if name == "GPS":
         return GPS_TIME_COLUMNS
+    if name in CURRENT_NAMES:
+        return CURRENT_COLUMNS
     return SENSOR_COLUMNS if IMU_RE.match(name) else None
 
 
 def wanted_name(name: str) -> bool:
-    """Messages the reader decodes: IMU/ACC/GYR/MAG families, PARM, MSG, GPS (for the date)."""
+    """Messages the reader decodes: IMU/ACC/GYR/MAG families, PARM, MSG, GPS (for the date),
+    BAT/CURR (battery current)."""
     return bool(IMU_RE.match(name)) or name in META_NAMES
 
 

@@ -5,8 +5,9 @@ Parsing follows pymavlink's DFReader_text: the delimiter is ", " unless the file
 lines; a line is used when its first field names a message defined by an earlier FMT line and it
 has at least as many fields as the format; values are converted with Python's ``int``/``float``
 exactly as DFReader_text does (no multipliers in text logs). Lines that cannot be converted are
-counted as damaged bytes. Recordings, parameters and parameter changes are then found as for
-.bin logs (:func:`apmcal.sources.dataflash.build_contents`, ``find_param_changes``).
+counted as damaged bytes. Recordings, parameters, parameter changes and the battery current
+column are then found as for .bin logs (:func:`apmcal.sources.dataflash.build_contents`,
+``find_param_changes``); an integer CURR.Curr parsed from text is centi-amps there too.
 """
 from __future__ import annotations
 

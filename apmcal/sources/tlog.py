@@ -8,9 +8,9 @@ built from pymavlink's own message definition (same field order and types as pym
 values are bit-identical to pymavlink's.
 
 Damage: the messages read here (IMU, PARAM_VALUE, STATUSTEXT, HEARTBEAT, AUTOPILOT_VERSION,
-SCALED_PRESSURE) must
-pass the MAVLink CRC. Other messages are only framed (known msgid, plausible length, next frame
-where expected; else their CRC decides), which saves the CRC on most of the file. Bytes in no
+SCALED_PRESSURE, SYS_STATUS) must pass the MAVLink CRC. Other messages are only framed (known
+msgid, plausible length, next frame where expected; else their CRC decides), which saves the CRC
+on most of the file. Bytes in no
 valid frame are skipped one at a time until framing resumes and are counted in
 ``LogContents.bytes_skipped``. Signed MAVLink 2 packets are framed (13-byte signature) but the
 signature is not verified (the key is unknown to a log reader).
@@ -24,6 +24,18 @@ Temperature: an integer IMU message without its own (RAW_IMU on APM 2.x firmware
 gets the barometer's SCALED_PRESSURE temperature [cdegC → °C], linearly interpolated to its sample
 times on the common boot clock (NaN outside the barometer's samples), with a note saying so: on
 an APM 2.8 the barometer sits on the same board and is its only temperature sensor.
+
+Battery current: the autopilot's SYS_STATUS.current_battery [cA → A; -1 = not measured, MAVLink
+common.xml SYS_STATUS] becomes the optional column ``current`` [A], linearly interpolated to the
+sample times (NaN outside the SYS_STATUS span). SYS_STATUS carries no vehicle time, so its
+frames' ground-station timestamps are mapped onto each recording's boot clock with the
+recording's own messages: the offset is the median of (tlog timestamp − boot time) over them
+(over every k-th of them when there are more than :data:`CLOCK_SAMPLES`, which keeps the cost
+small on big files).
+Nothing is attached, with a note, when that offset is unstable (its 5th..95th percentile spread
+exceeds :data:`MAX_CLOCK_SPREAD_S`: a ground station that buffers telemetry stamps it late by
+varying amounts), when a clock jumps back (a reboot), when the spans do not overlap, or when the
+current is -1 or 0 throughout (no current sensor).
 """
 from __future__ import annotations
 
@@ -38,13 +50,13 @@ from apmcal.errors import ApmcalError
 from apmcal.recording import LogContents
 from apmcal.sources import _framing
 from apmcal.sources._common import (
-    MAX_DAMAGE_OFFSETS, _params, add_recording, cstr, finish, load_bytes, param_changes,
-    parse_firmware, struct_dtype,
+    MAX_DAMAGE_OFFSETS, _params, add_recording, attach_current, cstr, current_series, finish,
+    load_bytes, note_current, param_changes, parse_firmware, struct_dtype,
 )
 
 IMU_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
 META_MESSAGES = ("PARAM_VALUE", "STATUSTEXT", "HEARTBEAT", "AUTOPILOT_VERSION",
-                 "SCALED_PRESSURE")
+                 "SCALED_PRESSURE", "SYS_STATUS")
 _SCALED_INSTANCE = {"SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}
 _CHUNK = 1 << 20          # index entries per scan call (bounds index memory)
 
@@ -56,6 +68,16 @@ _MAV_TYPE_VEHICLE = {1: "ArduPlane", 2: "ArduCopter", 3: "ArduCopter", 4: "ArduC
                      24: "ArduPlane", 25: "ArduPlane", 29: "ArduCopter", 5: "AntennaTracker"}
 MAV_AUTOPILOT_ARDUPILOTMEGA = 3
 MAV_AUTOPILOT_INVALID = 8          # ground stations, gimbals, companion computers
+
+# SYS_STATUS.current_battery: int16 [cA], -1 when "current not sent by autopilot" (MAVLink
+# common.xml, message SYS_STATUS, field current_battery, units="cA" invalid="-1")
+CURRENT_NOT_MEASURED = -1
+CA_TO_A = 0.01
+# largest 5th..95th percentile spread of (tlog timestamp − boot time) [s] accepted for mapping
+# SYS_STATUS onto the boot clock; a real USB session (ardusub_small.tlog) spreads 0.02 s
+MAX_CLOCK_SPREAD_S = 0.5
+CLOCK_PERCENTILES = (5.0, 50.0, 95.0)        # spread from the outer two, offset the median
+CLOCK_SAMPLES = 1 << 16      # at most this many evenly spaced messages estimate the offset
 
 
 @lru_cache(maxsize=1)
@@ -184,17 +206,24 @@ def _highres_frame(a: np.ndarray) -> pd.DataFrame:
     })
 
 
-def _imu_recordings(out: LogContents, dec: dict[str, np.ndarray]) -> None:
-    """One Recording per (message, instance) from the decoded IMU messages."""
+def _imu_recordings(out: LogContents, dec: dict[str, np.ndarray], buf: np.ndarray,
+                    offsets: dict[str, np.ndarray], current) -> None:
+    """One Recording per (message, instance) from the decoded IMU messages.
+
+    ``current``: (ground-station time [s since 1970], current [A]) of SYS_STATUS from
+    :func:`_sys_status_current`, or None; ``offsets`` (frame offsets of each IMU message) is
+    read only when it is not None.
+    """
     for name in IMU_MESSAGES:
         a = dec.get(name)
         if a is None or len(a) == 0:
             continue
         if name in _SCALED_INSTANCE:
-            groups = {_SCALED_INSTANCE[name]: a}
+            groups = {_SCALED_INSTANCE[name]: slice(None)}
         else:  # RAW_IMU / HIGHRES_IMU carry an instance "id" (extension, 0 when absent)
-            groups = {int(i): a[a["id"] == i] for i in np.unique(a["id"])}
-        for inst, g in groups.items():
+            groups = {int(i): a["id"] == i for i in np.unique(a["id"])}
+        for inst, sel in groups.items():
+            g = a[sel]
             if name == "HIGHRES_IMU":
                 df = _highres_frame(g)
             elif name == "RAW_IMU":
@@ -203,6 +232,11 @@ def _imu_recordings(out: LogContents, dec: dict[str, np.ndarray]) -> None:
                 df = _int_imu_frame(g, "time_boot_ms", 1e-3)
             if "temp" not in df.columns and name != "HIGHRES_IMU":
                 _attach_baro_temperature(out, df, dec.get("SCALED_PRESSURE"), f"{name}[{inst}]")
+            if current is not None:
+                pick = _clock_sample(len(df))
+                _attach_sys_status_current(out, df, pick,
+                                           _frame_unix_s(buf, offsets[name][sel][pick]),
+                                           current, f"{name}[{inst}]")
             add_recording(out, df, name, inst)
 
 
@@ -229,6 +263,95 @@ def _attach_baro_temperature(out: LogContents, df: pd.DataFrame, baro, label: st
                         "to the sample times")
 
 
+def _clock_sample(n: int) -> slice:
+    """Every k-th of ``n`` messages, k the smallest step leaving at most CLOCK_SAMPLES."""
+    return slice(None, None, max(-(-n // CLOCK_SAMPLES), 1))
+
+
+def _frame_unix_s(buf: np.ndarray, off: np.ndarray) -> np.ndarray:
+    """Ground-station time [s since 1970] of the frames starting at ``off``: their 8-byte
+    big-endian µs timestamp (pymavlink mavlogfile: ``tusec * 1.0e-6``, the same float).
+
+    Read through a view of the buffer as a big-endian uint64 starting at every byte (stride
+    1), so one vectorised gather fetches them all (twice as fast as copying 8-byte rows).
+    """
+    every_byte = np.ndarray(shape=(max(buf.shape[0] - 7, 0),), dtype=">u8", buffer=buf,
+                            strides=(1,))
+    return every_byte[off].astype(np.float64) * 1e-6
+
+
+def _sys_status_current(out: LogContents, buf: np.ndarray, dec: dict[str, np.ndarray],
+                        offsets: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray] | None:
+    """The autopilot's battery current: (ground-station time [s since 1970], current [A]).
+
+    From the SYS_STATUS of the autopilot (:func:`_autopilot_source`; all of them when the log
+    has no autopilot HEARTBEAT), without the records whose ``current_battery`` is -1 (not
+    measured), cA → A. None when there is no usable record: a note says why, except for a log
+    without SYS_STATUS (see :func:`apmcal.sources._common.current_series` for the other cases).
+    """
+    ss, off = dec["SYS_STATUS"], offsets["SYS_STATUS"]
+    source = _autopilot_source(buf, dec, offsets)
+    if source is not None and len(ss):
+        mine = _frame_sources(buf, off) == source
+        if not mine.all():
+            out.messages.append(f"note: {int(np.sum(~mine))} SYS_STATUS from components other "
+                                f"than the autopilot ({source >> 8}/{source & 255}) ignored")
+        ss, off = ss[mine], off[mine]
+    if len(ss) == 0:
+        return None
+    measured = ss["current_battery"] != CURRENT_NOT_MEASURED
+    if not measured.any():
+        out.messages.append("note: SYS_STATUS current_battery is -1 (not measured) in every "
+                            "record; no current column")
+        return None
+    amps = ss["current_battery"][measured].astype(np.float64) * CA_TO_A
+    return current_series(_frame_unix_s(buf, off[measured]), amps,
+                          "SYS_STATUS current_battery", out)
+
+
+def _boot_clock_offset(out: LogContents, t: np.ndarray, unix_s: np.ndarray,
+                       label: str) -> float | None:
+    """Ground-station time minus boot time [s] for one recording, or None with a note.
+
+    Parameters
+    ----------
+    t : sample times of the recording's messages on the vehicle's boot clock [s] (all of them,
+        or the :func:`_clock_sample` of them).
+    unix_s : the ground-station timestamps of the same messages [s since 1970].
+
+    The offset is the median of ``unix_s - t`` (telemetry latency only delays the stamps, so
+    the median is robust to late bursts). None when either clock jumps back (a reboot, or a
+    ground-station clock set back) or when the 5th..95th percentile spread of the differences
+    exceeds :data:`MAX_CLOCK_SPREAD_S` (buffered telemetry: a SYS_STATUS stamp no longer tells
+    its boot time).
+    """
+    if np.any(np.diff(t) < 0) or np.any(np.diff(unix_s) < 0):
+        out.messages.append(f"note: {label}: a clock jumps back (a reboot?); no SYS_STATUS "
+                            "current attached")
+        return None
+    d = unix_s - t
+    lo, median, hi = np.percentile(d, CLOCK_PERCENTILES)     # one partition for all three
+    if hi - lo > MAX_CLOCK_SPREAD_S:
+        out.messages.append(f"note: {label}: tlog time minus boot time varies by {hi - lo:.2f} s "
+                            f"(5th..95th percentile; more than {MAX_CLOCK_SPREAD_S} s: buffered "
+                            "telemetry?); no SYS_STATUS current attached")
+        return None
+    return float(median)
+
+
+def _attach_sys_status_current(out: LogContents, df: pd.DataFrame, pick: slice,
+                               unix_s: np.ndarray, current: tuple[np.ndarray, np.ndarray],
+                               label: str) -> None:
+    """Add the SYS_STATUS current [A] to ``df`` as ``current`` (see the module docstring).
+
+    ``unix_s``: ground-station timestamps [s since 1970] of the messages of ``df``'s rows
+    ``pick`` (:func:`_clock_sample`).
+    """
+    offset = _boot_clock_offset(out, df["t"].to_numpy()[pick], unix_s, label)
+    if offset is not None:
+        attach_current(out, df, current[0] - offset, current[1], label, "SYS_STATUS")
+
+
 def _frame_sources(buf: np.ndarray, off: np.ndarray) -> np.ndarray:
     """(system id << 8 | component id) of the frames starting at ``off`` (the timestamp)."""
     v1 = buf[off + 8] == _framing.MAV1_MAGIC
@@ -236,16 +359,25 @@ def _frame_sources(buf: np.ndarray, off: np.ndarray) -> np.ndarray:
     return (sysid << 8) | np.where(v1, buf[off + 12], buf[off + 14])
 
 
+def _autopilot_source(buf: np.ndarray, dec: dict[str, np.ndarray],
+                      offsets: dict[str, np.ndarray]) -> int | None:
+    """(system id << 8 | component id) of the first HEARTBEAT whose autopilot is not
+    MAV_AUTOPILOT_INVALID, or None when there is no such HEARTBEAT."""
+    autopilots = np.flatnonzero(dec["HEARTBEAT"]["autopilot"] != MAV_AUTOPILOT_INVALID)
+    if len(autopilots) == 0:
+        return None
+    return int(_frame_sources(buf, offsets["HEARTBEAT"][autopilots[:1]])[0])
+
+
 def _keep_autopilot_params(out: LogContents, buf: np.ndarray, dec: dict[str, np.ndarray],
                            offsets: dict[str, np.ndarray]) -> None:
-    """Keep only the autopilot's PARAM_VALUEs (those of the first HEARTBEAT whose autopilot is
-    not MAV_AUTOPILOT_INVALID); a gimbal's or companion computer's own parameter list is not
-    the vehicle's. Without such a HEARTBEAT every PARAM_VALUE is kept."""
-    hb, pv = dec["HEARTBEAT"], dec["PARAM_VALUE"]
-    autopilots = np.flatnonzero(hb["autopilot"] != MAV_AUTOPILOT_INVALID)
-    if len(autopilots) == 0 or len(pv) == 0:
+    """Keep only the autopilot's PARAM_VALUEs (:func:`_autopilot_source`); a gimbal's or
+    companion computer's own parameter list is not the vehicle's. Without an autopilot
+    HEARTBEAT every PARAM_VALUE is kept."""
+    pv = dec["PARAM_VALUE"]
+    source = _autopilot_source(buf, dec, offsets)
+    if source is None or len(pv) == 0:
         return
-    source = _frame_sources(buf, offsets["HEARTBEAT"][autopilots[:1]])[0]
     mine = _frame_sources(buf, offsets["PARAM_VALUE"]) == source
     if not mine.all():
         out.messages.append(f"note: {int(np.sum(~mine))} PARAM_VALUE from components other than "
@@ -350,7 +482,12 @@ def read_tlog(path, *, progress: bool = False) -> LogContents:
     _metadata(out, dec)
     _param_changes(out, dec, offsets)
     out.start_unix_s = _wall_clock_start(buf, offsets)
+    current = _sys_status_current(out, buf, dec, offsets)
+    imu_offsets = {n: offsets[n] for n in IMU_MESSAGES} if current is not None else {}
     del offsets
-    _imu_recordings(out, dec)
+    _imu_recordings(out, dec, buf, imu_offsets, current)
+    if current is not None:
+        note_current(out, "SYS_STATUS current_battery (its tlog timestamps mapped onto the "
+                          "boot clock)")
     found = [k for k, v in dec.items() if len(v)]
     return finish(out, found)
