@@ -16,6 +16,8 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from sitl.errors import SitlError
 from sitl.cli_common import add_truth_args, make_truth
 from sitl.logwriter import DataflashWriter, TlogWriter
@@ -63,26 +65,37 @@ def write_bin(v: SimVehicle, out: Path, rate: float, seconds: float) -> None:
         site = v.truth.site
         bat_due = [0]                       # index k of the next BAT record, due at k / 10 Hz
 
-        def emit(t, m):
-            if m.get_type() == "HEARTBEAT":     # 1 Hz: a GPS fix dates the log (no RTC)
-                w.gps(int(round(t * 1e6)), START_UNIX + t, site["lat"], site["lon"], site["alt"])
-            if m.get_type() == "HIGHRES_IMU":
+        def emit_chunk(messages):
+            # motor offsets and currents of a whole step at once: numpy per message would
+            # cost more than the simulation itself
+            imu_t = np.array([t for t, m in messages if m.get_type() == "HIGHRES_IMU"])
+            motor, current = v.motor_offset(imu_t), v.current_at(imu_t)
+            k = 0
+            for t, m in messages:
+                if m.get_type() == "HEARTBEAT":     # 1 Hz: a GPS fix dates the log (no RTC)
+                    w.gps(int(round(t * 1e6)), START_UNIX + t, site["lat"], site["lon"],
+                          site["alt"])
+                if m.get_type() != "HIGHRES_IMU":
+                    continue
                 us = int(round(t * 1e6))
                 w.imu(us, (m.xgyro, m.ygyro, m.zgyro), (m.xacc, m.yacc, m.zacc), m.temperature)
-                w.mag(us, (m.xmag * 1000, m.ymag * 1000, m.zmag * 1000), ofs,
-                      v.motor_offset(t)[0])
+                w.mag(us, (m.xmag * 1000, m.ymag * 1000, m.zmag * 1000), ofs, motor[k])
                 if t >= bat_due[0] / BAT_RATE_HZ - 1e-9:   # with the first IMU sample due
-                    w.bat(us, BAT_VOLT, float(v.current_at(t)[0]))
+                    w.bat(us, BAT_VOLT, float(current[k]))
                     bat_due[0] = int(t * BAT_RATE_HZ + 1e-9) + 1
-        _drain(v, seconds, emit)
+                k += 1
+        _drain_chunks(v, seconds, emit_chunk)
 
 
 def _drain(v: SimVehicle, seconds: float, emit) -> None:
+    _drain_chunks(v, seconds, lambda messages: [emit(t, m) for t, m in messages])
+
+
+def _drain_chunks(v: SimVehicle, seconds: float, emit_chunk) -> None:
     end = v.tick + int(round(seconds * v.fs))
     while v.tick < end:
         v.step(min(1.0, (end - v.tick) / v.fs))
-        for t, m in v.pop_messages():
-            emit(t, m)
+        emit_chunk(v.pop_messages())
 
 
 def main(argv=None) -> int:

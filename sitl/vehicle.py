@@ -249,10 +249,15 @@ class SimVehicle:
         while self._next_1hz < t1:
             self._queue_1hz(self._next_1hz)
             self._next_1hz += 1.0
+        end = self.tick + len(t)
         for name, interval in self.streams.items():
             due = self.next_due[name]
-            while due < t1:
-                j = min(max(int(np.floor(due * self.fs + 1e-6)) - self.tick, 0), len(t) - 1)
+            # a message reports the last sample at or before its time; it belongs to this step
+            # when that sample does (comparing times instead would, with a time summed up in
+            # floating point just short of the step's end, report this step's last sample twice
+            # and the next step's first never)
+            while (k := int(np.floor(due * self.fs + 1e-6))) < end:
+                j = max(k - self.tick, 0)
                 self.queue(due, self._build(name, due, s, j))
                 due += interval
             self.next_due[name] = due
