@@ -96,7 +96,40 @@ def build_parser() -> argparse.ArgumentParser:
     restore = sub.add_parser("restore", help="put back the values of a backup .param file")
     restore.add_argument("connection")
     restore.add_argument("backup_file")
+
+    add_gap_parser(sub)
     return parser
+
+
+def add_gap_parser(sub) -> None:
+    gap = sub.add_parser("gap", help="diagnose the gap between a real log and its simulated "
+                                     "twin: where it lies, which unmodelled effect causes it")
+    gap.add_argument("file", nargs="?", help=".tlog, .bin, .log or .csv file")
+    gap.add_argument("--lat", type=number_type(float, -90, 90, what="latitude [deg]"),
+                     default=None, help="latitude [deg]: local gravity, Earth rate, WMM field")
+    gap.add_argument("--lon", type=number_type(float, -180, 180, what="longitude [deg]"),
+                     default=None, help="longitude [deg] (needs --lat): WMM field and "
+                                        "declination for the compass")
+    gap.add_argument("--instance", type=int, default=None, help="IMU instance (default: first)")
+    gap.add_argument("--min-still", type=POSITIVE_SECONDS, default=2.0, metavar="S",
+                     help="shortest still period counted as a hold [s] (default 2)")
+    gap.add_argument("--firmware", choices=["3.2", "3.3+"], default=None,
+                     help="parameter generation (default: from the log)")
+    gap.add_argument("--effects", default=None, metavar="A,B,...",
+                     help="candidate effects to test (default: all; see apmcal.diagnosis."
+                          "effects)")
+    gap.add_argument("--seed", type=int, default=0, help="seed of the twin's noise (default 0)")
+    gap.add_argument("--json", default=None, help="write the result as JSON")
+    gap.add_argument("--report", default=None, metavar="DIR",
+                     help="write a Markdown report with PNG plots into DIR")
+    gap.add_argument("--write-twin", default=None, metavar="TWIN.json",
+                     help="write the selected effects as a simulator configuration "
+                          "(python -m sitl --twin TWIN.json)")
+    gap.add_argument("--benchmark", action="store_true",
+                     help="instead of a log: simulate sessions with one effect withheld from "
+                          "the twin and check the diagnosis finds it")
+    gap.add_argument("--quick", action="store_true", help="with --benchmark: a small run")
+    gap.add_argument("--quiet", action="store_true")
 
 
 def add_calibration_options(p: argparse.ArgumentParser) -> None:
@@ -127,7 +160,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--lon needs --lat (the magnetic field model needs both; --lat alone is "
                      "fine)")
     command = {"log": cmd_log, "live": cmd_live, "upload": cmd_upload,
-               "restore": cmd_restore}[args.command]
+               "restore": cmd_restore, "gap": cmd_gap}[args.command]
     try:
         with warnings.catch_warnings():
             if not args.debug:
@@ -375,6 +408,12 @@ def cmd_restore(args) -> int:
     console.print(f"restored {len(result.written)} parameters from {args.backup_file}")
     print_skipped(result, console)
     return 0
+
+
+def cmd_gap(args) -> int:
+    from apmcal.diagnosis.cli import run_gap
+
+    return run_gap(args, console_for(args))
 
 
 if __name__ == "__main__":

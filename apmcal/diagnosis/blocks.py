@@ -1,0 +1,99 @@
+"""Block means of the hold pieces: the reduced data the slow (deterministic) effects are fitted on.
+
+Temperature, bias drift, g-sensitivity and the like change over seconds to minutes, so fitting
+them to means of half-second blocks loses nothing while cutting the data a hundredfold; the
+fast effects (noise shape, low-pass, tremor) are fitted on the wavelet statistics instead.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+BLOCK_S = 0.5       # block length [s]
+
+
+@dataclass
+class Blocks:
+    """Means over blocks of consecutive samples inside pieces (arrays of length b, or (b, 3)).
+
+    ``group`` numbers the (hold, fold) pairs: blocks of one group share one orientation, the
+    nuisance the geometric fits estimate for each of them.
+    """
+
+    values: np.ndarray      # (b, 3) sensor units
+    t: np.ndarray           # (b,) mean time [s]
+    count: np.ndarray       # (b,) samples per block
+    piece: np.ndarray       # (b,) piece id
+    group: np.ndarray       # (b,) (hold, fold) group number, 0..n_groups-1
+    temp: np.ndarray | None = None       # (b,) [°C]
+    current: np.ndarray | None = None    # (b,) [A]
+    groups_total: int | None = None      # number of groups when some have no block here
+
+    @property
+    def n_groups(self) -> int:
+        if self.groups_total is not None:
+            return self.groups_total
+        return int(self.group.max()) + 1 if len(self.group) else 0
+
+    def select(self, pieces: np.ndarray) -> "Blocks":
+        """The blocks of the given pieces, groups renumbered."""
+        keep = np.isin(self.piece, pieces)
+        _, group = np.unique(self.group[keep], return_inverse=True)
+        pick = lambda a: None if a is None else a[keep]  # noqa: E731
+        return Blocks(self.values[keep], self.t[keep], self.count[keep], self.piece[keep],
+                      group, pick(self.temp), pick(self.current))
+
+    def group_means(self, values: np.ndarray) -> np.ndarray:
+        """Count-weighted mean of (b, 3) ``values`` over each group → (n_groups, 3)."""
+        w = self.count.astype(float)
+        sums = np.column_stack([np.bincount(self.group, values[:, c] * w, minlength=self.n_groups)
+                                for c in range(values.shape[1])])
+        weights = np.bincount(self.group, w, minlength=self.n_groups)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return sums / weights[:, None]          # NaN for a group without blocks here
+
+
+def block_starts(i0: np.ndarray, i1: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """Start indices of blocks of ``size`` samples inside each piece, and each block's piece."""
+    counts = np.maximum((i1 - i0 + size - 1) // size, 0)
+    piece = np.repeat(np.arange(len(i0)), counts)
+    k = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
+    return i0[piece] + k * size, piece
+
+
+def block_means(x: np.ndarray, i0: np.ndarray, i1: np.ndarray, size: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Means of ``x`` (n,) or (n, c) over blocks of ``size`` samples within pieces ``[i0, i1)``
+    (the last block of a piece may be shorter). Returns (means, counts, piece of each block)."""
+    starts, piece = block_starts(i0, i1, size)
+    ends = np.minimum(starts + size, i1[piece])
+    # reduceat sums between consecutive boundaries: add the ends so gaps between pieces are
+    # their own (discarded) intervals
+    bounds = np.unique(np.concatenate((starts, ends)))
+    bounds = bounds[bounds < len(x)]
+    sums = np.add.reduceat(np.asarray(x, dtype=float), bounds, axis=0)
+    sums = sums[np.searchsorted(bounds, starts)]
+    counts = ends - starts
+    shape = (-1,) + (1,) * (sums.ndim - 1)
+    return sums / counts.reshape(shape), counts, piece
+
+
+def make_blocks(t, values, i0, i1, piece_ids, group_of_piece, fs: float,
+                temp=None, current=None, block_s: float = BLOCK_S,
+                groups_total: int | None = None) -> Blocks:
+    """Blocks of the given pieces of one sample axis.
+
+    ``piece_ids`` are the session-wide ids of the pieces ``[i0, i1)``; ``group_of_piece`` maps a
+    session-wide piece id to its (hold, fold) group number.
+    """
+    i0, i1 = np.asarray(i0, int), np.asarray(i1, int)
+    ok = i1 > i0
+    i0, i1, piece_ids = i0[ok], i1[ok], np.asarray(piece_ids)[ok]
+    size = max(1, int(round(block_s * fs)))
+    means, counts, local = block_means(values, i0, i1, size)
+    t_mean, _, _ = block_means(t, i0, i1, size)
+    opt = lambda a: None if a is None else block_means(a, i0, i1, size)[0]  # noqa: E731
+    pieces = piece_ids[local]
+    return Blocks(means, t_mean, counts, pieces, np.asarray(group_of_piece)[pieces],
+                  opt(temp), opt(current), groups_total)

@@ -1,0 +1,102 @@
+"""Where the gap lies: the same total split by sensor, axis, segment, frequency band, time,
+temperature and scale. Every split adds up to the total, because each coefficient's share of
+the gap (:class:`apmcal.diagnosis.gap.CellShare`) is counted in exactly one part of each.
+"""
+from __future__ import annotations
+
+from collections import defaultdict
+
+import numpy as np
+
+from apmcal.diagnosis.gap import LEVEL_MEANS
+
+TIME_BINS = 8
+TEMP_BINS = 6
+
+
+def _rate(cell) -> float:
+    """Sample rate [Hz] of the cell's block."""
+    dt = np.diff(cell.block.t)
+    dt = dt[dt > 0]
+    return float(1.0 / np.median(dt)) if len(dt) else float("nan")
+
+
+def band_label(cell) -> str:
+    """A cell's frequency band: level j covers fs/2^(j+1) .. fs/2^j Hz."""
+    if cell.level == LEVEL_MEANS:
+        return "slower than a piece (piece means)"
+    fs = _rate(cell)
+    lo_level, hi_level = min(cell.levels), max(cell.levels)
+    hi = fs / 2 ** lo_level
+    lo = fs / 2 ** (hi_level + 1)
+    return f"{lo:.3g}-{hi:.3g} Hz"
+
+
+def _band_key(cell) -> tuple:
+    """Sort bands fast to slow (piece means last)."""
+    if cell.level == LEVEL_MEANS:
+        return (1, 0.0)
+    return (0, -_rate(cell) / 2 ** min(cell.levels))
+
+
+def _edges(lo: float, hi: float, bins: int) -> np.ndarray:
+    return np.linspace(lo, hi if hi > lo else lo + 1e-9, bins + 1)
+
+
+def _binned(values: np.ndarray, nats: np.ndarray, edges: np.ndarray, fmt: str) -> dict:
+    idx = np.clip(np.searchsorted(edges, values, side="right") - 1, 0, len(edges) - 2)
+    sums = np.bincount(idx, nats, minlength=len(edges) - 1)
+    return {fmt.format(edges[i], edges[i + 1]): float(sums[i]) for i in range(len(edges) - 1)}
+
+
+def breakdown(cells: list, n_samples: int, session) -> dict:
+    """The gap of ``cells`` [nats per sample over ``n_samples``] split every way."""
+    scale = 1.0 / n_samples if n_samples else 0.0
+    parts: dict = {k: defaultdict(float) for k in ("sensor", "axis", "segment", "band",
+                                                   "scale", "kind")}
+    band_order: dict = {}
+    seg_nats = np.zeros(len(session.segments))
+    for c in cells:
+        total = c.total * scale
+        parts["sensor"][c.channel.split("_")[0]] += total
+        parts["axis"][c.channel] += total
+        label = band_label(c)
+        parts["band"][label] += total
+        band_order[label] = _band_key(c)
+        within = "across pieces (slower than a piece)" if c.level == LEVEL_MEANS \
+            else "within pieces"
+        parts["scale"][within] += total
+        parts["kind"]["holds" if c.block.shape else "moves"] += total
+        np.add.at(seg_nats, session.pieces.segment[c.piece], c.nats * scale)
+    out = {k: dict(v) for k, v in parts.items()}
+    out["band"] = {k: out["band"][k] for k in sorted(out["band"], key=band_order.get)}
+    out["segment"] = {s.label: float(v) for s, v in zip(session.segments, seg_nats) if v != 0}
+    out["time"] = _time_parts(cells, session, scale)
+    if session.temp is not None:
+        out["temperature"] = _temp_parts(cells, session, scale)
+    return out
+
+
+def _time_parts(cells, session, scale) -> dict:
+    t0, t1 = float(session.t[0]), float(session.t[-1])
+    edges = _edges(t0, t1, TIME_BINS)
+    out: dict = defaultdict(float)
+    for c in cells:
+        for k, v in _binned(c.time, c.nats * scale, edges, "{:.0f}-{:.0f} s").items():
+            out[k] += v
+    return dict(out)
+
+
+def _temp_parts(cells, session, scale) -> dict:
+    edges = _edges(float(np.nanmin(session.temp)), float(np.nanmax(session.temp)), TEMP_BINS)
+    out: dict = defaultdict(float)
+    for c in cells:
+        temp = c.temp
+        ok = np.isfinite(temp)
+        if not ok.any():       # a compass block without temperature: by the IMU's
+            temp = np.interp(c.time, session.t, session.temp)
+            ok = np.ones(len(temp), bool)
+        for k, v in _binned(temp[ok], c.nats[ok] * scale, edges,
+                            "{:.1f}-{:.1f} °C").items():
+            out[k] += v
+    return dict(out)

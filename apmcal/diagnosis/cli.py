@@ -1,0 +1,84 @@
+"""The ``apmcal gap`` command: arguments in, summary and files out (see ``apmcal gap --help``)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from apmcal.errors import ApmcalError
+
+
+def parse_effects(text: str | None) -> list[str] | None:
+    """The --effects list, checked against the candidate names."""
+    if text is None:
+        return None
+    from apmcal.diagnosis.effects import NAMES
+
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    unknown = [n for n in names if n not in NAMES]
+    if unknown or not names:
+        raise ApmcalError(f"--effects: unknown {', '.join(unknown) or 'empty list'}; "
+                          f"choose from {', '.join(NAMES)}")
+    return names
+
+
+def check_outputs(args) -> None:
+    """Every output path checked before the (long) work starts."""
+    from apmcal.cli import check_writable
+
+    check_writable(args.json, "JSON file")
+    check_writable(args.write_twin, "twin file")
+    if args.report is not None:
+        report = Path(args.report)
+        if report.exists() and not report.is_dir():
+            raise ApmcalError("cannot write the report: not a directory", str(report))
+        if not report.exists() and not report.parent.is_dir():
+            raise ApmcalError(f"cannot write the report: {report.parent} does not exist",
+                              str(report))
+
+
+def run_gap(args, console) -> int:
+    """Run the diagnosis (or its benchmark) and write what was asked for."""
+    if args.lon is not None and args.lat is None:
+        raise ApmcalError("--lon needs --lat")
+    if args.benchmark:
+        from apmcal.diagnosis.benchmark import run_benchmark
+
+        check_outputs(args)
+        return run_benchmark(args, console)
+    if args.file is None:
+        raise ApmcalError("give a log file (or --benchmark)")
+    names = parse_effects(args.effects)
+    check_outputs(args)
+    diagnosis = diagnose_file(args, names, console)
+    from apmcal.diagnosis.summary import print_summary
+
+    print_summary(diagnosis.result, console)
+    if args.json:
+        diagnosis.result.save(args.json)
+        console.print(f"wrote {args.json}")
+    if args.report:
+        from apmcal.diagnosis.report import write_report
+
+        path = write_report(diagnosis, args.report)
+        console.print(f"wrote {path}")
+    if args.write_twin:
+        from apmcal.diagnosis.twin_file import write_twin
+
+        write_twin(diagnosis, args.write_twin)
+        console.print(f"wrote {args.write_twin} (python -m sitl --twin {args.write_twin})")
+    return 0
+
+
+def diagnose_file(args, names, console):
+    """Read, cut and diagnose the log, with a progress line per stage."""
+    from apmcal.diagnosis.run import diagnose
+    from apmcal.diagnosis.session import session_from_log
+    from apmcal.pipeline import Options
+    from apmcal.sources import read_log
+
+    contents = read_log(args.file)
+    opts = Options(lat_deg=args.lat, lon_deg=args.lon, min_still_s=args.min_still,
+                   instance=args.instance, generation=args.firmware)
+    session = session_from_log(contents, opts)
+    with console.status("diagnosing") as status:
+        return diagnose(session, names, seed=args.seed,
+                        progress=lambda msg: status.update(f"diagnosing: {msg}"))

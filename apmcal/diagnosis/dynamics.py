@@ -1,0 +1,231 @@
+"""The moves between holds: the accelerometer and compass predicted from the gyro.
+
+During a move the gyro is the only sensor that measures the turn, so the model predicts the
+other two from it (the consistency seed 001 builds its joint calibration on): starting from the
+hold before, the calibrated rate ω = F_g⁻¹(measured − bias) is integrated into the attitude
+change R(t), and the hold's own specific force f_k and field b_k are carried along::
+
+    acc(t) = F_a·R(t − τ)ᵀ f_k + offset + …        mag(t) = S·R(t)ᵀ b_k + offset + …
+
+F_g is sitl's gyro forward matrix (diag(scale)·T_g⁻¹, seed 002 §2.2: ``gyro_scale``), τ the
+accelerometer's delay behind the gyro (``time_offset``). Their residuals are scored like the
+holds', and the ``gyro_scale``, ``time_offset`` and ``cross_axis`` parameters are fitted to them.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from apmcal.diagnosis.gap import ResidualBlock
+from apmcal.diagnosis.trajectory import prefix_products
+
+AXES = ("x", "y", "z")
+FIT_RATE_HZ = 50.0      # the dynamic fits integrate the moves in steps of about 1/50 s
+
+
+def gyro_forward(scale, gamma) -> np.ndarray:
+    """sitl's F_g = diag(scale)·T_g⁻¹ with seed 002's six misalignment angles γ (yz, zy, zx,
+    xz, xy, yx) [rad] (:meth:`sitl.truth.Truth.gyro_forward`)."""
+    g_yz, g_zy, g_zx, g_xz, g_xy, g_yx = gamma
+    t_g = np.array([[1, -g_yz, g_zy], [g_xz, 1, -g_zx], [-g_xy, g_yx, 1.0]])
+    return np.diag(scale) @ np.linalg.inv(t_g)
+
+
+@dataclass
+class Dynamics:
+    """The parameters the moves determine: gyro scale and misalignment, accelerometer delay
+    [s], and (refined here, the holds alone hardly see it) the accelerometer's
+    non-orthogonality α [rad]."""
+
+    gyro_scale: np.ndarray = field(default_factory=lambda: np.ones(3))
+    gyro_gamma: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    time_offset_s: float = 0.0
+    acc_alpha: np.ndarray | None = None
+    sigma: dict = field(default_factory=dict)
+
+    @property
+    def forward(self) -> np.ndarray:
+        return gyro_forward(self.gyro_scale, self.gyro_gamma)
+
+
+# prior one-sigma of the move parameters (MAP fit; wide against real sensors: MPU-6000 gyro
+# sensitivity ±3 %, cross-axis ±2 %; a delay of a few samples at most)
+PRIOR_SIGMA = {"gyro_scale": 0.05, "gyro_gamma": 0.05, "time_offset": 0.005, "alpha": 0.05}
+
+
+def acc_with_alpha(geo, alpha):
+    """The accelerometer geometry with its non-orthogonality replaced by ``alpha``."""
+    from dataclasses import replace
+
+    from apmcal.diagnosis.static_fit import non_orthogonality
+
+    scale = np.exp(np.asarray(geo.params["log_scale"]))
+    forward = np.diag(scale) @ np.linalg.inv(non_orthogonality(alpha))
+    return replace(geo, forward=forward, params=dict(geo.params, alpha=list(alpha)))
+
+
+@dataclass
+class Moves:
+    """The move pieces to evaluate: session sample ranges, the hold before each, piece ids."""
+
+    i0: np.ndarray
+    i1: np.ndarray
+    hold: np.ndarray
+    piece: np.ndarray
+
+    @classmethod
+    def of(cls, session, pieces: np.ndarray | None = None) -> "Moves":
+        ids = session.pieces.select(hold=False)
+        if pieces is not None:
+            ids = ids[np.isin(ids, pieces)]
+        holds = np.array([session.segments[session.pieces.segment[p]].before for p in ids],
+                         dtype=int)
+        return cls(session.pieces.i0[ids], session.pieces.i1[ids], holds, ids)
+
+    def __len__(self) -> int:
+        return len(self.i0)
+
+
+def relative_attitudes(rate: np.ndarray, t: np.ndarray, moves: Moves, step: int = 1
+                       ) -> np.ndarray:
+    """R(t) relative to the hold before (n_samples, 3, 3) at every ``step``-th move sample: the
+    integral of ``rate`` [rad/s] from the last hold sample on. Each sample interval turns by the
+    mean of its two end rates (trapezoid: the rectangle rule's O(Δt) error would be a gap of the
+    real data only); ``step`` > 1 joins ``step`` intervals into one rotation (their summed
+    rotation vectors, second-order error), for the fits' cheaper passes."""
+    out = []
+    for a, b in zip(moves.i0, moves.i1):
+        dt = t[a:b] - t[a - 1:b - 1]
+        turn = 0.5 * (rate[a - 1:b - 1] + rate[a:b]) * dt[:, None]
+        if step > 1:
+            ends = np.arange(step - 1, b - a, step)
+            turn = np.diff(np.vstack([np.zeros(3), np.cumsum(turn, axis=0)[ends]]), axis=0)
+        q = Rotation.from_rotvec(turn).as_quat()
+        out.append(Rotation.from_quat(prefix_products(q)).as_matrix())
+    return np.concatenate(out) if out else np.zeros((0, 3, 3))
+
+
+def move_index(moves: Moves, step: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Session sample index of every ``step``-th move sample (the ones relative_attitudes
+    returns), and the hold before it."""
+    idx, hold = [], []
+    for a, b, k in zip(moves.i0, moves.i1, moves.hold):
+        i = np.arange(a, b) if step == 1 else np.arange(a + step - 1, b, step)
+        idx.append(i)
+        hold.append(np.full(len(i), k))
+    if not idx:
+        return np.zeros(0, int), np.zeros(0, int)
+    return np.concatenate(idx), np.concatenate(hold)
+
+
+def predicted(session, fit, dyn: Dynamics, moves: Moves, rate_cal: np.ndarray,
+              hold_f: np.ndarray, hold_b: np.ndarray | None, step: int = 1) -> tuple:
+    """Predicted acc (and mag at the IMU times) of every ``step``-th move sample.
+
+    ``rate_cal`` is the gyro minus its fitted bias terms at every session sample; ``hold_f`` /
+    ``hold_b`` the calibrated specific force and field of each hold.
+    """
+    rate = rate_cal @ np.linalg.inv(dyn.forward).T
+    rel = relative_attitudes(rate, session.t, moves, step)
+    idx, hold = move_index(moves, step)
+    f = np.einsum("nji,nj->ni", rel, hold_f[hold])
+    if dyn.time_offset_s:          # the accelerometer samples the past: f(t − τ) = Exp(ωτ)·f(t)
+        f = Rotation.from_rotvec(rate[idx] * dyn.time_offset_s).apply(f)
+    temp = session.temp[idx] if session.temp is not None else None
+    geo = fit.acc if dyn.acc_alpha is None else acc_with_alpha(fit.acc, dyn.acc_alpha)
+    acc = geo.predict(f / _radius(geo), fit.acc_columns(session.t[idx], temp))
+    mag = None
+    if hold_b is not None and fit.mag is not None:
+        b = np.einsum("nji,nj->ni", rel, hold_b[hold])
+        cur = session.current[idx] if session.current is not None else None
+        mag = fit.mag.predict(b / _radius(fit.mag), fit.mag_columns(session.t[idx], cur))
+    return idx, acc, mag
+
+
+def _radius(geo) -> float:
+    return geo.radius if geo.geometry else 1.0
+
+
+def move_residuals(session, fit, dyn: Dynamics, rate_cal, hold_f, hold_b) -> list:
+    """Residual blocks of every move piece: accelerometer, and compass when it shares the
+    IMU's sample times (a separate, slower compass is left out of the moves)."""
+    moves = Moves.of(session)
+    if not len(moves):
+        return []
+    idx, acc, mag = predicted(session, fit, dyn, moves, rate_cal, hold_f, hold_b)
+    ends = np.cumsum(moves.i1 - moves.i0)
+    starts = ends - (moves.i1 - moves.i0)
+    t = session.t[idx]
+    temp = session.temp[idx] if session.temp is not None else None
+    blocks = [ResidualBlock([f"acc_{a}" for a in AXES], session.acc[idx] - acc, starts, ends,
+                            moves.piece, t, temp, shape=False)]
+    if mag is not None and session.mag is not None and session.mag.t is session.t:
+        blocks.append(ResidualBlock([f"mag_{a}" for a in AXES], session.mag.values[idx] - mag,
+                                    starts, ends, moves.piece, t, None, shape=False))
+    return blocks
+
+
+def _layout(effects, fit) -> dict:
+    """Parameter blocks of the move fit: name -> (size, prior σ)."""
+    out = {}
+    if "gyro_scale" in effects:
+        out["gyro_scale"] = (3, PRIOR_SIGMA["gyro_scale"])
+        out["gyro_gamma"] = (6, PRIOR_SIGMA["gyro_gamma"])
+    if "time_offset" in effects:
+        out["time_offset"] = (1, PRIOR_SIGMA["time_offset"])
+    if "cross_axis" in effects and fit.acc.geometry:   # holds kept orthogonal axes (model.py)
+        out["alpha"] = (3, PRIOR_SIGMA["alpha"])
+    return out
+
+
+def _unpack(p: np.ndarray, layout: dict, start_alpha) -> Dynamics:
+    d, k = Dynamics(), 0
+    values = {}
+    for name, (size, _) in layout.items():
+        values[name] = p[k:k + size]
+        k += size
+    if "gyro_scale" in values:
+        d.gyro_scale, d.gyro_gamma = 1.0 + values["gyro_scale"], values["gyro_gamma"]
+    if "time_offset" in values:
+        d.time_offset_s = float(values["time_offset"][0])
+    if "alpha" in values:
+        d.acc_alpha = start_alpha + values["alpha"]
+    return d
+
+
+def fit_dynamics(session, fit, effects, train: np.ndarray, rate_cal, hold_f, hold_b,
+                 sigma: dict) -> Dynamics:
+    """The move parameters fitted to the training moves (MAP with the priors above);
+    ``sigma`` gives each sensor's per-sample noise (the residuals are weighted by its inverse)."""
+    layout = _layout(effects, fit)
+    moves = Moves.of(session, train)
+    if not layout or not len(moves):
+        return Dynamics()
+    step = max(1, int(round(session.fs / FIT_RATE_HZ)))
+    idx, _ = move_index(moves, step)
+    with_mag = hold_b is not None and fit.mag is not None and session.mag is not None \
+        and session.mag.t is session.t and "mag" in sigma
+    weight = {k: 1.0 / max(float(v), 1e-12) for k, v in sigma.items()}
+    prior = np.concatenate([np.full(size, 1.0 / s) for size, s in layout.values()])
+    start_alpha = np.asarray(fit.acc.params.get("alpha", np.zeros(3)), float)
+
+    def residuals(p):
+        d = _unpack(p, layout, start_alpha)
+        _, acc, mag = predicted(session, fit, d, moves, rate_cal, hold_f, hold_b, step)
+        r = [((session.acc[idx] - acc) * weight["acc"]).ravel()]
+        if with_mag:
+            r.append(((session.mag.values[idx] - mag) * weight["mag"]).ravel())
+        r.append(p * prior)
+        return np.concatenate(r)
+
+    n = len(prior)
+    sol = least_squares(residuals, np.zeros(n), method="lm", x_scale=1e-3)
+    out = _unpack(sol.x, layout, start_alpha)
+    from apmcal.solvers.uncertainty import covariance_from_jacobian
+    cov, _ = covariance_from_jacobian(sol.jac, sol.fun, n)
+    out.sigma = {"params": np.sqrt(np.clip(np.diag(cov), 0, None)).tolist(),
+                 "names": [name for name, (size, _) in layout.items() for _ in range(size)]}
+    return out

@@ -1,0 +1,226 @@
+"""Scoring one model: fitted on a fold of the real session and of its twin, compared in-sample
+(the fitting fold) and held-out (the other fold), both ways round.
+
+Real and twin go through exactly the same fit, so what a fit absorbs (nuisance orientations,
+parameters fitted to noise) it absorbs in both, and a correct model scores a gap of zero on
+average in-sample as well as held-out.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from apmcal.diagnosis.gap import GapEstimate, coefficients, compare
+from apmcal.diagnosis.hold_motion import wiener_motion
+from apmcal.diagnosis.dynamics import fit_dynamics, move_residuals
+from apmcal.diagnosis.model import (ModelFit, calibrated_rate, fit_model, hold_residuals,
+                                    hold_vectors, reduce_session, set_acc_alpha)
+from apmcal.diagnosis.noise_fit import NoiseModel, fit_noise, lattice_step
+from apmcal.diagnosis.static_fit import count_orientations
+from apmcal.diagnosis.twin import motion_of, simulate
+
+FOLDS = (0, 1)
+ALPHA_ROUNDS = 2        # hold/move alternations of the accelerometer non-orthogonality
+
+
+@dataclass
+class FoldResult:
+    """One direction of the cross-validation: fitted on ``fold``, held out on the other."""
+
+    fold: int
+    fit: ModelFit
+    noise: NoiseModel
+    real: list          # BlockCoefficients of the real residuals (all pieces)
+    twin: list          # ... of the twin's
+    gap_in: GapEstimate
+    gap_out: GapEstimate
+
+
+@dataclass
+class Evaluation:
+    """A model's gaps, in-sample and held-out, over both folds."""
+
+    effects: frozenset
+    folds: list
+
+    @staticmethod
+    def _pooled(parts: list[GapEstimate]) -> float:
+        n = sum(p.n_samples for p in parts)
+        return sum(p.nats for p in parts) / n if n else 0.0
+
+    @property
+    def gap_in(self) -> float:
+        """In-sample gap [nats per sample]."""
+        return self._pooled([f.gap_in for f in self.folds])
+
+    @property
+    def gap_out(self) -> float:
+        """Held-out gap [nats per sample]."""
+        return self._pooled([f.gap_out for f in self.folds])
+
+    @property
+    def nats_out(self) -> float:
+        """Held-out gap in total [nats], both folds."""
+        return float(sum(f.gap_out.nats for f in self.folds))
+
+    def held_out_cells(self) -> list:
+        """Every held-out cell of both folds (CellShare)."""
+        return [c for f in self.folds for c in f.gap_out.cells]
+
+    def piece_nats(self, n_pieces: int, held_out: bool = True) -> np.ndarray:
+        """Gap [nats] attributed to each piece (held-out, or in-sample)."""
+        out = np.zeros(n_pieces)
+        for f in self.folds:
+            for c in (f.gap_out if held_out else f.gap_in).cells:
+                np.add.at(out, c.piece, c.nats)
+        return out
+
+
+@dataclass
+class Context:
+    """What the session offers the candidate effects (see :func:`effects.unmet`)."""
+
+    orientations: int       # distinct still orientations
+    steps: dict             # quantization step per axis of each sensor (None: no lattice)
+
+
+class Evaluator:
+    """Fits and scores models of one session; evaluations are cached by effect set."""
+
+    def __init__(self, session, seed: int = 0):
+        self.session = session
+        self.seed = seed
+        self.reduced = reduce_session(session)
+        self.field_mgauss, self.declination_rad = _earth_field(session)
+        self.steps = _lattice_steps(session)
+        self.context = Context(count_orientations(self.reduced.acc, "acc"), self.steps)
+        self.sample_sigma = _sample_sigma(session)
+        self.fs_of = {"acc": session.fs, "gyr": session.fs}
+        if session.mag is not None:
+            self.fs_of["mag"] = float(1.0 / np.median(np.diff(session.mag.t)))
+        self._cache: dict[frozenset, Evaluation] = {}
+        self._motion: dict = {}     # per fold: the real motion (poses, moves, hold motion)
+
+    def steps_for(self, effects) -> dict:
+        """Quantization steps the model reproduces: the log format's always, the sensors'
+        own (a lattice in floating-point samples) with the quantization effect."""
+        return {s: step for s, step in self.steps.items()
+                if s in self.session.integer_sensors or "quantization" in effects}
+
+    def fit(self, session, reduced, effects, train_fold, start=None):
+        """Model and noise fitted on ``train_fold`` (None: every piece), and the Haar
+        coefficients of all residuals."""
+        fit = fit_model(session, reduced, effects, train_fold, field_mgauss=self.field_mgauss,
+                        declination_rad=self.declination_rad, start=start,
+                        with_sigma=train_fold is None)
+        train = session.pieces.select(fold=train_fold)
+        rate = calibrated_rate(session, fit)
+        f_hold, b_hold = hold_vectors(fit, len(session.holds))
+        fit.dynamics = fit_dynamics(session, fit, effects, train, rate, f_hold, b_hold,
+                                    self.sample_sigma)
+        for _ in range(ALPHA_ROUNDS):
+            if fit.dynamics.acc_alpha is None:
+                break
+            # the moves' non-orthogonality and the holds' scales depend on each other:
+            # alternate (each round refits the holds with it, then the moves from there)
+            set_acc_alpha(fit, reduced, train, fit.dynamics.acc_alpha)
+            f_hold, b_hold = hold_vectors(fit, len(session.holds))
+            fit.dynamics = fit_dynamics(session, fit, effects, train, rate, f_hold, b_hold,
+                                        self.sample_sigma)
+        if fit.dynamics.acc_alpha is not None:
+            set_acc_alpha(fit, reduced, train, fit.dynamics.acc_alpha)
+            fit.dynamics.acc_alpha = None           # now part of the accelerometer itself
+            f_hold, b_hold = hold_vectors(fit, len(session.holds))
+        holds = coefficients(hold_residuals(session, fit))
+        noise = fit_noise(holds, train, effects, self.fs_of, self.steps_for(effects))
+        moves = coefficients(move_residuals(session, fit, fit.dynamics, rate, f_hold, b_hold))
+        return fit, noise, holds + moves
+
+    def _nominal(self, fold: int):
+        if ("nominal", fold) not in self._motion:
+            self._motion[("nominal", fold)] = self.fit(self.session, self.reduced, (), fold)[:2]
+        return self._motion[("nominal", fold)]
+
+    def _motion_path(self, fold: int):
+        """The real poses and moves as the nominal model sees them: one path for all models."""
+        if fold not in self._motion:
+            self._motion[fold] = motion_of(self.session, self._nominal(fold)[0])
+        return self._motion[fold]
+
+    def _hold_rate(self, fold: int) -> np.ndarray:
+        """The real motion inside the holds (for models with motion contamination)."""
+        key = ("hold_rate", fold)
+        if key not in self._motion:
+            fit, noise = self._nominal(fold)
+            self._motion[key] = wiener_motion(calibrated_rate(self.session, fit), self.session,
+                                              noise["gyr"].sigma)
+        return self._motion[key]
+
+    def evaluate(self, effects) -> Evaluation:
+        """The model nominal + ``effects`` scored both ways round (cached)."""
+        key = frozenset(effects)
+        if key not in self._cache:
+            self._cache[key] = Evaluation(key, [self._fold(key, f) for f in FOLDS])
+        return self._cache[key]
+
+    def _fold(self, effects, fold: int) -> FoldResult:
+        s = self.session
+        fit, noise, real = self.fit(s, self.reduced, effects, fold)
+        # the same twin noise for every model (common random numbers): differences between
+        # models are not drowned in differences between noise draws
+        twin, _ = simulate(s, fit, noise, seed=self.seed + fold,
+                           motion_path=self._motion_path(fold),
+                           hold_rate=self._hold_rate(fold) if "motion_contamination" in effects
+                           else None)
+        _, _, tw = self.fit(twin, reduce_session(twin), effects, fold, start=fit)
+        train, test = s.pieces.select(fold=fold), s.pieces.select(fold=1 - fold)
+        return FoldResult(fold, fit, noise, real, tw, compare(real, tw, train, in_sample=True),
+                          compare(real, tw, test, in_sample=False))
+
+
+def _earth_field(session) -> tuple[float | None, float]:
+    """WMM field magnitude [mGauss] and declination [rad] at the site, when it is known."""
+    if session.mag is None or session.lat_deg is None or session.lon_deg is None:
+        return None, 0.0
+    import datetime
+
+    from apmcal.geomag import decimal_year, earth_field_ned
+
+    when = session.date or datetime.date.today()
+    ned, _ = earth_field_ned(session.lat_deg, session.lon_deg, 0.0, decimal_year(when))
+    return float(np.linalg.norm(ned)), float(np.arctan2(ned[1], ned[0]))
+
+
+def _sample_sigma(session) -> dict:
+    """Per-sample noise of the accelerometer and compass in the holds (robust: successive
+    differences, which cancel slow changes), to weight the move fits."""
+    from apmcal.preprocessing.resolution import noise_std
+
+    pc = session.pieces
+    ids = pc.select(hold=True)
+    out = {"acc": np.mean([noise_std(session.acc[a:b]) for a, b in zip(pc.i0[ids], pc.i1[ids])])}
+    if session.mag is not None:
+        m = session.mag
+        out["mag"] = np.mean([noise_std(m.values[a:b]) for a, b in zip(m.i0[ids], m.i1[ids])
+                              if b - a > 2])
+    return {k: float(v) for k, v in out.items()}
+
+
+def _lattice_steps(session) -> dict:
+    """Quantization step per axis of each sensor's hold samples (None: not on a lattice)."""
+    pc = session.pieces
+    ids = pc.select(hold=True)
+    idx = np.concatenate([np.arange(a, b) for a, b in zip(pc.i0[ids], pc.i1[ids])])
+    out = {}
+    for sensor, x in (("acc", session.acc), ("gyr", session.gyr)):
+        out[sensor] = _steps(x[idx])
+    if session.mag is not None:
+        m = session.mag
+        out["mag"] = _steps(np.concatenate([m.values[a:b] for a, b in zip(m.i0[ids], m.i1[ids])]))
+    return out
+
+
+def _steps(x: np.ndarray) -> np.ndarray | None:
+    steps = [lattice_step(x[:, k]) for k in range(3)]
+    return None if any(s is None for s in steps) else np.array(steps)

@@ -1,0 +1,292 @@
+"""The gap: how much worse the real residuals fit the model than its simulated twin's do.
+
+Definition (the number ``apmcal gap`` reports, in nats per sample)
+-----------------------------------------------------------------
+Real and twin go through the same fit; their residuals (measured − predicted) are cut into the
+same pieces and turned into Haar coefficients (:mod:`apmcal.diagnosis.haar`). Coefficients are
+grouped into *cells*: one cell per channel (sensor axis) and scale level, and one per channel
+for the piece means ("across pieces"; for the accelerometer and compass only their component
+along the field, the rest being each hold's fitted orientation). Under a Gaussian model a cell's
+coefficients have one variance, so the cost of describing the real coefficients with the twin's
+variance instead of their own is the Kullback-Leibler divergence, per coefficient
+½(x − 1 − ln x) with x = V_real / V_twin (the Itakura-Saito divergence; Whittle's likelihood in
+wavelet form). The finest level of the still holds, where most coefficients lie, is scored by
+its whole distribution instead: the KL divergence between the real and twin histograms (bins at
+the twin's quantiles), which also sees a non-Gaussian shape (quantization, uniform noise). Each
+cell's sum
+has its expectation under "real and twin are the same process" removed (exact for the variance
+cells, x being F-distributed with the degrees of freedom the fit leaves; first order for the
+histograms), so a perfect model scores 0 on average::
+
+    gap = Σ_cells (KL_cell − E[KL_cell | same process]) / (number of residual samples)
+
+Every coefficient carries its share of its cell's sum, so the gap splits exactly by sensor, axis,
+scale (frequency band), piece (hold or rotation), time and temperature.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.special import digamma
+
+from apmcal.diagnosis.haar import Coefficients, details, piece_means
+
+LEVEL_MEANS = 0          # cell code of the piece means ("across pieces")
+MIN_CELL = 8             # coarse levels are pooled until a cell has this many coefficients
+SHAPE_BINS = 32          # histogram bins, at the twin's quantiles
+MIN_SHAPE = 400          # fewer level-1 coefficients: no shape cell
+_TINY = 1e-300
+
+
+@dataclass
+class ResidualBlock:
+    """Channels that share a sample axis and pieces (e.g. acc x/y/z during holds).
+
+    Attributes
+    ----------
+    names : list of str
+        Channel names, e.g. ["acc_x", "acc_y", "acc_z"].
+    values : (n, c) array
+        Residuals (measured − predicted) on the block's sample axis, sensor units.
+    i0, i1 : (p,) int arrays
+        Pieces, half-open sample ranges on that axis.
+    piece : (p,) int array
+        Session-wide piece id of each piece (for the breakdown by segment and fold).
+    t : (n,) array
+        Sample times [s].
+    temp : (n,) array or None
+        Temperature [°C] at each sample.
+    shape : bool
+        Whether the distribution-shape cell is scored (still holds only).
+    radial : (p, 3) array or None
+        For a geometric sensor (accelerometer, compass) the fit turns each hold's orientation
+        to its data, so only the piece means' component along the field ("radial") is left
+        to score; given here per piece. None: every channel's piece means are scored.
+    mean_dof : int
+        Parameters fitted to the piece means of one scored channel (they lower the degrees of
+        freedom, and so raise the null expectation, of the in-sample piece-mean cell).
+    mean_nuisance : int
+        Of those, the ones refitted on whichever fold is scored (a free mean per hold), which
+        lower the degrees of freedom held-out as well.
+    """
+
+    names: list
+    values: np.ndarray
+    i0: np.ndarray
+    i1: np.ndarray
+    piece: np.ndarray
+    t: np.ndarray
+    temp: np.ndarray | None = None
+    shape: bool = True
+    radial: np.ndarray | None = None     # (p, 3) unit vectors: score the piece means along them
+    mean_dof: int = 0                    # parameters fitted to the piece means of a channel
+    mean_nuisance: int = 0               # ... of them refitted on every fold (orientations)
+
+    def n_samples(self, keep: np.ndarray | None = None) -> int:
+        """Residual samples in the kept pieces, counted once per channel."""
+        sel = self._keep(keep)
+        return int((self.i1[sel] - self.i0[sel]).sum()) * len(self.names)
+
+    def _keep(self, keep) -> np.ndarray:
+        return np.ones(len(self.i0), bool) if keep is None else np.isin(self.piece, keep)
+
+
+@dataclass
+class BlockCoefficients:
+    """A block's Haar coefficients over all its pieces, computed once and masked per fold."""
+
+    block: ResidualBlock
+    levels: list            # Coefficients per level (1, 2, ...)
+    means: Coefficients     # piece means
+
+    def masks(self, keep) -> tuple[list, np.ndarray, np.ndarray]:
+        """Boolean masks of the coefficients of the kept pieces (per level, means) and pieces."""
+        pieces = self.block._keep(keep)
+        return [pieces[c.piece] for c in self.levels], pieces[self.means.piece], pieces
+
+
+def coefficients(blocks: list[ResidualBlock]) -> list[BlockCoefficients]:
+    """Haar coefficients of every block (all pieces)."""
+    return [BlockCoefficients(b, details(b.values, b.i0, b.i1), piece_means(b.values, b.i0, b.i1))
+            for b in blocks]
+
+
+@dataclass
+class CellShare:
+    """One cell's contribution to the gap, coefficient by coefficient.
+
+    ``nats`` are the shares [nats] of the real coefficients, ``piece`` their session-wide piece
+    ids and ``center`` their sample index on ``block``'s axis (for time and temperature).
+    """
+
+    channel: str
+    level: int                # 1, 2, ... (finest level of a pooled group); LEVEL_MEANS
+    levels: tuple             # every level pooled into the cell
+    n: int
+    v_real: float
+    v_twin: float
+    nats: np.ndarray
+    piece: np.ndarray
+    center: np.ndarray
+    block: ResidualBlock
+    kind: str = "variance"    # "variance" (Gaussian, one variance) or "histogram"
+
+    @property
+    def total(self) -> float:
+        return float(self.nats.sum())
+
+    @property
+    def time(self) -> np.ndarray:
+        return self.block.t[np.clip(self.center, 0, len(self.block.t) - 1)]
+
+    @property
+    def temp(self) -> np.ndarray:
+        if self.block.temp is None:
+            return np.full(len(self.nats), np.nan)
+        return self.block.temp[np.clip(self.center, 0, len(self.block.t) - 1)]
+
+
+@dataclass
+class GapEstimate:
+    """The gap of one comparison, cell by cell."""
+
+    cells: list
+    n_samples: int
+
+    @property
+    def nats(self) -> float:
+        """Total excess negative log-likelihood [nats]."""
+        return float(sum(c.total for c in self.cells))
+
+    @property
+    def value(self) -> float:
+        """The gap [nats per sample]."""
+        return self.nats / self.n_samples if self.n_samples else 0.0
+
+
+def expected_variance_kl(n: int, dof_real: float, dof_twin: float) -> float:
+    """E[½ n (x − 1 − ln x)] for a cell of ``n`` coefficients when x = V_real / V_twin is
+    F(ν_r, ν_t) distributed (same process; ν the degrees of freedom, n minus what the fit took).
+
+    E[x] = ν_t / (ν_t − 2); E[ln x] = ψ(ν_r/2) − ln(ν_r/2) − ψ(ν_t/2) + ln(ν_t/2).
+    """
+    e_x = dof_twin / (dof_twin - 2.0)
+    e_log = (digamma(dof_real / 2) - np.log(dof_real / 2)) \
+        - (digamma(dof_twin / 2) - np.log(dof_twin / 2))
+    return 0.5 * n * (e_x - 1.0 - e_log)
+
+
+def level_groups(counts: list[int], min_cell: int = MIN_CELL) -> list[list[int]]:
+    """Levels (1-based) grouped into cells: coarse levels pooled until a cell has ``min_cell``
+    coefficients; a coarse remainder below 3 coefficients is dropped (no variance to compare)."""
+    groups, current, n = [], [], 0
+    for level in range(len(counts), 0, -1):
+        current.append(level)
+        n += counts[level - 1]
+        if n >= min_cell:
+            groups.append(sorted(current))
+            current, n = [], 0
+    if current and n >= 3:
+        groups.append(sorted(current))
+    return groups[::-1]
+
+
+def variance_shares(real: np.ndarray, twin: np.ndarray, dof_loss: float = 0.0
+                    ) -> tuple[np.ndarray, float, float]:
+    """Per-coefficient shares of ½Σ(x − 1 − ln x) − E[...] for one cell; V_real, V_twin."""
+    n = len(real)
+    v_r = max(float(np.mean(real ** 2)), _TINY)
+    v_t = max(float(np.mean(twin ** 2)), _TINY)
+    share = 0.5 * (real ** 2 * (1.0 / v_t - 1.0 / v_r) + np.log(v_t / v_r))
+    dof = n - dof_loss
+    expected = expected_variance_kl(n, dof, dof) if dof > 2 else 0.0
+    return share - expected / n, v_r, v_t
+
+
+def shape_shares(real: np.ndarray, twin: np.ndarray) -> np.ndarray:
+    """Per-coefficient shares of the histogram KL of the real coefficients against the twin's,
+    minus its first-order expectation (B − 1)/2·(1 + n_r/n_t) under "same distribution".
+
+    The bins are the twin's own quantiles (equally filled by the twin), so that no bin is so
+    thin that a handful of coefficients moving across an edge swings the sum — fixed bins
+    have near-empty tails where one coefficient is worth nats; a rounding lattice in the
+    twin gives tied quantiles, which merge into fewer bins.
+    """
+    edges = np.unique(np.quantile(twin, np.arange(1, SHAPE_BINS) / SHAPE_BINS))
+    b_r, b_t = np.searchsorted(edges, real), np.searchsorted(edges, twin)
+    bins = len(edges) + 1
+    n_r, n_t = len(real), len(twin)
+    p = (np.bincount(b_r, minlength=bins) + 0.5) / (n_r + 0.5 * bins)
+    q = (np.bincount(b_t, minlength=bins) + 0.5) / (n_t + 0.5 * bins)
+    expected = 0.5 * (bins - 1) * (1.0 + n_r / n_t)
+    return np.log(p / q)[b_r] - expected / n_r
+
+
+def _dof_loss(block: ResidualBlock, in_sample: bool) -> int:
+    return block.mean_dof if in_sample else block.mean_nuisance
+
+
+def _channel_cells(rc: BlockCoefficients, tc: BlockCoefficients, col: int, keep, in_sample):
+    """The cells of channel ``col`` of one block over the kept pieces."""
+    level_masks, mean_mask, _ = rc.masks(keep)
+    name, block = rc.block.names[col], rc.block
+    real_lv = [(c.values[m, col], block.piece[c.piece[m]], c.center[m])
+               for c, m in zip(rc.levels, level_masks)]
+    twin_lv = [c.values[m, col] for c, m in zip(tc.levels, level_masks)]
+    histogram = block.shape and real_lv and len(real_lv[0][0]) >= MIN_SHAPE
+    if histogram:      # level 1 scored by its whole distribution: width and shape
+        real, piece, center = real_lv[0]
+        yield CellShare(name, 1, (1,), len(real), float(np.mean(real ** 2)),
+                        float(np.mean(twin_lv[0] ** 2)), shape_shares(real, twin_lv[0]),
+                        piece, center, block, kind="histogram")
+    for group in level_groups([len(v) for v in twin_lv]):
+        if histogram and group == [1]:
+            continue
+        if histogram and 1 in group:
+            group = [j for j in group if j != 1]
+        real = np.concatenate([real_lv[j - 1][0] for j in group])
+        share, v_r, v_t = variance_shares(real, np.concatenate([twin_lv[j - 1] for j in group]))
+        yield CellShare(name, group[0], tuple(group), len(real), v_r, v_t, share,
+                        np.concatenate([real_lv[j - 1][1] for j in group]),
+                        np.concatenate([real_lv[j - 1][2] for j in group]), block)
+    loss = _dof_loss(block, in_sample)
+    if block.radial is None and mean_mask.sum() - loss > 2:
+        real = rc.means.values[mean_mask, col]
+        share, v_r, v_t = variance_shares(real, tc.means.values[mean_mask, col], loss)
+        yield CellShare(name, LEVEL_MEANS, (LEVEL_MEANS,), len(real), v_r, v_t, share,
+                        block.piece[rc.means.piece[mean_mask]], rc.means.center[mean_mask], block)
+
+
+def _radial_cell(rc: BlockCoefficients, tc: BlockCoefficients, keep, in_sample):
+    """The piece means of a geometric sensor along the field, as one channel "<sensor>_norm"."""
+    block = rc.block
+    _, mask, _ = rc.masks(keep)
+    loss = _dof_loss(block, in_sample)
+    if mask.sum() - loss <= 2:
+        return
+    along = block.radial[rc.means.piece[mask]]
+    real = np.sum(rc.means.values[mask] * along, axis=1)
+    twin = np.sum(tc.means.values[mask] * along, axis=1)
+    share, v_r, v_t = variance_shares(real, twin, loss)
+    name = block.names[0].split("_")[0] + "_norm"
+    yield CellShare(name, LEVEL_MEANS, (LEVEL_MEANS,), len(real), v_r, v_t, share,
+                    block.piece[rc.means.piece[mask]], rc.means.center[mask], block)
+
+
+def compare(real: list[BlockCoefficients], twin: list[BlockCoefficients],
+            keep: np.ndarray | None = None, in_sample: bool = True) -> GapEstimate:
+    """The gap between real and twin residual coefficients over the pieces ``keep`` (all if None).
+
+    ``real`` and ``twin`` come from blocks with the same channels and pieces (the twin is
+    simulated on the real session's own sample times). ``in_sample``: the pieces are the ones
+    the models were fitted on (their fitted parameters then count against the piece means).
+    """
+    cells, n_samples = [], 0
+    for rc, tc in zip(real, twin):
+        n_samples += rc.block.n_samples(keep)
+        for col in range(len(rc.block.names)):
+            cells.extend(_channel_cells(rc, tc, col, keep, in_sample))
+        if rc.block.radial is not None:
+            cells.extend(_radial_cell(rc, tc, keep, in_sample))
+    return GapEstimate(cells, n_samples)

@@ -1,0 +1,93 @@
+"""The diagnosis result: a plain object that saves itself as JSON and loads back.
+
+Schema 1 (every gap in nats per sample, see :mod:`apmcal.diagnosis.gap`)::
+
+    {"schema": 1, "source": ..., "session": {...},
+     "gap": {"total": in-sample, "heldout": held-out, "breakdown": {...},
+             "breakdown_heldout": {...}},
+     "effects": [{"name", "shrink_heldout", "shrink_in_sample", "significant", "evidence_nats",
+                  "gap_heldout", "params", "not_tested"}, ...]  (best first),
+     "selected": [names], "after": {"total", "heldout", "breakdown", "breakdown_heldout"},
+     "white_noise": {...}, "noise_structure": {...}, "notes": [...]}
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from apmcal.errors import ApmcalError
+
+SCHEMA = 1
+UNITS = {"gap": "nats per residual sample (Kullback-Leibler divergence, real vs twin)",
+         "shrink": "1 - gap_after / gap_before, held-out", "acc": "m/s²", "gyr": "rad/s",
+         "mag": "mGauss", "time": "s", "temperature": "°C"}
+
+
+@dataclass
+class GapResult:
+    """What ``apmcal gap`` found (see the module docstring for the JSON layout)."""
+
+    source: str
+    session: dict
+    gap: dict
+    effects: list
+    selected: list
+    after: dict
+    white_noise: dict = field(default_factory=dict)
+    noise_structure: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
+
+    def effect(self, name: str) -> dict | None:
+        return next((e for e in self.effects if e["name"] == name), None)
+
+    @property
+    def top(self) -> str | None:
+        """The best supported effect, or None when no effect is supported."""
+        first = self.effects[0] if self.effects else None
+        return first["name"] if first and first["significant"] else None
+
+    def to_dict(self) -> dict:
+        return _jsonable({"schema": SCHEMA, "units": UNITS, "source": self.source,
+                          "session": self.session, "gap": self.gap, "effects": self.effects,
+                          "selected": self.selected, "after": self.after,
+                          "white_noise": self.white_noise,
+                          "noise_structure": self.noise_structure, "notes": self.notes})
+
+    def save(self, path) -> None:
+        try:
+            Path(path).write_text(json.dumps(self.to_dict(), indent=1) + "\n")
+        except OSError as exc:
+            raise ApmcalError(f"cannot write JSON file ({exc.strerror or exc})", str(path)) \
+                from None
+
+    @classmethod
+    def load(cls, path) -> "GapResult":
+        try:
+            d = json.loads(Path(path).read_text())
+            if d.get("schema") != SCHEMA:
+                raise ValueError(f"schema {d.get('schema')!r}, expected {SCHEMA}")
+            return cls(d["source"], d["session"], d["gap"], d["effects"], d["selected"],
+                       d["after"], d.get("white_noise", {}), d.get("noise_structure", {}),
+                       d.get("notes", []))
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise ApmcalError(f"not an apmcal gap result ({exc})", str(path)) from None
+
+
+def _jsonable(obj):
+    """numpy values → JSON; NaN and infinity → null (JSON has neither)."""
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, (np.floating, float)):
+        return float(obj) if np.isfinite(obj) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj

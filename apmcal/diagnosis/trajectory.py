@@ -1,0 +1,189 @@
+"""The motion of a real session, reconstructed for its twin: attitude, rate and each hold's own
+specific force and field, at the session's sample times (sensor frame = the twin's board frame).
+
+Holds keep the orientation the fit found (``up`` from the accelerometer, ``north`` from the
+compass when there is one, else the heading carried over from the previous hold). A move
+between two holds follows the calibrated gyro, its end corrected onto the next hold by a
+rotation spread evenly over the move; any other stretch between holds keeps the previous
+hold's attitude (it is not scored). During a move the specific force and field are the holds'
+own vectors carried along by the attitude, blended from the hold before to the hold after, so
+the twin passes through the same readings as the real board.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+DOWN = np.array([0.0, 0.0, 1.0])
+
+
+@dataclass
+class Trajectory:
+    """Attitude R_nb (n, 3, 3) (sensor → NED), body rate (n, 3) [rad/s], hold index of each
+    sample (the hold before, for moves) and the per-hold vectors."""
+
+    rot: np.ndarray
+    rate: np.ndarray
+    hold: np.ndarray          # hold index before or at each sample
+    blend: np.ndarray         # 0 at the hold before .. 1 at the hold after (moves), else 0
+
+
+def _unit(v):
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def attitude(up: np.ndarray, north: np.ndarray | None, heading_from: np.ndarray | None = None
+             ) -> np.ndarray:
+    """R_nb whose body "up" is ``up`` and body north is ``north`` (orthogonalised); without a
+    north, the one closest to ``heading_from`` (a previous attitude), or x turned horizontal."""
+    up = _unit(up)
+    if north is None:
+        ref = heading_from.T[:, 0] if heading_from is not None else np.array([1.0, 0.0, 0.0])
+        if abs(ref @ up) > 0.95:
+            ref = np.array([0.0, 1.0, 0.0]) if heading_from is None else heading_from.T[:, 1]
+        north = ref
+    n = _unit(north - (north @ up) * up)
+    down = -up
+    east = np.cross(down, n)
+    return np.array([n, east, down])           # rows: NED axes in the body frame
+
+
+def hold_attitudes(holds, up_per_hold: np.ndarray, north_per_hold: np.ndarray | None
+                   ) -> list[np.ndarray]:
+    """One attitude per hold; headings carried over hold to hold when there is no compass."""
+    out: list[np.ndarray] = []
+    for k in range(len(holds)):
+        north = None if north_per_hold is None else north_per_hold[k]
+        if north is not None and not np.all(np.isfinite(north)):
+            north = None
+        out.append(attitude(up_per_hold[k], north, out[-1] if out else None))
+    return out
+
+
+def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton products a·b of (n, 4) quaternions in scipy's scalar-last (x, y, z, w) order."""
+    ax, ay, az, aw = a[:, 0], a[:, 1], a[:, 2], a[:, 3]
+    bx, by, bz, bw = b[:, 0], b[:, 1], b[:, 2], b[:, 3]
+    out = np.empty_like(a)
+    out[:, 0] = aw * bx + ax * bw + ay * bz - az * by
+    out[:, 1] = aw * by - ax * bz + ay * bw + az * bx
+    out[:, 2] = aw * bz + ax * by - ay * bx + az * bw
+    out[:, 3] = aw * bw - ax * bx - ay * by - az * bz
+    return out
+
+
+def prefix_products(q: np.ndarray) -> np.ndarray:
+    """P_i = q_0·q_1·…·q_i of (m, 4) quaternions in log2(m) vectorised rounds (Hillis-Steele
+    scan; the product is associative, so the rounds may group it freely)."""
+    p = q.copy()
+    d = 1
+    while d < len(p):
+        p[d:] = quat_multiply(p[:-d], p[d:])
+        d *= 2
+    return p
+
+
+def integrate_attitude(r0: np.ndarray, rate: np.ndarray, dt: np.ndarray) -> np.ndarray:
+    """R_{i+1} = R_i·Exp(ω_i·Δt_i) from R_0 = ``r0`` (body rates ω_i over step i, e.g. the
+    mean of the step's end samples); returns (m + 1, 3, 3)."""
+    steps = Rotation.from_rotvec(rate * dt[:, None]).as_quat()
+    out = np.empty((len(rate) + 1, 3, 3))
+    out[0] = r0
+    if len(rate):
+        out[1:] = r0 @ Rotation.from_quat(prefix_products(steps)).as_matrix()
+    return out
+
+
+def corrected_move(r_start, r_end, rate, dt) -> np.ndarray:
+    """Attitudes of a move that follows ``rate`` and ends exactly at ``r_end``: the end error
+    Log(R_intᵀ·R_end) is spread linearly in time (body frame). Returns (m + 1, 3, 3)."""
+    r_int = integrate_attitude(r_start, rate, dt)
+    error = Rotation.from_matrix(r_int[-1].T @ r_end).as_rotvec()
+    s = np.concatenate(([0.0], np.cumsum(dt))) / max(float(np.sum(dt)), 1e-12)
+    corr = Rotation.from_rotvec(np.outer(s, error)).as_matrix()
+    return r_int @ corr
+
+
+def body_rates(rot: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Instantaneous body rates [rad/s] at each attitude sample: the mean of the rates that
+    carry it from the previous attitude and on to the next, Log(R_iᵀR_{i+1}) / Δt.
+
+    A gyro samples the rate at its own instant, as the real one does; a forward difference
+    would put the twin's gyro half a sample ahead of its accelerometer.
+    """
+    if len(t) < 2:
+        return np.zeros((len(t), 3))
+    rel = np.einsum("nji,njk->nik", rot[:-1], rot[1:])
+    step = Rotation.from_matrix(rel).as_rotvec() / np.diff(t)[:, None]
+    rates = np.empty((len(t), 3))
+    rates[0], rates[-1] = step[0], step[-1]
+    rates[1:-1] = 0.5 * (step[:-1] + step[1:])
+    return rates
+
+
+def build(session, hold_rot: list[np.ndarray], gyro_rate: np.ndarray) -> Trajectory:
+    """The trajectory at the IMU sample times; ``gyro_rate`` (n, 3) is the calibrated gyro
+    [rad/s] that moves follow."""
+    n = len(session.t)
+    rot = np.empty((n, 3, 3))
+    hold = np.zeros(n, int)
+    blend = np.zeros(n)
+    moves = {s.before: s for s in session.segments if s.kind == "motion"}
+    for k, h in enumerate(session.holds):
+        end = session.holds[k + 1].i0 if k + 1 < len(session.holds) else n
+        start = 0 if k == 0 else h.i0
+        rot[start:end] = hold_rot[k]
+        hold[start:end] = k
+        move = moves.get(k)
+        if move is not None:       # steps a-1 → a … b-1 → b, each at its mean rate (trapezoid)
+            a, b = move.i0, move.i1
+            dt = np.diff(session.t[a - 1:b + 1])
+            mid = 0.5 * (gyro_rate[a - 1:b] + gyro_rate[a:b + 1])
+            path = corrected_move(hold_rot[k], hold_rot[k + 1], mid, dt)
+            rot[a:b] = path[1:-1]
+            blend[a:b] = np.linspace(0, 1, b - a + 2)[1:-1]
+    rate = np.zeros((n, 3))        # holds keep one attitude: only moves turn
+    for move in moves.values():     # from the last hold sample to the first of the next hold
+        a, b = max(move.i0 - 1, 0), min(move.i1 + 1, n)
+        rate[a:b] = body_rates(rot[a:b], session.t[a:b])
+    return Trajectory(rot, rate, hold, blend)
+
+
+def carried(traj: Trajectory, hold_rot: list[np.ndarray], vectors: np.ndarray,
+            still_holds: bool = True) -> np.ndarray:
+    """Per-sample body vector: each hold's own ``vectors[k]`` (n_holds, 3), carried through a
+    move by the attitude change and blended from the hold before to the hold after.
+
+    ``still_holds``: the attitude is exactly the hold's outside the moves (no tremor added), so
+    those samples take the hold's vector as it is and only the moves are rotated.
+    """
+    out = np.asarray(vectors)[traj.hold].copy()
+    turning = traj.blend > 0 if still_holds else np.ones(len(out), bool)
+    k = traj.hold[turning]
+    k_next = np.minimum(k + 1, len(hold_rot) - 1)
+    hold_rot = np.asarray(hold_rot)
+    blend = traj.blend[turning][:, None]
+    ned = ((1 - blend) * np.einsum("nij,nj->ni", hold_rot[k], vectors[k])
+           + blend * np.einsum("nij,nj->ni", hold_rot[k_next], vectors[k_next]))
+    out[turning] = np.einsum("nji,nj->ni", traj.rot[turning], ned)
+    return out
+
+
+def with_hold_motion(traj: Trajectory, session, rate: np.ndarray) -> Trajectory:
+    """The trajectory with a small motion inside each hold: attitude R_k·Exp(θ(t)), θ the
+    integrated ``rate`` [rad/s] (its mean over the hold removed, so the hold's mean attitude
+    stays R_k), and the body rate ``rate``."""
+    rot, out_rate = traj.rot.copy(), traj.rate.copy()
+    for h in session.holds:
+        a, b = h.i0, h.i1
+        if b - a < 2 or not np.any(rate[a:b]):
+            continue
+        dt = np.diff(session.t[a:b])
+        theta = np.vstack([np.zeros(3), np.cumsum(0.5 * (rate[a:b - 1] + rate[a + 1:b])
+                                                  * dt[:, None], axis=0)])
+        theta -= theta.mean(axis=0)
+        rot[a:b] = rot[a:b] @ Rotation.from_rotvec(theta).as_matrix()
+        out_rate[a:b] = rate[a:b]
+    return Trajectory(rot, out_rate, traj.hold, traj.blend)
