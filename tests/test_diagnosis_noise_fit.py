@@ -60,13 +60,43 @@ def test_fit_recovers_white_noise_and_random_walk_from_levels():
     sigma, q, levels = 1.2e-3, 2e-5, 11
     n = 50_000 / 2.0 ** np.arange(levels)
     v = sigma ** 2 + q ** 2 * random_walk_gain(levels, FS)
-    s, qq, _, _, _ = fit_channels(np.column_stack([v] * 3), n, FS, cutoff_hz=None, step=None,
-                                  random_walk=True, tremor=False)
+    s, qq, _ = fit_channels(np.column_stack([v] * 3), n, FS, cutoff_hz=None, random_walk=True,
+                            floor=np.full(3, sigma ** 2))
     np.testing.assert_allclose(s, sigma, rtol=1e-3)
     np.testing.assert_allclose(qq, q, rtol=1e-3)
-    s, qq, _, _, _ = fit_channels(np.column_stack([v] * 3), n, FS, cutoff_hz=None, step=None,
-                                  random_walk=False, tremor=False)
-    assert qq is None and np.all(s > sigma)         # white only: the walk inflates σ
+    s, qq, _ = fit_channels(np.column_stack([v] * 3), n, FS, cutoff_hz=None,
+                            floor=np.full(3, sigma ** 2))
+    assert qq is None
+    np.testing.assert_allclose(s, sigma, rtol=1e-9)    # nominal: the high-frequency floor
+
+
+def test_floor_sees_white_noise_not_a_strong_slow_signal():
+    from apmcal.diagnosis.noise_fit import floor_gain, floor_stat
+    t = np.arange(40_000) / FS
+    x = 0.01 * RNG.standard_normal((40_000, 1)) + 0.5 * np.sin(2 * np.pi * 5 * t)[:, None]
+    block = ResidualBlock(["g_x"], x, np.array([0, 20_000]), np.array([20_000, 40_000]),
+                          np.array([0, 1]), t)
+    assert floor_stat(block, np.array([0, 1]))[0] == pytest.approx(1e-4, rel=0.05)
+    b, a = butter(2, 20.0 / (FS / 2))
+    y = lfilter(b, a, RNG.standard_normal(2 ** 18))
+    assert np.mean(np.diff(y, 4) ** 2) / 70 == pytest.approx(floor_gain(FS, 20.0), rel=0.03)
+
+
+def test_lowpass_cutoff_found_from_filtered_noise():
+    from apmcal.diagnosis.noise_fit import shared_cutoff
+    b, a = butter(2, 20.0 / (FS / 2))
+    x = lfilter(b, a, RNG.standard_normal((2 ** 17, 3)), axis=0)
+    coeffs = details(x, np.arange(0, 2 ** 17, 2 ** 13), np.arange(2 ** 13, 2 ** 17 + 1, 2 ** 13))
+    v = np.array([np.mean(c.values ** 2, axis=0) for c in coeffs])
+    n = np.array([float(len(c.values)) for c in coeffs])
+    floor = np.mean(np.diff(x, 4, axis=0) ** 2, axis=0) / 70
+    fc = shared_cutoff([dict(v=v, n=n, fs=FS, floor=floor)])
+    assert fc == pytest.approx(20.0, rel=0.15)
+    white = RNG.standard_normal((2 ** 17, 3))
+    coeffs = details(white, np.arange(0, 2 ** 17, 2 ** 13), np.arange(2 ** 13, 2 ** 17 + 1, 2 ** 13))
+    v = np.array([np.mean(c.values ** 2, axis=0) for c in coeffs])
+    floor = np.mean(np.diff(white, 4, axis=0) ** 2, axis=0) / 70
+    assert shared_cutoff([dict(v=v, n=n, fs=FS, floor=floor)]) is None
 
 
 def test_lattice_step_finds_rounding_and_rejects_floats():

@@ -37,13 +37,14 @@ def gyro_forward(scale, gamma) -> np.ndarray:
 @dataclass
 class Dynamics:
     """The parameters the moves determine: gyro scale and misalignment, accelerometer delay
-    [s], and (refined here, the holds alone hardly see it) the accelerometer's
-    non-orthogonality α [rad]."""
+    [s], and the accelerometer terms that holds in fitted orientations hardly see — its
+    non-orthogonality α [rad] and quadratic scale k2 [1/(m/s²)] (``acc_terms``, None when
+    neither is modelled; moved into the accelerometer itself once fitted)."""
 
     gyro_scale: np.ndarray = field(default_factory=lambda: np.ones(3))
     gyro_gamma: np.ndarray = field(default_factory=lambda: np.zeros(6))
     time_offset_s: float = 0.0
-    acc_alpha: np.ndarray | None = None
+    acc_terms: dict | None = None
     sigma: dict = field(default_factory=dict)
 
     @property
@@ -52,19 +53,29 @@ class Dynamics:
 
 
 # prior one-sigma of the move parameters (MAP fit; wide against real sensors: MPU-6000 gyro
-# sensitivity ±3 %, cross-axis ±2 %; a delay of a few samples at most)
-PRIOR_SIGMA = {"gyro_scale": 0.05, "gyro_gamma": 0.05, "time_offset": 0.005, "alpha": 0.05}
+# sensitivity ±3 %, cross-axis ±2 %; a delay of a few samples at most; the accelerometer
+# terms as in static_fit.PRIOR_SIGMA)
+PRIOR_SIGMA = {"gyro_scale": 0.05, "gyro_gamma": 0.05, "time_offset": 0.005, "alpha": 0.05,
+               "k2": 1e-3}
+ACC_TERMS = {"cross_axis": "alpha", "scale_nonlinearity": "k2"}
 
 
-def acc_with_alpha(geo, alpha):
-    """The accelerometer geometry with its non-orthogonality replaced by ``alpha``."""
+def acc_with_terms(geo, terms: dict):
+    """The accelerometer geometry with its non-orthogonality ``alpha`` and/or quadratic scale
+    ``k2`` replaced by the given values."""
     from dataclasses import replace
 
     from apmcal.diagnosis.static_fit import non_orthogonality
 
-    scale = np.exp(np.asarray(geo.params["log_scale"]))
-    forward = np.diag(scale) @ np.linalg.inv(non_orthogonality(alpha))
-    return replace(geo, forward=forward, params=dict(geo.params, alpha=list(alpha)))
+    out = replace(geo, params=dict(geo.params))
+    if "alpha" in terms:
+        scale = np.exp(np.asarray(geo.params["log_scale"]))
+        out.forward = np.diag(scale) @ np.linalg.inv(non_orthogonality(terms["alpha"]))
+        out.params["alpha"] = list(terms["alpha"])
+    if "k2" in terms:
+        out.k2 = np.asarray(terms["k2"], float)
+        out.params["k2"] = list(terms["k2"])
+    return out
 
 
 @dataclass
@@ -135,7 +146,7 @@ def predicted(session, fit, dyn: Dynamics, moves: Moves, rate_cal: np.ndarray,
     if dyn.time_offset_s:          # the accelerometer samples the past: f(t − τ) = Exp(ωτ)·f(t)
         f = Rotation.from_rotvec(rate[idx] * dyn.time_offset_s).apply(f)
     temp = session.temp[idx] if session.temp is not None else None
-    geo = fit.acc if dyn.acc_alpha is None else acc_with_alpha(fit.acc, dyn.acc_alpha)
+    geo = fit.acc if dyn.acc_terms is None else acc_with_terms(fit.acc, dyn.acc_terms)
     acc = geo.predict(f / _radius(geo), fit.acc_columns(session.t[idx], temp))
     mag = None
     if hold_b is not None and fit.mag is not None:
@@ -176,12 +187,13 @@ def _layout(effects, fit) -> dict:
         out["gyro_gamma"] = (6, PRIOR_SIGMA["gyro_gamma"])
     if "time_offset" in effects:
         out["time_offset"] = (1, PRIOR_SIGMA["time_offset"])
-    if "cross_axis" in effects and fit.acc.geometry:   # holds kept orthogonal axes (model.py)
-        out["alpha"] = (3, PRIOR_SIGMA["alpha"])
+    for effect, name in ACC_TERMS.items():      # the holds left these to the moves (model.py)
+        if effect in effects and fit.acc.geometry:
+            out[name] = (3, PRIOR_SIGMA[name])
     return out
 
 
-def _unpack(p: np.ndarray, layout: dict, start_alpha) -> Dynamics:
+def _unpack(p: np.ndarray, layout: dict, start: dict) -> Dynamics:
     d, k = Dynamics(), 0
     values = {}
     for name, (size, _) in layout.items():
@@ -191,8 +203,8 @@ def _unpack(p: np.ndarray, layout: dict, start_alpha) -> Dynamics:
         d.gyro_scale, d.gyro_gamma = 1.0 + values["gyro_scale"], values["gyro_gamma"]
     if "time_offset" in values:
         d.time_offset_s = float(values["time_offset"][0])
-    if "alpha" in values:
-        d.acc_alpha = start_alpha + values["alpha"]
+    terms = {name: start[name] + values[name] for name in ACC_TERMS.values() if name in values}
+    d.acc_terms = terms or None
     return d
 
 
@@ -209,21 +221,25 @@ def fit_dynamics(session, fit, effects, train: np.ndarray, rate_cal, hold_f, hol
     with_mag = hold_b is not None and fit.mag is not None and session.mag is not None \
         and session.mag.t is session.t and "mag" in sigma
     weight = {k: 1.0 / max(float(v), 1e-12) for k, v in sigma.items()}
-    prior = np.concatenate([np.full(size, 1.0 / s) for size, s in layout.values()])
-    start_alpha = np.asarray(fit.acc.params.get("alpha", np.zeros(3)), float)
+    prior_sigma = np.concatenate([np.full(size, s) for size, s in layout.values()])
+    # the accelerometer terms start from the holds' values (the prior is about the total)
+    start = {name: np.asarray(fit.acc.params.get(name, np.zeros(3)), float)
+             for name in ACC_TERMS.values()}
+    offset = np.concatenate([start[name] if name in start else np.zeros(size)
+                             for name, (size, _) in layout.items()])
 
     def residuals(p):
-        d = _unpack(p, layout, start_alpha)
+        d = _unpack(p, layout, start)
         _, acc, mag = predicted(session, fit, d, moves, rate_cal, hold_f, hold_b, step)
         r = [((session.acc[idx] - acc) * weight["acc"]).ravel()]
         if with_mag:
             r.append(((session.mag.values[idx] - mag) * weight["mag"]).ravel())
-        r.append(p * prior)
+        r.append((p + offset) / prior_sigma)
         return np.concatenate(r)
 
-    n = len(prior)
+    n = len(prior_sigma)
     sol = least_squares(residuals, np.zeros(n), method="lm", x_scale=1e-3)
-    out = _unpack(sol.x, layout, start_alpha)
+    out = _unpack(sol.x, layout, start)
     from apmcal.solvers.uncertainty import covariance_from_jacobian
     cov, _ = covariance_from_jacobian(sol.jac, sol.fun, n)
     out.sigma = {"params": np.sqrt(np.clip(np.diag(cov), 0, None)).tolist(),

@@ -12,16 +12,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from apmcal.diagnosis.gap import GapEstimate, coefficients, compare
-from apmcal.diagnosis.hold_motion import wiener_motion
+from apmcal.diagnosis.hold_motion import amplitudes, hold_rotations, wiener_motion
 from apmcal.diagnosis.dynamics import fit_dynamics, move_residuals
 from apmcal.diagnosis.model import (ModelFit, calibrated_rate, fit_model, hold_residuals,
-                                    hold_vectors, reduce_session, set_acc_alpha)
+                                    hold_vectors, reduce_session, set_acc_terms)
 from apmcal.diagnosis.noise_fit import NoiseModel, fit_noise, lattice_step
 from apmcal.diagnosis.static_fit import count_orientations
 from apmcal.diagnosis.twin import motion_of, simulate
 
 FOLDS = (0, 1)
-ALPHA_ROUNDS = 2        # hold/move alternations of the accelerometer non-orthogonality
+ACC_TERM_ROUNDS = 2     # hold/move alternations of the accelerometer terms the moves fit
 
 
 @dataclass
@@ -119,21 +119,28 @@ class Evaluator:
         f_hold, b_hold = hold_vectors(fit, len(session.holds))
         fit.dynamics = fit_dynamics(session, fit, effects, train, rate, f_hold, b_hold,
                                     self.sample_sigma)
-        for _ in range(ALPHA_ROUNDS):
-            if fit.dynamics.acc_alpha is None:
+        for _ in range(ACC_TERM_ROUNDS):
+            if fit.dynamics.acc_terms is None:
                 break
-            # the moves' non-orthogonality and the holds' scales depend on each other:
-            # alternate (each round refits the holds with it, then the moves from there)
-            set_acc_alpha(fit, reduced, train, fit.dynamics.acc_alpha)
+            # the moves' accelerometer terms and the holds' offsets and scales depend on each
+            # other: alternate (each round refits the holds with them, then the moves)
+            set_acc_terms(fit, reduced, train, fit.dynamics.acc_terms)
             f_hold, b_hold = hold_vectors(fit, len(session.holds))
             fit.dynamics = fit_dynamics(session, fit, effects, train, rate, f_hold, b_hold,
                                         self.sample_sigma)
-        if fit.dynamics.acc_alpha is not None:
-            set_acc_alpha(fit, reduced, train, fit.dynamics.acc_alpha)
-            fit.dynamics.acc_alpha = None           # now part of the accelerometer itself
+        if fit.dynamics.acc_terms is not None:
+            set_acc_terms(fit, reduced, train, fit.dynamics.acc_terms)
+            fit.dynamics.acc_terms = None           # now part of the accelerometer itself
             f_hold, b_hold = hold_vectors(fit, len(session.holds))
+        if "motion_contamination" in effects:
+            # the real motion in the holds, measured by the gyro, is part of the model (and so
+            # of the twin); its size is what gets reported
+            fit.hold_motion = self._hold_motion(train_fold if train_fold is not None else 0)
         holds = coefficients(hold_residuals(session, fit))
         noise = fit_noise(holds, train, effects, self.fs_of, self.steps_for(effects))
+        if fit.hold_motion is not None:
+            noise["gyr"].tremor_deg, noise["gyr"].sway_deg = amplitudes(fit.hold_motion[0],
+                                                                        self.session)
         moves = coefficients(move_residuals(session, fit, fit.dynamics, rate, f_hold, b_hold))
         return fit, noise, holds + moves
 
@@ -148,13 +155,13 @@ class Evaluator:
             self._motion[fold] = motion_of(self.session, self._nominal(fold)[0])
         return self._motion[fold]
 
-    def _hold_rate(self, fold: int) -> np.ndarray:
-        """The real motion inside the holds (for models with motion contamination)."""
-        key = ("hold_rate", fold)
+    def _hold_motion(self, fold: int) -> tuple:
+        """The real motion inside the holds, rate and turn (for motion contamination)."""
+        key = ("hold_motion", fold)
         if key not in self._motion:
-            fit, noise = self._nominal(fold)
-            self._motion[key] = wiener_motion(calibrated_rate(self.session, fit), self.session,
-                                              noise["gyr"].sigma)
+            fit, _ = self._nominal(fold)
+            rate = wiener_motion(calibrated_rate(self.session, fit), self.session)
+            self._motion[key] = (rate, hold_rotations(self.session, rate))
         return self._motion[key]
 
     def evaluate(self, effects) -> Evaluation:
@@ -170,9 +177,7 @@ class Evaluator:
         # the same twin noise for every model (common random numbers): differences between
         # models are not drowned in differences between noise draws
         twin, _ = simulate(s, fit, noise, seed=self.seed + fold,
-                           motion_path=self._motion_path(fold),
-                           hold_rate=self._hold_rate(fold) if "motion_contamination" in effects
-                           else None)
+                           motion_path=self._motion_path(fold))
         _, _, tw = self.fit(twin, reduce_session(twin), effects, fold, start=fit)
         train, test = s.pieces.select(fold=fold), s.pieces.select(fold=1 - fold)
         return FoldResult(fold, fit, noise, real, tw, compare(real, tw, train, in_sample=True),

@@ -81,6 +81,9 @@ class ModelFit:
     north: np.ndarray | None = None
     declination_rad: float = 0.0
     dynamics: Dynamics = field(default_factory=Dynamics)
+    # the measured motion inside the holds (rate (n, 3) [rad/s], turn (n, 3, 3)), part of the
+    # model when motion_contamination is (apmcal.diagnosis.hold_motion)
+    hold_motion: tuple | None = None
 
     def acc_columns(self, t, temp) -> np.ndarray:
         return columns(self.effects, "acc", self.refs, t, temp)[0]
@@ -146,12 +149,12 @@ def _acc_cols(effects, refs, blocks: Blocks) -> np.ndarray:
 
 def _fit_acc(reduced, train, effects, refs, g, start, with_sigma, moves: bool) -> GeometryFit:
     blocks = reduced.acc.select(train)
-    # non-orthogonality is second order in holds whose orientation is fitted (six aligned faces
-    # trade it for the scales); the moves see it first order, so with moves it is fitted there
-    # (dynamics.fit_dynamics) and the holds keep orthogonal axes
+    # non-orthogonality and a quadratic scale are second order in holds whose orientation is
+    # fitted (six aligned faces trade them for offsets and scales); the moves see them first
+    # order, so with moves they are fitted there (dynamics.fit_dynamics)
     return fit_geometry(blocks, _acc_cols(effects, refs, blocks), g, kind="acc",
                         cross_axis="cross_axis" in effects and not moves,
-                        quadratic="scale_nonlinearity" in effects,
+                        quadratic="scale_nonlinearity" in effects and not moves,
                         start=start.acc if start is not None else None, with_sigma=with_sigma)
 
 
@@ -246,13 +249,13 @@ def _best_drift_time(fit: ModelFit, blocks: Blocks, groups) -> References:
     return best
 
 
-def set_acc_alpha(fit: ModelFit, reduced: Reduced, train, alpha) -> None:
-    """Give the accelerometer the non-orthogonality the moves found: its offset and scales are
-    refitted on the holds with it held fixed, and the holds' orientations follow."""
+def set_acc_terms(fit: ModelFit, reduced: Reduced, train, terms: dict) -> None:
+    """Give the accelerometer the terms the moves found (non-orthogonality "alpha", quadratic
+    scale "k2"): its offset and scales are refitted on the holds with them held fixed, and the
+    holds' orientations follow."""
     blocks = reduced.acc.select(train)
     fit.acc = fit_geometry(blocks, _acc_cols(fit.effects, fit.refs, blocks), fit.gravity,
-                           kind="acc", quadratic="scale_nonlinearity" in fit.effects,
-                           alpha=alpha, with_sigma=False)
+                           kind="acc", fixed=terms, with_sigma=False)
     fit.acc_dirs = fit.acc.directions(reduced.acc, _acc_cols(fit.effects, fit.refs, reduced.acc))
     fit.up = _unit(fit.acc_dirs)
     if fit.mag is not None and fit.mag.geometry:
@@ -318,9 +321,12 @@ def hold_residuals(session, fit: ModelFit) -> list[ResidualBlock]:
     hs = hold_samples(pc.i0[ids], pc.i1[ids], ids, groups)
     t = session.t[hs.index]
     temp = session.temp[hs.index] if session.temp is not None else None
-    acc_pred = fit.acc.predict(fit.acc_dirs[hs.group], fit.acc_columns(t, temp))
+    acc_pred = fit.acc.predict(_turned(fit.acc_dirs[hs.group], fit, hs.index),
+                               fit.acc_columns(t, temp))
     cols, vec, _, _ = gyro_regressors(fit, t, temp, hs.group)
     gyr_pred = fit.gyr.predict(cols, vec)
+    if fit.hold_motion is not None:
+        gyr_pred = gyr_pred + fit.hold_motion[0][hs.index]
     acc = _block("acc", session.acc[hs.index] - acc_pred, hs, t, temp)
     _geometric(acc, fit.acc, fit.up[groups[ids]],
                sum(len(v) for v in fit.acc.params.values()), session)
@@ -330,6 +336,13 @@ def hold_residuals(session, fit: ModelFit) -> list[ResidualBlock]:
     if session.mag is not None and fit.mag is not None:
         blocks.append(_mag_block(session, fit, ids, groups))
     return blocks
+
+
+def _turned(vectors: np.ndarray, fit: ModelFit, index: np.ndarray) -> np.ndarray:
+    """Hold vectors (rows) seen through the measured hold motion, R(θ)ᵀ·v, when modelled."""
+    if fit.hold_motion is None:
+        return vectors
+    return np.einsum("nji,nj->ni", fit.hold_motion[1][index], vectors)
 
 
 def _geometric(block: ResidualBlock, geo: GeometryFit, directions: np.ndarray, n_params: int,
@@ -351,7 +364,9 @@ def _mag_block(session, fit: ModelFit, ids, groups) -> ResidualBlock:
     hs = hold_samples(m.i0[ids], m.i1[ids], ids, groups)
     t = m.t[hs.index]
     cur = m.current[hs.index] if m.current is not None else None
-    pred = fit.mag.predict(fit.mag_dirs[hs.group], fit.mag_columns(t, cur))
+    imu_index = np.clip(np.searchsorted(session.t, t), 0, len(session.t) - 1)
+    pred = fit.mag.predict(_turned(fit.mag_dirs[hs.group], fit, imu_index),
+                           fit.mag_columns(t, cur))
     block = ResidualBlock([f"mag_{a}" for a in AXES], m.values[hs.index] - pred, hs.i0, hs.i1,
                           hs.piece, t, None)
     n_params = sum(len(v) for v in fit.mag.params.values())

@@ -3,17 +3,17 @@ likelihood — the same criterion the gap scores (:mod:`apmcal.diagnosis.gap`).
 
 For one channel, level j (block m = 2**(j-1) samples at rate fs) has the model variance::
 
-    M_j = σ²·L_j(f_c) + Δ²/12 + q²·Δt·(2m² + 1)/6 + a_t²·T_j + a_s²·S_j
+    M_j = σ²·L_j(f_c) + Δ²/12 + q²·Δt·(2m² + 1)/6
 
 σ the white noise per sample before the on-chip low-pass (gain L_j of a 2nd-order Butterworth
-at f_c, 1 without it), Δ the quantization step (uniform rounding error), q the bias random walk
-[unit/√s] (the Haar variance of a discrete random walk, derived in the test), and a_t, a_s the
-hand tremor and sway amplitudes [deg] of sitl's motion contamination (gyro only; T_j, S_j their
-band-averaged Haar gains). With n_j coefficients of mean square V_j, the parameters minimise
-Σ_j n_j (V_j / M_j + ln M_j) — the Gaussian likelihood of the coefficients (wavelet Whittle,
-in the spirit of GMWM, Guerrier et al. 2013, which fits the same wavelet variances by least
-squares). The fit is linear in (σ², q², a_t², a_s²), so it is solved with bounds ≥ 0; the
-cut-off f_c is found by a grid search around it.
+at f_c, 1 without it), Δ the quantization step (uniform rounding error) and q the bias random
+walk [unit/√s] (the Haar variance of a discrete random walk, checked in the tests). With n_j
+coefficients of mean square V_j, the parameters minimise Σ_j n_j (V_j / M_j + ln M_j) — the
+Gaussian likelihood of the coefficients (wavelet Whittle, in the spirit of GMWM, Guerrier et
+al. 2013, which fits the same wavelet variances by least squares). The fit is linear in
+(σ², q²), so it is solved with bounds ≥ 0; the cut-off f_c is found by a grid search around
+it. A random walk also shows between pieces (:class:`MeanPairs`). The motion inside the holds
+is measured, not fitted here (:mod:`apmcal.diagnosis.hold_motion`).
 """
 from __future__ import annotations
 
@@ -21,14 +21,16 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
-from scipy.optimize import minimize_scalar, nnls
+from scipy.optimize import nnls
 from scipy.signal import butter, freqz
 
 
-TREMOR_BAND_HZ = (4.0, 9.0)        # sitl's motion contamination bands (sitl.truth defaults)
-SWAY_BAND_HZ = (0.1, 0.5)
 N_FREQ = 4096                      # frequency grid of the Haar gains
-CUTOFF_GRID = 24                   # candidate low-pass cut-offs between 2 % and 45 % of fs
+CUTOFF_GRID = 16                   # candidate low-pass cut-offs between fs/8 and 45 % of fs
+# an on-chip filter sits at or above an eighth of the logging rate (MPU-6000 DLPF 20-256 Hz
+# read at 50-1000 Hz); below that a "filter" would only be a way to reshape any slow power
+# with an absurd white level behind it
+LOWEST_CUTOFF = 1.0 / 8
 
 
 @dataclass
@@ -40,8 +42,8 @@ class SensorNoise:
     cutoff_hz: float | None = None         # low-pass cut-off
     step: np.ndarray | None = None         # quantization step
     uniform: bool = False                  # uniform instead of Gaussian white noise
-    tremor_deg: float = 0.0                # motion contamination amplitudes (gyro fit)
-    sway_deg: float = 0.0
+    tremor_deg: float = 0.0                # motion contamination amplitudes [deg]
+    sway_deg: float = 0.0                  # (apmcal.diagnosis.hold_motion)
     levels: dict = field(default_factory=dict)   # the fitted wavelet variances (for plots)
 
 
@@ -63,22 +65,41 @@ def fit_noise(coefficient_sets: list, train: np.ndarray, effects, fs_of: dict,
     """Noise terms of each residual block (:class:`~apmcal.diagnosis.gap.BlockCoefficients`,
     named by its first channel's sensor) on the training pieces ``train``. ``fs_of`` gives each
     sensor's sample rate, ``steps`` the quantization step per axis of the sensors the model
-    rounds (absent or None: no rounding)."""
-    out = {}
+    rounds (absent or None: no rounding). The low-pass, when modelled, is one cut-off for the
+    accelerometer and the gyro, as the MPU-6000's DLPF (and sitl's ``lowpass_hz``) is."""
+    inputs = {}
     for coeffs in coefficient_sets:
         if not coeffs.block.shape:         # moves: scored, but the noise is the holds'
             continue
         sensor = coeffs.block.names[0].split("_")[0]
         v, n = level_stats(coeffs, train)
-        gyro = sensor == "gyr"
-        walk = gyro and "bias_random_walk" in effects
-        out[sensor] = fit_sensor_noise(
-            v, n, fs_of[sensor], lowpass="lowpass_filter" in effects and sensor != "mag",
-            step=steps.get(sensor), random_walk=walk,
-            tremor=gyro and "motion_contamination" in effects,
-            uniform="uniform_noise" in effects,
-            pairs=MeanPairs.of(coeffs.block, train) if walk else None)
+        walk = sensor == "gyr" and "bias_random_walk" in effects
+        inputs[sensor] = dict(v=v, n=n, fs=fs_of[sensor], step=steps.get(sensor),
+                              random_walk=walk, floor=floor_stat(coeffs.block, train),
+                              pairs=MeanPairs.of(coeffs.block, train) if walk else None)
+    filtered = [s for s in ("acc", "gyr") if s in inputs]
+    cutoff = shared_cutoff([inputs[s] for s in filtered]) if "lowpass_filter" in effects \
+        else None
+    out = {}
+    for sensor, kw in inputs.items():
+        sigma, q, _ = fit_channels(**kw, cutoff_hz=cutoff if sensor in filtered else None)
+        out[sensor] = SensorNoise(sigma=sigma, rw_q=q,
+                                  cutoff_hz=cutoff if sensor in filtered else None,
+                                  step=kw["step"], uniform="uniform_noise" in effects,
+                                  levels={"v": kw["v"].tolist(), "n": kw["n"].tolist()})
     return NoiseModel(out)
+
+
+def shared_cutoff(sensors: list) -> float | None:
+    """The low-pass cut-off [Hz] that fits all ``sensors`` (fit_channels keyword sets, one
+    rate) best over all levels, or None when no filter fits better than none."""
+    fs = sensors[0]["fs"]
+    best, best_obj = None, np.inf
+    for fc in [None] + list(np.geomspace(LOWEST_CUTOFF * fs, 0.45 * fs, CUTOFF_GRID)):
+        obj = sum(fit_channels(**kw, cutoff_hz=fc)[-1] for kw in sensors)
+        if obj < best_obj:
+            best, best_obj = fc, obj
+    return best
 
 
 def level_stats(coeffs, pieces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -92,6 +113,32 @@ def level_stats(coeffs, pieces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         v.append(np.mean(c.values[m] ** 2, axis=0))
         n.append(float(m.sum()))
     return np.array(v).reshape(len(v), -1), np.array(n)
+
+
+def floor_stat(block, pieces: np.ndarray) -> np.ndarray:
+    """The high-frequency floor per channel: the mean square of the fourth differences inside
+    the given pieces, divided by 70 (its value for unit white noise, C(8, 4)).
+
+    A fourth difference passes a signal of frequency f with the gain (2 sin(πf/fs))^8: a hand's
+    tremor at 5 Hz sampled at 100 Hz reaches it 10^-6 times weaker than white noise does,
+    where the finest Haar level (a first difference) lets 5 % of it through.
+    """
+    keep = np.isin(block.piece, pieces)
+    parts = [np.diff(block.values[a:b], n=4, axis=0)
+             for a, b in zip(block.i0[keep], block.i1[keep]) if b - a > 8]
+    d = np.concatenate(parts) if parts else np.zeros((0, block.values.shape[1]))
+    return np.mean(d ** 2, axis=0) / 70.0 if len(d) else np.full(block.values.shape[1], np.nan)
+
+
+@lru_cache(maxsize=512)
+def floor_gain(fs: float, cutoff_hz: float | None) -> float:
+    """floor_stat of unit white noise seen through the low-pass (1 without it)."""
+    if cutoff_hz is None or cutoff_hz >= fs / 2:
+        return 1.0
+    w = _omega()
+    b, a = butter(2, cutoff_hz / (fs / 2))
+    g = np.abs(freqz(b, a, worN=w)[1]) ** 2
+    return float(np.trapezoid((2 * np.sin(w / 2)) ** 8 * g, w) / np.pi / 70.0)
 
 
 def _omega() -> np.ndarray:
@@ -125,18 +172,6 @@ def random_walk_gain(levels: int, fs: float) -> np.ndarray:
     return (2 * m ** 2 + 1) / 6.0 / fs
 
 
-def band_gain(levels: int, fs: float, band_hz: tuple[float, float]) -> np.ndarray:
-    """Haar variance of the rate of sitl's tremor per deg² amplitude (frequencies uniform in the
-    band; a sinusoid of rate amplitude 2πf·A has power (2πfA)²/2)."""
-    w = _omega()
-    f = w * fs / (2 * np.pi)
-    inside = (f >= band_hz[0]) & (f <= band_hz[1])
-    if not inside.any():
-        return np.zeros(levels)
-    power = (2 * np.pi * f[inside]) ** 2 * np.radians(1.0) ** 2 / 2
-    return np.mean(haar_gain(levels)[:, inside] * power, axis=1)
-
-
 def ml_variances(v: np.ndarray, n: np.ndarray, design: np.ndarray, fixed: np.ndarray,
                  iterations: int = 60) -> tuple[np.ndarray, float]:
     """Coefficients c ≥ 0 minimising Σ n (v / M + ln M), M = fixed + design·c (rows: levels of
@@ -161,24 +196,6 @@ def ml_variances(v: np.ndarray, n: np.ndarray, design: np.ndarray, fixed: np.nda
             break
         c = c_new
     return c / scale, float(np.sum(n * (v / m + np.log(m))))
-
-
-def ml_white(v: np.ndarray, n: np.ndarray, gain: np.ndarray, fixed: float
-             ) -> tuple[float, float]:
-    """σ² ≥ 0 minimising Σ n (v / M + ln M) with M = σ²·gain + fixed, and the objective.
-
-    Closed form without a fixed part (σ² = Σ n v/gain / Σ n); a 1-D search otherwise.
-    """
-    def objective(s2):
-        m = np.maximum(s2 * gain + fixed, 1e-300)
-        return float(np.sum(n * (v / m + np.log(m))))
-
-    if fixed <= 0:
-        s2 = float(np.sum(n * v / gain) / np.sum(n))
-        return s2, objective(s2)
-    hi = max(float(np.max(v / gain)), 1e-300)
-    sol = minimize_scalar(lambda x: objective(x * hi), bounds=(0.0, 2.0), method="bounded")
-    return float(sol.x * hi), float(sol.fun)
 
 
 @dataclass
@@ -213,66 +230,41 @@ class MeanPairs:
 
 
 def fit_channels(v: np.ndarray, n: np.ndarray, fs: float, *, cutoff_hz: float | None,
-                 step: np.ndarray | None, random_walk: bool, tremor: bool,
+                 floor: np.ndarray, step: np.ndarray | None = None, random_walk: bool = False,
                  pairs: MeanPairs | None = None
-                 ) -> tuple[np.ndarray, np.ndarray | None, float, float, float]:
-    """One sensor's three channels with shared motion amplitudes; with a random walk the
-    piece-mean ``pairs`` add its slow scales to the levels'.
+                 ) -> tuple[np.ndarray, np.ndarray | None, float]:
+    """One sensor's three channels: per-axis σ, per-axis q (or None) and the objective.
 
-    Returns per-axis σ, per-axis q (or None), tremor and sway [deg], and the objective.
+    With white noise alone (no random walk) the white level is anchored at the spectrum's
+    high-frequency ``floor`` (:func:`floor_stat`), through the low-pass's gain there when one
+    is modelled: σ² = (floor − Δ²/12) / gain. Slower power that is not modelled then shows as
+    a gap where it lies instead of inflating the white level (and with it a gap at the
+    finest scale), and a low-pass can only stand for the one spectral shape a filter gives,
+    not for any slow excess. The objective is over all levels.
     """
     levels, axes = v.shape
     lp = lowpass_gain(levels, fs, cutoff_hz)
     quant = np.zeros(axes) if step is None else np.asarray(step) ** 2 / 12.0
-    if not (random_walk or tremor):             # white only: axis by axis, 1-D
-        fits = [ml_white(v[:, a], n, lp, quant[a]) for a in range(axes)]
-        return (np.sqrt([f[0] for f in fits]), None, 0.0, 0.0, float(sum(f[1] for f in fits)))
+    if not random_walk:                         # white only: anchored at the floor
+        s2 = np.maximum(np.asarray(floor) - quant, 1e-300) / floor_gain(fs, cutoff_hz)
+        m = np.maximum(np.outer(lp, s2) + quant, 1e-300)
+        return np.sqrt(s2), None, float(np.sum(n[:, None] * (v / m + np.log(m))))
     rows_v, rows_n = [v], [n]
     white, walk = [lp], [random_walk_gain(levels, fs)]
     fixed = [np.ones(levels)]
-    if random_walk and pairs is not None:
+    if pairs is not None:
         rows_v.append(pairs.squares)
         rows_n.append(np.ones(len(pairs.white)))
         white.append(pairs.white)
         walk.append(pairs.walk)
         fixed.append(pairs.white)       # a pair's rounding noise: Δ²/12 per mean, like σ²
     v_all, n_all = np.vstack(rows_v), np.concatenate(rows_n)
-    rows = len(n_all)
     white, walk, fixed = np.concatenate(white), np.concatenate(walk), np.concatenate(fixed)
-    columns = [np.kron(np.eye(axes), white[:, None])]                   # σ² per axis
-    if random_walk:
-        columns.append(np.kron(np.eye(axes), walk[:, None]))
-    if tremor:
-        bands = np.zeros((rows, 2))
-        bands[:levels] = np.column_stack([band_gain(levels, fs, TREMOR_BAND_HZ),
-                                          band_gain(levels, fs, SWAY_BAND_HZ)])
-        columns.append(np.tile(bands, (axes, 1)))
-    coef, obj = ml_variances(v_all.T.ravel(), np.tile(n_all, axes), np.hstack(columns),
+    design = np.hstack([np.kron(np.eye(axes), white[:, None]),     # σ² per axis
+                        np.kron(np.eye(axes), walk[:, None])])     # q² per axis
+    coef, obj = ml_variances(v_all.T.ravel(), np.tile(n_all, axes), design,
                              np.kron(quant, fixed))
-    sigma = np.sqrt(coef[:axes])
-    q = np.sqrt(coef[axes:2 * axes]) if random_walk else None
-    amps = np.sqrt(coef[-2:]) if tremor else (0.0, 0.0)
-    return sigma, q, float(amps[0]), float(amps[1]), obj
-
-
-def fit_sensor_noise(v: np.ndarray, n: np.ndarray, fs: float, *, lowpass: bool = False,
-                     step: np.ndarray | None = None, random_walk: bool = False,
-                     tremor: bool = False, uniform: bool = False,
-                     pairs: MeanPairs | None = None) -> SensorNoise:
-    """Noise terms of one sensor from its level variances ``v`` (levels, 3) and counts ``n``."""
-    cutoffs = [None]       # None: no filter (the cut-off at or above Nyquist)
-    if lowpass:
-        cutoffs += list(np.geomspace(0.02 * fs, 0.45 * fs, CUTOFF_GRID))
-    best = None
-    for fc in cutoffs:
-        out = fit_channels(v, n, fs, cutoff_hz=fc, step=step, random_walk=random_walk,
-                           tremor=tremor, pairs=pairs)
-        if best is None or out[-1] < best[1][-1]:
-            best = (fc, out)
-    fc, (sigma, q, a_t, a_s, _) = best
-    return SensorNoise(sigma=sigma, rw_q=q, cutoff_hz=fc, step=step, uniform=uniform,
-                       tremor_deg=a_t, sway_deg=a_s,
-                       levels={"v": v.tolist(), "n": n.tolist()})
+    return np.sqrt(coef[:axes]), np.sqrt(coef[axes:]), obj
 
 
 def lattice_step(x: np.ndarray, min_fraction: float = 0.9) -> float | None:

@@ -28,8 +28,9 @@ METHOD = """\
   one fold is scored on the other, both ways round.
 - **Effects.** Each candidate is added to the nominal model alone, refitted, re-twinned and
   scored held out. Its *evidence* is the held-out gap it removes, in nats (the log of how many
-  times better it predicts the held-out data); it is *supported* when the evidence reaches 10
-  nats and it removes at least 5 % of the gap. Supported effects are then combined greedily.
+  times better it predicts the held-out data); it is *supported* when the evidence reaches 15
+  nats. Supported effects are then combined greedily, each round adding the one with the most
+  evidence on top of those chosen.
 """
 
 

@@ -6,12 +6,16 @@ Each applicable effect is added to the nominal model and scored held-out
 model with the effect predicts the held-out data than the one without (the gap is a
 log-likelihood ratio, so this is a cross-validated likelihood ratio, an information criterion
 that needs no parameter count: overfitting is already paid for on the held-out side). An
-effect is *supported* when its evidence reaches ``MIN_EVIDENCE_NATS`` — odds of e^10 ≈ 22 000
-to 1 — and it removes at least ``MIN_SHRINK`` of the gap. On simulated sessions without any
-extra effect the evidence of a useless candidate stays within a few nats (its parameters fit
-noise in the real data and in the twin alike), which is what the threshold is set against
-(``apmcal gap --benchmark`` measures the false alarms). Greedy forward selection then adds,
-round after round, the supported effect with the most evidence on top of those already chosen.
+effect is *supported* when its evidence reaches ``MIN_EVIDENCE_NATS`` — odds of e^15, over
+three million to one. On simulated sessions without any extra effect the evidence of a useless
+candidate stays within a few nats (its parameters fit noise in the real data and in the twin
+alike); among 12 such sessions (seeds 201-206 and 301-306, none of the benchmark's) the largest
+was 13.5 nats, which is what the threshold is set against (``apmcal gap --benchmark``
+measures the false alarms on other seeds); no
+share of the gap is asked for, because a real effect can sit under a much larger one and
+remove only a sliver of the total until that one is modelled. Greedy forward selection then
+adds, round after round, the supported effect with the most evidence on top of those already
+chosen, for as long as one reaches the threshold.
 """
 from __future__ import annotations
 
@@ -21,8 +25,7 @@ import numpy as np
 
 from apmcal.diagnosis.effects import BY_NAME, NAMES, unmet
 
-MIN_EVIDENCE_NATS = 10.0    # held-out log-likelihood ratio an effect must reach
-MIN_SHRINK = 0.05           # ... and the share of the gap it must remove
+MIN_EVIDENCE_NATS = 15.0    # held-out log-likelihood ratio an effect must reach
 MAX_ROUNDS = 5
 
 
@@ -57,10 +60,9 @@ def score(evaluator, base: tuple, name: str) -> EffectScore:
         return EffectScore(name, reason)
     before, after = evaluator.evaluate(base), evaluator.evaluate(base + (name,))
     evidence = before.nats_out - after.nats_out
-    drop = shrink(before.gap_out, after.gap_out)
-    supported = evidence >= MIN_EVIDENCE_NATS and drop >= MIN_SHRINK
     return EffectScore(name, None, after.gap_in, after.gap_out,
-                       shrink(before.gap_in, after.gap_in), drop, evidence, supported)
+                       shrink(before.gap_in, after.gap_in), shrink(before.gap_out, after.gap_out),
+                       evidence, evidence >= MIN_EVIDENCE_NATS)
 
 
 def rank(scores: list[EffectScore]) -> list[EffectScore]:

@@ -138,7 +138,7 @@ def _forward(layout: _Layout, p, kind: str) -> np.ndarray:
 def fit_geometry(blocks: Blocks, columns: np.ndarray, radius: float, *, kind: str = "acc",
                  cross_axis: bool = False, quadratic: bool = False,
                  start: GeometryFit | None = None, with_sigma: bool = True,
-                 alpha=None) -> GeometryFit:
+                 fixed: dict | None = None) -> GeometryFit:
     """Fit offset, forward matrix (and the optional terms) to the hold block means.
 
     Parameters
@@ -149,8 +149,8 @@ def fit_geometry(blocks: Blocks, columns: np.ndarray, radius: float, *, kind: st
     radius : float
         Field magnitude (gravity [m/s²] or Earth field [mGauss]).
     kind : "acc" (diagonal scale, optional non-orthogonality) or "mag" (symmetric soft iron)
-    alpha : (3,) array, optional
-        A known non-orthogonality [rad] to hold fixed (found on the moves) instead of fitting it.
+    fixed : dict, optional
+        Terms held at known values instead of fitted ("alpha", "k2"; found on the moves).
     """
     k = columns.shape[1]
     if count_orientations(blocks, kind) < MIN_ORIENTATIONS:
@@ -162,7 +162,7 @@ def fit_geometry(blocks: Blocks, columns: np.ndarray, radius: float, *, kind: st
     if quadratic:
         sizes["k2"] = 3
     sizes["theta"] = 3 * k
-    layout = _Layout(sizes, {"alpha": np.asarray(alpha, float)} if alpha is not None else None)
+    layout = _Layout(sizes, {k: np.asarray(v, float) for k, v in (fixed or {}).items()})
     p0 = _start_vector(layout, blocks, radius, kind, start, k)
     residuals = _with_priors(_split_residuals(blocks, columns, layout, kind, radius), layout,
                              _noise_level(blocks))
@@ -231,8 +231,8 @@ def _unpack(layout, p, kind, radius, k) -> GeometryFit:
     fit = GeometryFit(offset=layout.get(p, "offset"), forward=_forward(layout, p, kind),
                       radius=radius, k2=layout.get(p, "k2", np.zeros(3)), theta=theta,
                       geometry=True)
-    if "alpha" in layout.fixed:
-        fit.params["alpha"] = layout.fixed["alpha"].tolist()
+    for name, value in layout.fixed.items():
+        fit.params[name] = value.tolist()
     return fit
 
 

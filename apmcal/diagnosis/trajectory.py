@@ -171,19 +171,15 @@ def carried(traj: Trajectory, hold_rot: list[np.ndarray], vectors: np.ndarray,
     return out
 
 
-def with_hold_motion(traj: Trajectory, session, rate: np.ndarray) -> Trajectory:
-    """The trajectory with a small motion inside each hold: attitude R_k·Exp(θ(t)), θ the
-    integrated ``rate`` [rad/s] (its mean over the hold removed, so the hold's mean attitude
-    stays R_k), and the body rate ``rate``."""
-    rot, out_rate = traj.rot.copy(), traj.rate.copy()
+def with_hold_motion(traj: Trajectory, session, rate: np.ndarray, turn: np.ndarray
+                     ) -> Trajectory:
+    """The trajectory with a small motion inside each hold: attitude R_k·``turn`` (the holds'
+    rotations, :func:`apmcal.diagnosis.hold_motion.hold_rotations`) and the body rate ``rate``
+    [rad/s] there."""
+    inside = np.zeros(len(rate), bool)
     for h in session.holds:
-        a, b = h.i0, h.i1
-        if b - a < 2 or not np.any(rate[a:b]):
-            continue
-        dt = np.diff(session.t[a:b])
-        theta = np.vstack([np.zeros(3), np.cumsum(0.5 * (rate[a:b - 1] + rate[a + 1:b])
-                                                  * dt[:, None], axis=0)])
-        theta -= theta.mean(axis=0)
-        rot[a:b] = rot[a:b] @ Rotation.from_rotvec(theta).as_matrix()
-        out_rate[a:b] = rate[a:b]
+        inside[h.i0:h.i1] = True
+    rot, out_rate = traj.rot.copy(), traj.rate.copy()
+    rot[inside] = rot[inside] @ turn[inside]
+    out_rate[inside] = rate[inside]
     return Trajectory(rot, out_rate, traj.hold, traj.blend)

@@ -125,23 +125,22 @@ def motion_of(session, fit: ModelFit) -> tuple[list, "trajectory.Trajectory"]:
     return hold_rot, trajectory.build(session, hold_rot, true_rate)
 
 
-def simulate(session, fit: ModelFit, noise, seed: int = 0, motion_path=None,
-             hold_rate=None):
+def simulate(session, fit: ModelFit, noise, seed: int = 0, motion_path=None):
     """A copy of ``session`` whose acc, gyr (and mag) samples come from the twin.
 
     ``motion_path``: (hold attitudes, trajectory) to reuse (:func:`motion_of`); the real poses
     and moves are the same for every model of a session, so an evaluator builds them once.
-    ``hold_rate``: the real motion inside the holds (:mod:`apmcal.diagnosis.hold_motion`),
-    given to the twin when ``motion_contamination`` is modelled.
+    The real motion inside the holds (``fit.hold_motion``, when ``motion_contamination`` is
+    modelled) is the twin's too.
     """
     from sitl.errors_model import ImuErrorModel
 
     hold_rot, traj = motion_path or motion_of(session, fit)
     t = session.t
     truth = twin_truth(fit, noise, session.fs)
-    tremor = "motion_contamination" in fit.effects and hold_rate is not None
+    tremor = fit.hold_motion is not None
     if tremor:
-        traj = trajectory.with_hold_motion(traj, session, hold_rate)
+        traj = trajectory.with_hold_motion(traj, session, *fit.hold_motion)
     rot, rate = traj.rot, traj.rate
     f_hold, b_hold = hold_vectors(fit, len(session.holds))
     f_body = trajectory.carried(traj, hold_rot, f_hold, still_holds=not tremor)
