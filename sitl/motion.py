@@ -297,17 +297,22 @@ def motors_section(m: Motion, seconds: float = 60.0, idle_s: float = 5.0,
             .hold(idle_s, "idle_end"))
 
 
-def diagnosis(move_s: float = 3.0, motors_s: float = 60.0) -> Motion:
+def diagnosis(move_s: float = 3.0, motors_s: float = 60.0,
+              duration: float | None = None) -> Motion:
     """The diagnosis benchmark session: :func:`ferraris` (six faces, then −360° about x, y, z),
     then level and still the :func:`motors` section (idle 5 s, ramp up, 5 s full throttle, ramp
     down, idle 5 s; ``motors_s`` in all) — every effect, compass interference included, in one
     session. The Ferraris session ends at z_a, which is level: a "transition" to level is only
-    added if it did not."""
+    added if it did not. A ``duration`` beyond the session's own (528 s) adds a still, level
+    hold at the end (the speed benchmark's ten minutes)."""
     m = ferraris(move_s=move_s)
     level = pose_matrix("level")
     if Rotation.from_matrix(m.end_pose().T @ level).magnitude() > 1e-9:
         m.move_to(level, move_s)
-    return motors_section(m, motors_s)
+    m = motors_section(m, motors_s)
+    if duration is not None and duration > m.duration:
+        m.hold(duration - m.duration, "still")
+    return m
 
 
 def operator() -> Motion:
@@ -332,6 +337,6 @@ def build(name: str, seed: int = 0, duration: float | None = None) -> Motion:
         return operator()
     if name == "motors":
         return motors(duration or 60.0)
-    if name == "diagnosis":              # fixed length, like ferraris: duration is ignored
-        return diagnosis()
+    if name == "diagnosis":              # its own length, or longer with a final still hold
+        return diagnosis(duration=duration)
     raise ValueError(f"unknown script {name!r}; known: {', '.join(SCRIPTS)}")

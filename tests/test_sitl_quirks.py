@@ -262,7 +262,7 @@ def test_sitl_cli_twin_help_and_exclusion(capsys):
 def test_diagnosis_script_faces_rotations_and_throttle_ramp():
     from sitl import motion
     assert "diagnosis" in motion.SCRIPTS
-    m = motion.build("diagnosis", duration=10.0)           # duration ignored, like ferraris
+    m = motion.build("diagnosis", duration=10.0)     # shorter than the session: no effect
     secs = [(n, a, b) for n, a, b in m.sections() if n != "transition"]
     assert [s[0] for s in secs] == ["x_p", "x_a", "y_p", "y_a", "z_p", "z_a", "x_rot", "y_rot",
                                     "z_rot", "idle", "throttle_up", "full_throttle",
@@ -273,6 +273,10 @@ def test_diagnosis_script_faces_rotations_and_throttle_ramp():
     assert spans["idle_end"][1] - spans["idle"][0] == 60.0 == m.duration - ferraris.duration
     assert spans["idle"][1] - spans["idle"][0] == 5.0 == spans["idle_end"][1] - spans["idle_end"][0]
     assert spans["full_throttle"][1] - spans["full_throttle"][0] == 5.0
+    longer = motion.build("diagnosis", duration=600.0)     # padded with a still hold
+    assert longer.duration == pytest.approx(600.0)
+    assert longer.sections()[-1][0] == "still"
+    assert longer.sections()[:-1] == m.sections()
     fs = 200.0
     for k, name in enumerate(("x_rot", "y_rot", "z_rot")):   # −360° about x, y, z
         a, b = spans[name]

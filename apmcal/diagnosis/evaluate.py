@@ -7,6 +7,8 @@ average in-sample as well as held-out.
 """
 from __future__ import annotations
 
+import multiprocessing
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -85,6 +87,26 @@ class Context:
     steps: dict             # quantization step per axis of each sensor (None: no lattice)
 
 
+@dataclass(frozen=True)
+class Summary:
+    """The numbers of an evaluation that ranking and selection need [nats per sample; nats]."""
+
+    gap_in: float
+    gap_out: float
+    nats_out: float
+
+    @classmethod
+    def of(cls, evaluation: Evaluation) -> "Summary":
+        return cls(evaluation.gap_in, evaluation.gap_out, evaluation.nats_out)
+
+
+_WORKER: "Evaluator | None" = None      # the evaluator a forked worker inherits
+
+
+def _summarise(effects) -> tuple:
+    return frozenset(effects), Summary.of(_WORKER.evaluate(effects))
+
+
 class Evaluator:
     """Fits and scores models of one session; evaluations are cached by effect set."""
 
@@ -100,6 +122,7 @@ class Evaluator:
         if session.mag is not None:
             self.fs_of["mag"] = float(1.0 / np.median(np.diff(session.mag.t)))
         self._cache: dict[frozenset, Evaluation] = {}
+        self._summaries: dict[frozenset, Summary] = {}
         self._motion: dict = {}     # per fold: the real motion (poses, moves, hold motion)
 
     def steps_for(self, effects) -> dict:
@@ -163,6 +186,32 @@ class Evaluator:
             rate = wiener_motion(calibrated_rate(self.session, fit), self.session)
             self._motion[key] = (rate, hold_rotations(self.session, rate))
         return self._motion[key]
+
+    def summary(self, effects) -> Summary:
+        """The model's gaps (cached; computed here unless :meth:`prefetch` did it)."""
+        key = frozenset(effects)
+        if key not in self._summaries:
+            self._summaries[key] = Summary.of(self.evaluate(key))
+        return self._summaries[key]
+
+    def prefetch(self, models) -> None:
+        """Summaries of several models at once, on every core (forked workers inherit the
+        session; each model is independent of the others)."""
+        todo = list(dict.fromkeys(frozenset(m) for m in models
+                                  if frozenset(m) not in self._summaries))
+        workers = min(len(todo), os.cpu_count() or 1)
+        if workers < 2:
+            for key in todo:
+                self.summary(key)
+            return
+        global _WORKER
+        _WORKER = self
+        try:
+            with multiprocessing.get_context("fork").Pool(workers) as pool:
+                for key, summary in pool.imap_unordered(_summarise, todo):
+                    self._summaries[key] = summary
+        finally:
+            _WORKER = None
 
     def evaluate(self, effects) -> Evaluation:
         """The model nominal + ``effects`` scored both ways round (cached)."""

@@ -58,7 +58,9 @@ class ResidualBlock:
     temp : (n,) array or None
         Temperature [°C] at each sample.
     shape : bool
-        Whether the distribution-shape cell is scored (still holds only).
+        Whether the block is of still holds: its finest level is scored by its distribution
+        and its piece means are scored (a move's mean residual, one number per move from a
+        path that differs move to move, is not a sample of one variance).
     radial : (p, 3) array or None
         For a geometric sensor (accelerometer, compass) the fit turns each hold's orientation
         to its data, so only the piece means' component along the field ("radial") is left
@@ -251,7 +253,7 @@ def _channel_cells(rc: BlockCoefficients, tc: BlockCoefficients, col: int, keep,
                         np.concatenate([real_lv[j - 1][1] for j in group]),
                         np.concatenate([real_lv[j - 1][2] for j in group]), block)
     loss = _dof_loss(block, in_sample)
-    if block.radial is None and mean_mask.sum() - loss > 2:
+    if block.shape and block.radial is None and mean_mask.sum() - loss > 2:
         real = rc.means.values[mean_mask, col]
         share, v_r, v_t = variance_shares(real, tc.means.values[mean_mask, col], loss)
         yield CellShare(name, LEVEL_MEANS, (LEVEL_MEANS,), len(real), v_r, v_t, share,

@@ -27,6 +27,7 @@ from apmcal.diagnosis.effects import BY_NAME, NAMES, unmet
 
 MIN_EVIDENCE_NATS = 15.0    # held-out log-likelihood ratio an effect must reach
 MAX_ROUNDS = 5
+MAX_POOL = 6
 
 
 @dataclass
@@ -58,7 +59,7 @@ def score(evaluator, base: tuple, name: str) -> EffectScore:
     reason = unmet(BY_NAME[name], evaluator.session, evaluator.context)
     if reason:
         return EffectScore(name, reason)
-    before, after = evaluator.evaluate(base), evaluator.evaluate(base + (name,))
+    before, after = evaluator.summary(base), evaluator.summary(base + (name,))
     evidence = before.nats_out - after.nats_out
     return EffectScore(name, None, after.gap_in, after.gap_out,
                        shrink(before.gap_in, after.gap_in), shrink(before.gap_out, after.gap_out),
@@ -77,17 +78,27 @@ def candidates(names=None) -> tuple:
     return tuple(NAMES if names is None else names)
 
 
+def testable(evaluator, names) -> list[str]:
+    return [n for n in names if not unmet(BY_NAME[n], evaluator.session, evaluator.context)]
+
+
 def rank_effects(evaluator, names=None) -> list[EffectScore]:
     """Every candidate alone on top of the nominal model, ranked."""
-    return rank([score(evaluator, (), n) for n in candidates(names)])
+    names = candidates(names)
+    evaluator.prefetch([()] + [(n,) for n in testable(evaluator, names)])
+    return rank([score(evaluator, (), n) for n in names])
 
 
 def forward_selection(evaluator, ranked: list[EffectScore],
-                      max_rounds: int = MAX_ROUNDS) -> list[str]:
-    """Greedy forward selection among the supported effects (module docstring)."""
-    pool = [s.name for s in ranked if s.significant]
+                      max_rounds: int = MAX_ROUNDS, max_pool: int = MAX_POOL) -> list[str]:
+    """Greedy forward selection among the supported effects (module docstring), the
+    ``max_pool`` with the most evidence alone (the others explain less than they do, and
+    each round costs one evaluation per candidate)."""
+    pool = [s.name for s in sorted((s for s in ranked if s.significant),
+                                   key=lambda s: -s.evidence)][:max_pool]
     selected: list[str] = []
     for _ in range(max_rounds):
+        evaluator.prefetch([tuple(selected) + (n,) for n in pool if n not in selected])
         trials = [score(evaluator, tuple(selected), n) for n in pool if n not in selected]
         trials = [s for s in trials if s.significant]
         if not trials:

@@ -1,0 +1,91 @@
+"""How long ``apmcal gap`` takes on a ten-minute 400 Hz session, stage by stage.
+
+    python benchmarks/gap_speed.py [--rate 400] [--seconds 600]
+
+The session is simulated once with sitl (the ``diagnosis`` script padded to ten minutes with a
+still hold; the nominal errors plus temperature drift, a board warming up) and kept in
+``benchmarks/_data/``. Printed: the time to read it, to cut it into holds and moves, to score
+the nominal model, to rank every candidate, to select a combination, and in all; and, as the
+peer measured in the same run, pymavlink's DFReader reading the same file's IMU records.
+Issue 8's target: under 10 s on this 2-core machine.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+DATA = Path(__file__).resolve().parent / "_data"
+
+
+def make_session(path: Path, rate: float, seconds: float) -> None:
+    from sitl.makelog import write_bin
+    from sitl.vehicle import SimVehicle
+
+    from apmcal.diagnosis.benchmark import START_UNIX, truth_for
+
+    v = SimVehicle(truth_for(("temperature_drift",), 11), "diagnosis", "3.3", None, fs=rate,
+                   seed=11, duration=seconds, start_unix=START_UNIX)
+    v.params.set("INS_GYR_CAL", 0, save=False)
+    v._boot_gyro = None
+    v.reset_zero_compass_diagonals()
+    write_bin(v, path, rate, v.motion.duration + 1.0)
+
+
+def pymavlink_read(path: Path) -> float:
+    from pymavlink import DFReader
+
+    start = time.perf_counter()
+    log = DFReader.DFReader_binary(str(path))
+    while log.recv_match(type="IMU") is not None:
+        pass
+    return time.perf_counter() - start
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--rate", type=float, default=400.0)
+    ap.add_argument("--seconds", type=float, default=600.0)
+    args = ap.parse_args(argv)
+    DATA.mkdir(exist_ok=True)
+    path = DATA / f"gap_{int(args.rate)}hz_{int(args.seconds)}s.bin"
+    if not path.exists():
+        print(f"simulating {path.name} ...", flush=True)
+        make_session(path, args.rate, args.seconds)
+
+    from apmcal.diagnosis.evaluate import Evaluator
+    from apmcal.diagnosis.select import forward_selection, rank_effects
+    from apmcal.diagnosis.session import session_from_log
+    from apmcal.pipeline import Options
+    from apmcal.sources import read_log
+
+    times = {}
+    start = t0 = time.perf_counter()
+    contents = read_log(path)
+    times["read"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    session = session_from_log(contents, Options(lat_deg=47.4, lon_deg=8.5))
+    times["cut into holds and moves"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    ev = Evaluator(session)
+    ev.evaluate(())
+    times["nominal model"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    ranked = rank_effects(ev)
+    times[f"rank {len(ranked)} candidates"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    selected = forward_selection(ev, ranked)
+    times["select a combination"] = time.perf_counter() - t0
+    total = time.perf_counter() - start
+    peer = pymavlink_read(path)
+    print(f"{path.name}: {len(session.t)} IMU samples, {session.duration:.0f} s at "
+          f"{session.fs:.0f} Hz; selected {', '.join(selected) or 'nothing'}")
+    for stage, seconds in times.items():
+        print(f"  {stage:28s} {seconds:7.2f} s")
+    print(f"  {'total':28s} {total:7.2f} s   (target < 10 s)")
+    print(f"  pymavlink DFReader reading the IMU records: {peer:.2f} s; apmcal gap in all "
+          f"{total / peer:.1f}× that")
+
+
+if __name__ == "__main__":
+    main()
