@@ -15,7 +15,8 @@ def add_truth_args(ap) -> None:
     ap.add_argument("--disable", default="", help="effects to switch off, comma-separated "
                     "('all' for every effect; sitl names or `apmcal gap` diagnosis names)")
     ap.add_argument("--enable", default="", help="effects to switch on, comma-separated "
-                    "(sitl names or diagnosis names, e.g. bias_drift, cross_axis)")
+                    "(sitl names or diagnosis names, e.g. bias_drift, cross_axis; 'nominal' for "
+                    "the errors `apmcal gap` always models)")
     ap.add_argument("--lat", type=float, default=DEFAULT_SITE["lat"], help="home latitude [deg]")
     ap.add_argument("--lon", type=float, default=DEFAULT_SITE["lon"], help="home longitude [deg]")
     ap.add_argument("--alt", type=float, default=DEFAULT_SITE["alt"], help="home height [m]")

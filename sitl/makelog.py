@@ -30,7 +30,7 @@ BAT_VOLT = 12.6                  # constant battery voltage [V] (a full 3S pack)
 
 def make_vehicle(args) -> SimVehicle:
     truth = make_truth(args)
-    v = SimVehicle(truth, args.script, args.firmware, None, seed=args.seed,
+    v = SimVehicle(truth, args.script, args.firmware, None, fs=args.fs, seed=args.seed,
                    duration=args.duration, gyro_boot_s=1.0, start_unix=START_UNIX)
     v.params.set("INS_GYR_CAL", 0, save=False)
     v._boot_gyro = None                 # neutral: no boot-time gyro offsets
@@ -104,6 +104,9 @@ def main(argv=None) -> int:
     ap.add_argument("--out", required=True, help="output .tlog or .bin")
     ap.add_argument("--truth-out", help="write the injected truth JSON here")
     ap.add_argument("--rate", type=float, default=50.0, help="IMU message rate [Hz]")
+    ap.add_argument("--fs", type=float, default=1000.0,
+                    help="sensor sample rate [Hz] (default 1000; equal to --rate, every logged "
+                         "sample is one sensor sample, as on a board read at its loop rate)")
     ap.add_argument("--firmware", choices=("3.2", "3.3"), default="3.2")
     ap.add_argument("--duration", type=float,
                     help="script length [s] (onepos/warmup/tumble/motors)")

@@ -297,18 +297,33 @@ def motors_section(m: Motion, seconds: float = 60.0, idle_s: float = 5.0,
             .hold(idle_s, "idle_end"))
 
 
-def diagnosis(move_s: float = 3.0, motors_s: float = 60.0,
+CORNER_PITCH_DEG = float(np.degrees(np.arcsin(1.0 / np.sqrt(3.0))))   # 35.26°
+CORNER_ROLLS_DEG = (45.0, 135.0, -135.0, -45.0)
+
+
+def corner_poses() -> list[np.ndarray]:
+    """R_nb of the eight cube corners: gravity along (±1, ±1, ±1)/√3 in the body frame."""
+    return [euler_matrix(roll, pitch, 0.0) for roll in CORNER_ROLLS_DEG
+            for pitch in (CORNER_PITCH_DEG, -CORNER_PITCH_DEG)]
+
+
+def diagnosis(move_s: float = 3.0, motors_s: float = 60.0, corner_s: float = 10.0,
               duration: float | None = None) -> Motion:
     """The diagnosis benchmark session: :func:`ferraris` (six faces, then −360° about x, y, z),
-    then level and still the :func:`motors` section (idle 5 s, ramp up, 5 s full throttle, ramp
-    down, idle 5 s; ``motors_s`` in all) — every effect, compass interference included, in one
-    session. The Ferraris session ends at z_a, which is level: a "transition" to level is only
-    added if it did not. A ``duration`` beyond the session's own (528 s) adds a still, level
-    hold at the end (the speed benchmark's ten minutes)."""
+    then the eight cube corners held ``corner_s`` each (label "corner"), then level and still
+    the :func:`motors` section (idle 5 s, ramp up, 5 s full throttle, ramp down, idle 5 s;
+    ``motors_s`` in all) — every effect, compass interference included, in one session.
+
+    The corners give the accelerometer fourteen still orientations: with the six faces alone,
+    offset and scale (six parameters) and the unknown orientations fit the hold means exactly,
+    so nothing beyond them (cross-axis coupling, scale nonlinearity) could show in the holds.
+    A ``duration`` beyond the session's own (632 s) adds a still, level hold at the end (the
+    speed benchmark's ten minutes)."""
     m = ferraris(move_s=move_s)
-    level = pose_matrix("level")
-    if Rotation.from_matrix(m.end_pose().T @ level).magnitude() > 1e-9:
-        m.move_to(level, move_s)
+    for pose in corner_poses():
+        m.move_to(pose, move_s)
+        m.hold(corner_s, "corner")
+    m.move_to(pose_matrix("level"), move_s)
     m = motors_section(m, motors_s)
     if duration is not None and duration > m.duration:
         m.hold(duration - m.duration, "still")

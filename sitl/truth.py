@@ -149,9 +149,10 @@ ARDUPILOT_DRIFT = {"speed_dps_per_min": 0.05, "time_min": 5.0}
 def expand_effects(names, prefer: str = "sitl") -> list[str]:
     """sitl switch names of ``names`` (sitl switches or diagnosis names; "all" kept as is).
 
-    ``prefer="sitl"``: a name that is a sitl switch means that switch (so "gyro_scale" is the
-    sitl gyro_scale alone); ``prefer="diagnosis"``: a diagnosis name is expanded first ("gyro_scale"
-    → gyro_scale, gyro_misalignment). Unknown names raise SitlError listing both vocabularies.
+    "nominal" stands for :data:`NOMINAL_EFFECTS`. ``prefer="sitl"``: a name that is a sitl
+    switch means that switch (so "gyro_scale" is the sitl gyro_scale alone);
+    ``prefer="diagnosis"``: a diagnosis name is expanded first ("gyro_scale" → gyro_scale,
+    gyro_misalignment). Unknown names raise SitlError listing both vocabularies.
     """
     if prefer not in ("sitl", "diagnosis"):
         raise ValueError(f"prefer must be 'sitl' or 'diagnosis', got {prefer!r}")
@@ -159,6 +160,8 @@ def expand_effects(names, prefer: str = "sitl") -> list[str]:
     for name in names:
         if name == "all":
             out.append(name)
+        elif name == "nominal":     # what the diagnosis always fits
+            out.extend(NOMINAL_EFFECTS)
         elif prefer == "diagnosis" and name in DIAGNOSIS_EFFECTS:
             out.extend(DIAGNOSIS_EFFECTS[name])
         elif name in EFFECTS:

@@ -42,9 +42,10 @@ def test_corrected_move_starts_follows_and_ends_where_asked():
     r0 = np.eye(3)
     target = Rotation.from_rotvec([0, 0, np.pi / 2]).as_matrix()
     rate = np.tile([0.0, 0.0, np.pi / 2 * 1.02 / 3.0], (300, 1))    # a 2 % scale error
-    path = corrected_move(r0, target, rate, np.full(300, 0.01))
+    path, error = corrected_move(r0, target, rate, np.full(300, 0.01))
     np.testing.assert_allclose(path[0], r0, atol=1e-12)
     np.testing.assert_allclose(path[-1], target, atol=1e-12)
+    np.testing.assert_allclose(error, [0, 0, -0.02 * np.pi / 2], atol=1e-12)   # 2 % too far
 
 
 def test_attitude_puts_up_and_north_where_asked():

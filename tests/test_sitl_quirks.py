@@ -265,16 +265,27 @@ def test_diagnosis_script_faces_rotations_and_throttle_ramp():
     m = motion.build("diagnosis", duration=10.0)     # shorter than the session: no effect
     secs = [(n, a, b) for n, a, b in m.sections() if n != "transition"]
     assert [s[0] for s in secs] == ["x_p", "x_a", "y_p", "y_a", "z_p", "z_a", "x_rot", "y_rot",
-                                    "z_rot", "idle", "throttle_up", "full_throttle",
-                                    "throttle_down", "idle_end"]
+                                    "z_rot"] + ["corner"] * 8 + [
+                                    "idle", "throttle_up", "full_throttle", "throttle_down",
+                                    "idle_end"]
     ferraris = motion.ferraris()
     assert m.sections()[:len(ferraris.sections())] == ferraris.sections()
     spans = {n: (a, b) for n, a, b in secs}
-    assert spans["idle_end"][1] - spans["idle"][0] == 60.0 == m.duration - ferraris.duration
+    corners = [(a, b) for n, a, b in secs if n == "corner"]
+    assert all(b - a == 10.0 for a, b in corners)
+    # gravity along each of the eight (±1, ±1, ±1)/√3 in the body frame, once
+    ups = {tuple(np.sign(np.round(m.evaluate(np.array([a + 5.0]))[0][0].T @ [0, 0, -1], 9)))
+           for a, _ in corners}
+    assert len(ups) == 8
+    for a, _ in corners:
+        up = m.evaluate(np.array([a + 5.0]))[0][0].T @ [0, 0, -1]
+        np.testing.assert_allclose(np.abs(up), 1 / np.sqrt(3), atol=1e-9)
+    assert spans["idle_end"][1] - spans["idle"][0] == 60.0
+    assert m.duration == pytest.approx(ferraris.duration + 8 * (3.0 + 10.0) + 3.0 + 60.0)
     assert spans["idle"][1] - spans["idle"][0] == 5.0 == spans["idle_end"][1] - spans["idle_end"][0]
     assert spans["full_throttle"][1] - spans["full_throttle"][0] == 5.0
-    longer = motion.build("diagnosis", duration=600.0)     # padded with a still hold
-    assert longer.duration == pytest.approx(600.0)
+    longer = motion.build("diagnosis", duration=700.0)     # padded with a still hold
+    assert longer.duration == pytest.approx(700.0)
     assert longer.sections()[-1][0] == "still"
     assert longer.sections()[:-1] == m.sections()
     fs = 200.0

@@ -187,8 +187,8 @@ def _layout(effects, fit) -> dict:
         out["gyro_gamma"] = (6, PRIOR_SIGMA["gyro_gamma"])
     if "time_offset" in effects:
         out["time_offset"] = (1, PRIOR_SIGMA["time_offset"])
-    for effect, name in ACC_TERMS.items():      # the holds left these to the moves (model.py)
-        if effect in effects and fit.acc.geometry:
+    for effect, name in ACC_TERMS.items():      # when the holds left them to the moves
+        if effect in effects and fit.acc.geometry and fit.acc_terms_in_moves:
             out[name] = (3, PRIOR_SIGMA[name])
     return out
 

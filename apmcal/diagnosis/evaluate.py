@@ -14,11 +14,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from apmcal.diagnosis.gap import GapEstimate, coefficients, compare
-from apmcal.diagnosis.hold_motion import amplitudes, hold_rotations, wiener_motion
+from apmcal.diagnosis.hold_motion import (amplitudes, confirmed, confirmed_by_accelerometer,
+                                          extract_motion, hold_rotations)
 from apmcal.diagnosis.dynamics import fit_dynamics, move_residuals
 from apmcal.diagnosis.model import (ModelFit, calibrated_rate, fit_model, hold_residuals,
                                     hold_vectors, reduce_session, set_acc_terms)
 from apmcal.diagnosis.noise_fit import NoiseModel, fit_noise, lattice_step
+from apmcal.diagnosis.params import effect_params, mean_of_folds
 from apmcal.diagnosis.static_fit import count_orientations
 from apmcal.diagnosis.twin import motion_of, simulate
 
@@ -37,6 +39,7 @@ class FoldResult:
     twin: list          # ... of the twin's
     gap_in: GapEstimate
     gap_out: GapEstimate
+    params: dict        # each effect's fitted parameters (apmcal.diagnosis.params)
 
 
 @dataclass
@@ -89,22 +92,27 @@ class Context:
 
 @dataclass(frozen=True)
 class Summary:
-    """The numbers of an evaluation that ranking and selection need [nats per sample; nats]."""
+    """The numbers of an evaluation that ranking and selection need [nats per sample; nats],
+    and the effects' parameters, averaged over the two folds' fits."""
 
     gap_in: float
     gap_out: float
     nats_out: float
+    params: dict
 
     @classmethod
     def of(cls, evaluation: Evaluation) -> "Summary":
-        return cls(evaluation.gap_in, evaluation.gap_out, evaluation.nats_out)
+        params = {name: mean_of_folds([f.params[name] for f in evaluation.folds])
+                  for name in evaluation.effects}
+        return cls(evaluation.gap_in, evaluation.gap_out, evaluation.nats_out, params)
 
 
 _WORKER: "Evaluator | None" = None      # the evaluator a forked worker inherits
 
 
-def _summarise(effects) -> tuple:
-    return frozenset(effects), Summary.of(_WORKER.evaluate(effects))
+def _call(job) -> object:
+    method, args = job
+    return getattr(_WORKER, method)(*args)
 
 
 class Evaluator:
@@ -131,12 +139,13 @@ class Evaluator:
         return {s: step for s, step in self.steps.items()
                 if s in self.session.integer_sensors or "quantization" in effects}
 
-    def fit(self, session, reduced, effects, train_fold, start=None):
+    def fit(self, session, reduced, effects, train_fold, start=None, with_sigma=None):
         """Model and noise fitted on ``train_fold`` (None: every piece), and the Haar
-        coefficients of all residuals."""
+        coefficients of all residuals (``with_sigma``: the fits' uncertainties too; by
+        default when fitting every piece)."""
         fit = fit_model(session, reduced, effects, train_fold, field_mgauss=self.field_mgauss,
                         declination_rad=self.declination_rad, start=start,
-                        with_sigma=train_fold is None)
+                        with_sigma=train_fold is None if with_sigma is None else with_sigma)
         train = session.pieces.select(fold=train_fold)
         rate = calibrated_rate(session, fit)
         f_hold, b_hold = hold_vectors(fit, len(session.holds))
@@ -158,12 +167,14 @@ class Evaluator:
         if "motion_contamination" in effects:
             # the real motion in the holds, measured by the gyro, is part of the model (and so
             # of the twin); its size is what gets reported
-            fit.hold_motion = self._hold_motion(train_fold if train_fold is not None else 0)
+            motion, turn, kappa = self._hold_motion(train_fold if train_fold is not None else 0)
+            fit.hold_motion = (motion, turn)
         holds = coefficients(hold_residuals(session, fit))
         noise = fit_noise(holds, train, effects, self.fs_of, self.steps_for(effects))
         if fit.hold_motion is not None:
             noise["gyr"].tremor_deg, noise["gyr"].sway_deg = amplitudes(fit.hold_motion[0],
                                                                         self.session)
+            noise["gyr"].motion_confirmed = tuple(kappa)
         moves = coefficients(move_residuals(session, fit, fit.dynamics, rate, f_hold, b_hold))
         return fit, noise, holds + moves
 
@@ -179,12 +190,19 @@ class Evaluator:
         return self._motion[fold]
 
     def _hold_motion(self, fold: int) -> tuple:
-        """The real motion inside the holds, rate and turn (for motion contamination)."""
+        """The real motion inside the holds, rate and turn, each band as far as the
+        accelerometer confirms it on the training pieces (for motion contamination)."""
         key = ("hold_motion", fold)
         if key not in self._motion:
             fit, _ = self._nominal(fold)
-            rate = wiener_motion(calibrated_rate(self.session, fit), self.session)
-            self._motion[key] = (rate, hold_rotations(self.session, rate))
+            s = self.session
+            f_hold, _ = hold_vectors(fit, len(s.holds))
+            train = s.pieces.select(fold=fold, hold=True)
+            bands = extract_motion(calibrated_rate(s, fit), s)
+            kappa = [confirmed_by_accelerometer(s, band, f_hold, train) for band in bands]
+            rate = sum(band for k, band in zip(kappa, bands) if confirmed(k)) \
+                if any(confirmed(k) for k in kappa) else np.zeros_like(bands[0])
+            self._motion[key] = (rate, hold_rotations(s, rate), kappa)
         return self._motion[key]
 
     def summary(self, effects) -> Summary:
@@ -194,24 +212,59 @@ class Evaluator:
             self._summaries[key] = Summary.of(self.evaluate(key))
         return self._summaries[key]
 
+    def _known(self, key: frozenset) -> bool:
+        return key in self._summaries or key in self._cache
+
     def prefetch(self, models) -> None:
-        """Summaries of several models at once, on every core (forked workers inherit the
-        session; each model is independent of the others)."""
-        todo = list(dict.fromkeys(frozenset(m) for m in models
-                                  if frozenset(m) not in self._summaries))
-        workers = min(len(todo), os.cpu_count() or 1)
+        """Summaries of several models at once, on every core (each model is independent of
+        the others)."""
+        todo = list(dict.fromkeys(frozenset(m) for m in models if not self._known(frozenset(m))))
+        for key, summary in zip(todo, self.map([("summary", (k,)) for k in todo])):
+            self._summaries[key] = summary
+
+    def map(self, jobs: list[tuple[str, tuple]]) -> list:
+        """``[self.method(*args) for method, args in jobs]``, spread over every core: forked
+        workers inherit the session and what is cached so far; results come back pickled."""
+        workers = min(len(jobs), os.cpu_count() or 1)
         if workers < 2:
-            for key in todo:
-                self.summary(key)
-            return
+            return [getattr(self, method)(*args) for method, args in jobs]
+        from threadpoolctl import threadpool_limits
+
         global _WORKER
         _WORKER = self
         try:
-            with multiprocessing.get_context("fork").Pool(workers) as pool:
-                for key, summary in pool.imap_unordered(_summarise, todo):
-                    self._summaries[key] = summary
+            # one BLAS thread per worker: OpenBLAS's own threads in forked workers spin against
+            # each other (measured: six models on two cores took as long as in one process)
+            with threadpool_limits(limits=1), \
+                    multiprocessing.get_context("fork").Pool(workers) as pool:
+                return pool.map(_call, jobs, chunksize=1)
         finally:
             _WORKER = None
+
+    def beside(self, jobs: list[tuple[str, tuple]], work):
+        """``work()`` here while ``jobs`` (as for :meth:`map`) run in a forked worker — for a
+        result too big to send back (an Evaluation pickles to hundreds of MB at 400 Hz);
+        returns (work's result, the jobs' results)."""
+        from threadpoolctl import threadpool_limits
+
+        if (os.cpu_count() or 1) < 2:
+            return work(), [getattr(self, method)(*args) for method, args in jobs]
+        global _WORKER
+        _WORKER = self
+        try:
+            with threadpool_limits(limits=1), \
+                    multiprocessing.get_context("fork").Pool(1) as pool:
+                pending = pool.map_async(_call, jobs, chunksize=1)
+                return work(), pending.get()
+        finally:
+            _WORKER = None
+
+    def noise_structure(self) -> dict:
+        """White noise, bias instability and random walk of the nominal model's hold
+        residuals, real and twin (:mod:`apmcal.diagnosis.noise_structure`)."""
+        from apmcal.diagnosis.noise_structure import noise_structure
+
+        return noise_structure(self.evaluate(()), self.fs_of)
 
     def evaluate(self, effects) -> Evaluation:
         """The model nominal + ``effects`` scored both ways round (cached)."""
@@ -222,7 +275,7 @@ class Evaluator:
 
     def _fold(self, effects, fold: int) -> FoldResult:
         s = self.session
-        fit, noise, real = self.fit(s, self.reduced, effects, fold)
+        fit, noise, real = self.fit(s, self.reduced, effects, fold, with_sigma=True)
         # the same twin noise for every model (common random numbers): differences between
         # models are not drowned in differences between noise draws
         twin, _ = simulate(s, fit, noise, seed=self.seed + fold,
@@ -230,7 +283,8 @@ class Evaluator:
         _, _, tw = self.fit(twin, reduce_session(twin), effects, fold, start=fit)
         train, test = s.pieces.select(fold=fold), s.pieces.select(fold=1 - fold)
         return FoldResult(fold, fit, noise, real, tw, compare(real, tw, train, in_sample=True),
-                          compare(real, tw, test, in_sample=False))
+                          compare(real, tw, test, in_sample=False),
+                          {name: effect_params(name, fit, noise) for name in effects})
 
 
 def _earth_field(session) -> tuple[float | None, float]:

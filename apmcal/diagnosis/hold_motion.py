@@ -1,15 +1,27 @@
-"""The motion inside the holds — hand tremor and sway — as the gyro measured it, for the twin.
+"""The motion inside the holds — hand tremor and sway — as the gyro measured it and the
+accelerometer confirms it, for the twin.
 
 A hand-held board is never quite still: it sways (0.1-0.5 Hz) and trembles (4-9 Hz), and the
 gyro sees that motion above its white noise. When ``motion_contamination`` is modelled the twin
 does not invent a tremor of its own (a different draw would not line up with the real one):
-it takes the real one. The gyro's hold residual is Wiener-filtered — each frequency kept in the
-proportion S/(S + N) of motion power S to noise power N, the least-squares estimate of the
-motion (Wiener 1949) — with N the white noise floor read off the spectrum above the motion
-bands and S what each hold's spectrum holds above it, where that is clearly (sixteen times) above
-the noise and between 0.05 Hz (a slower change inside a still hold is the sensor drifting,
-which other effects model) and 15 Hz. The estimate's tilt, in the bands sitl's own motion contamination uses, gives
-the amplitudes written to a standalone twin.
+it takes the real one. The gyro's hold residual is filtered by magnitude spectral subtraction
+(Boll 1979): each frequency bin of power P is kept in the proportion 1 − √(N/P), N the white
+noise floor read off the spectrum above the motion bands, where P is clearly (sixteen times)
+above the noise and between 0.05 Hz (a slower change inside a still hold is the sensor
+drifting, which other effects model) and 15 Hz. Unlike the least-squares (Wiener) gain
+1 − N/P, this gain leaves the real residual exactly the noise power N in those bins — what the
+twin's residual has there — so the comparison of the two is not biased by the extraction.
+
+The gyro alone cannot tell a motion from a bump in its own noise spectrum, and taking such a
+bump as motion would remove it from the real gyro and put it into the twin: evidence for an
+effect that is not there. A turn of the board tilts gravity, so the accelerometer decides: each
+band of the estimate (sway up to 1.5 Hz, tremor above) is kept only when its predicted tilt,
+f × θ(t), shows in the accelerometer's hold samples of the training pieces: the least-squares
+factor κ with which it appears there must be clearly (four standard errors) above zero and at
+least one half (1 for a real motion, 0 for a gyro artefact; the noise left in the estimate
+biases κ a little below 1, which is why the band is then kept whole rather than scaled by κ).
+The estimate's tilt, in the bands sitl's own motion contamination uses, gives the amplitudes
+written to a standalone twin.
 """
 from __future__ import annotations
 
@@ -22,9 +34,11 @@ SWAY_BAND_HZ = (0.1, 0.5)
 SEGMENT_S = 10.0        # Welch segment of the pooled hold spectrum [s] (sway down to 0.1 Hz)
 CLEAR_ABOVE_NOISE = 16.0  # a frequency bin is motion where its power is this many times noise
                           # (pure noise exceeds it in one bin in e^16 ≈ 9 million)
-SLOWEST_MOTION_HZ = 0.05  # slower changes of a still hold are drifts of the sensor, not motion
 FASTEST_MOTION_HZ = 15.0  # hand tremor stays below this (sitl's 4-9 Hz; physiological 8-12 Hz)
 NOISE_FROM_HZ = 16.0      # the noise floor is read above this frequency
+BAND_SPLIT_HZ = 1.5       # sway below, tremor above (each confirmed on its own)
+CONFIRM_SIGMAS = 4.0      # a band counts as motion when the accelerometer shows it this clearly
+CONFIRM_SHARE = 0.5       # ... and at least this share of it
 
 
 def _hold_runs(session) -> list[tuple[int, int]]:
@@ -52,22 +66,23 @@ def noise_floor(f: np.ndarray, power: np.ndarray) -> np.ndarray:
     return np.percentile(power[fast], 75, axis=0)
 
 
-def wiener_motion(residual: np.ndarray, session) -> np.ndarray:
-    """Estimated rate of motion (n, 3) [rad/s] inside the holds (zero elsewhere) from the gyro
-    residual [rad/s] (module docstring).
+def extract_motion(residual: np.ndarray, session) -> tuple[np.ndarray, np.ndarray]:
+    """Estimated rate of motion [rad/s] inside the holds (zero elsewhere) from the gyro
+    residual [rad/s] (module docstring), as two (n, 3) parts: sway (up to ``BAND_SPLIT_HZ``)
+    and tremor (above).
 
     The noise floor comes from the holds' pooled spectrum; the gain is then set bin by bin on
     each hold's own spectrum (a pooled gain smeared over another frequency grid leaves a few
     per cent of a strong tremor behind, still far above the noise).
     """
     fs, runs = session.fs, _hold_runs(session)
-    out = np.zeros_like(residual)
+    slow, fast = np.zeros_like(residual), np.zeros_like(residual)
     if not runs:
-        return out
+        return slow, fast
     f, power = pooled_spectrum(residual, runs, fs)
     noise = noise_floor(f, power)
     for a, b in runs:
-        x = detrend(residual[a:b], axis=0)     # a drift inside a hold is not motion
+        x = residual[a:b] - residual[a:b].mean(axis=0)
         # the hold mirrored onto its end is periodic without a jump: a plain FFT would spread a
         # strong tremor over every frequency through the jump between the hold's two ends
         mirrored = np.concatenate([x, x[::-1]])
@@ -76,28 +91,67 @@ def wiener_motion(residual: np.ndarray, session) -> np.ndarray:
         freq = np.fft.rfftfreq(m, 1.0 / fs)
         periodogram = 2.0 * np.abs(spectrum) ** 2 / (fs * m)     # one-sided PSD
         clear = (periodogram > CLEAR_ABOVE_NOISE * noise) & \
-            ((freq >= SLOWEST_MOTION_HZ) & (freq <= FASTEST_MOTION_HZ))[:, None]
-        gain = np.where(clear, 1.0 - noise / np.maximum(periodogram, 1e-300), 0.0)
-        out[a:b] = np.fft.irfft(spectrum * gain, n=m, axis=0)[:b - a]
-    return out
+            ((freq > 0) & (freq <= FASTEST_MOTION_HZ))[:, None]
+        gain = np.where(clear, 1.0 - np.sqrt(noise / np.maximum(periodogram, 1e-300)), 0.0)
+        low = (freq <= BAND_SPLIT_HZ)[:, None]
+        slow[a:b] = np.fft.irfft(spectrum * gain * low, n=m, axis=0)[:b - a]
+        fast[a:b] = np.fft.irfft(spectrum * gain * ~low, n=m, axis=0)[:b - a]
+    return slow, fast
 
 
-def hold_rotations(session, rate: np.ndarray) -> np.ndarray:
-    """Exp(θ(t)) (n, 3, 3) at every sample: θ the integral of ``rate`` [rad/s] through each
-    hold, its mean over the hold removed (the hold's fitted orientation is its mean attitude);
-    identity outside the holds."""
-    from scipy.spatial.transform import Rotation
-
-    rot = np.broadcast_to(np.eye(3), (len(rate), 3, 3)).copy()
+def hold_angles(session, rate: np.ndarray) -> np.ndarray:
+    """θ(t) (n, 3) [rad]: the integral of ``rate`` [rad/s] through each hold, its mean over the
+    hold removed (the hold's fitted orientation is its mean attitude); zero outside the holds."""
+    theta = np.zeros_like(rate)
     for h in session.holds:
         a, b = h.i0, h.i1
         if b - a < 2 or not np.any(rate[a:b]):
             continue
         dt = np.diff(session.t[a:b])
-        theta = np.vstack([np.zeros(3), np.cumsum(0.5 * (rate[a:b - 1] + rate[a + 1:b])
-                                                  * dt[:, None], axis=0)])
-        rot[a:b] = Rotation.from_rotvec(theta - theta.mean(axis=0)).as_matrix()
-    return rot
+        turn = np.vstack([np.zeros(3), np.cumsum(0.5 * (rate[a:b - 1] + rate[a + 1:b])
+                                                 * dt[:, None], axis=0)])
+        theta[a:b] = turn - turn.mean(axis=0)
+    return theta
+
+
+def confirmed_by_accelerometer(session, rate: np.ndarray, hold_f: np.ndarray,
+                               pieces: np.ndarray) -> float:
+    """κ ∈ [0, 1]: how much of the tilt the motion ``rate`` predicts, f × θ(t) for small turns
+    θ of a hold whose specific force is f [m/s²] (R(θ)ᵀ·f ≈ f − θ × f), the accelerometer
+    shows in the hold ``pieces`` — least squares, each piece's mean and slope removed; 0 unless
+    the fit is ``CONFIRM_SIGMAS`` standard errors above zero (a tilt far below the
+    accelerometer's noise confirms nothing). See :func:`confirmed` for the decision."""
+    theta = hold_angles(session, rate)
+    num = den = power = 0.0
+    count = 0
+    pc = session.pieces
+    for p in pieces:
+        a, b = pc.i0[p], pc.i1[p]
+        hold = session.hold_of_piece(p)
+        if b - a < 16 or hold is None:
+            continue
+        tilt = detrend(np.cross(hold_f[hold], theta[a:b]), axis=0)
+        acc = detrend(session.acc[a:b], axis=0)
+        num, den = num + float(np.sum(tilt * acc)), den + float(np.sum(tilt * tilt))
+        power, count = power + float(np.sum(acc * acc)), count + acc.size
+    if den <= 0 or count == 0:
+        return 0.0
+    kappa = num / den
+    standard_error = np.sqrt(power / count / den)     # σ of κ for white residuals of that size
+    return float(np.clip(kappa, 0.0, 1.0)) if kappa > CONFIRM_SIGMAS * standard_error else 0.0
+
+
+def confirmed(kappa: float) -> bool:
+    """Whether a band with accelerometer share ``kappa`` is motion (module docstring)."""
+    return kappa >= CONFIRM_SHARE
+
+
+def hold_rotations(session, rate: np.ndarray) -> np.ndarray:
+    """Exp(θ(t)) (n, 3, 3) at every sample (θ of :func:`hold_angles`); identity outside the
+    holds."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(hold_angles(session, rate)).as_matrix()
 
 
 def band_amplitude_deg(rate: np.ndarray, session, band: tuple[float, float]) -> float:

@@ -19,7 +19,8 @@ from apmcal.diagnosis.blocks import Blocks, make_blocks
 from apmcal.diagnosis.dynamics import Dynamics
 from apmcal.diagnosis.gap import ResidualBlock
 from apmcal.diagnosis.regressors import References, columns, triangle
-from apmcal.diagnosis.static_fit import GeometryFit, GyroFit, fit_geometry, fit_gyro
+from apmcal.diagnosis.static_fit import (GeometryFit, GyroFit, count_orientations, fit_geometry,
+                                         fit_gyro)
 
 AXES = ("x", "y", "z")
 DRIFT_TIMES_MIN = np.arange(0.5, 30.01, 0.25)   # SIM_DRIFT_TIME grid of the triangle drift
@@ -84,6 +85,7 @@ class ModelFit:
     # the measured motion inside the holds (rate (n, 3) [rad/s], turn (n, 3, 3)), part of the
     # model when motion_contamination is (apmcal.diagnosis.hold_motion)
     hold_motion: tuple | None = None
+    acc_terms_in_moves: bool = False      # see acc_terms_in_moves()
 
     def acc_columns(self, t, temp) -> np.ndarray:
         return columns(self.effects, "acc", self.refs, t, temp)[0]
@@ -132,11 +134,12 @@ def fit_model(session, reduced: Reduced, effects, fold: int | None, *,
     train = session.pieces.select(fold=fold)
     refs = references(session)
     g = gravity_of(session, effects)
-    acc = _fit_acc(reduced, train, effects, refs, g, start, with_sigma,
-                   moves=bool(np.any(~session.pieces.is_hold)))
+    in_moves = acc_terms_in_moves(effects, count_orientations(reduced.acc, "acc"),
+                                  bool(np.any(~session.pieces.is_hold)))
+    acc = _fit_acc(reduced, train, effects, refs, g, start, with_sigma, in_moves)
     acc_dirs = acc.directions(reduced.acc, _acc_cols(effects, refs, reduced.acc))
     fit = ModelFit(effects, refs, g, acc, None, [], [], _unit(acc_dirs), acc_dirs,
-                   declination_rad=declination_rad)
+                   declination_rad=declination_rad, acc_terms_in_moves=in_moves)
     if reduced.mag is not None:
         _fit_mag(fit, reduced, train, field_mgauss, start, with_sigma)
     _fit_gyro_part(fit, reduced, train)
@@ -147,14 +150,29 @@ def _acc_cols(effects, refs, blocks: Blocks) -> np.ndarray:
     return columns(effects, "acc", refs, blocks.t, blocks.temp)[0]
 
 
-def _fit_acc(reduced, train, effects, refs, g, start, with_sigma, moves: bool) -> GeometryFit:
+ACC_TERM_EFFECTS = ("cross_axis", "scale_nonlinearity")    # three parameters each
+
+
+def acc_terms_in_moves(effects, orientations: int, has_moves: bool) -> bool:
+    """Whether the accelerometer's non-orthogonality and quadratic scale are left to the moves.
+
+    In still holds of unknown orientation each orientation adds one constraint beyond its own
+    two angles (the length of the reading), so the holds determine the accelerometer's
+    parameters — offset and scale (6), plus 3 per term — only with more orientations than
+    that (two to spare). Six aligned faces trade the terms for offsets and scales; turns see
+    them first order, so then, if there are turns, they are fitted there
+    (:func:`apmcal.diagnosis.dynamics.fit_dynamics`).
+    """
+    terms = sum(e in effects for e in ACC_TERM_EFFECTS)
+    return terms > 0 and has_moves and orientations < 6 + 3 * terms + 2
+
+
+def _fit_acc(reduced, train, effects, refs, g, start, with_sigma, in_moves: bool
+             ) -> GeometryFit:
     blocks = reduced.acc.select(train)
-    # non-orthogonality and a quadratic scale are second order in holds whose orientation is
-    # fitted (six aligned faces trade them for offsets and scales); the moves see them first
-    # order, so with moves they are fitted there (dynamics.fit_dynamics)
     return fit_geometry(blocks, _acc_cols(effects, refs, blocks), g, kind="acc",
-                        cross_axis="cross_axis" in effects and not moves,
-                        quadratic="scale_nonlinearity" in effects and not moves,
+                        cross_axis="cross_axis" in effects and not in_moves,
+                        quadratic="scale_nonlinearity" in effects and not in_moves,
                         start=start.acc if start is not None else None, with_sigma=with_sigma)
 
 

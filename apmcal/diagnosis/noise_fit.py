@@ -44,6 +44,7 @@ class SensorNoise:
     uniform: bool = False                  # uniform instead of Gaussian white noise
     tremor_deg: float = 0.0                # motion contamination amplitudes [deg]
     sway_deg: float = 0.0                  # (apmcal.diagnosis.hold_motion)
+    motion_confirmed: tuple = ()           # κ of the sway and tremor bands (same module)
     levels: dict = field(default_factory=dict)   # the fitted wavelet variances (for plots)
 
 

@@ -1,7 +1,8 @@
 """The fitted parameters of each effect, with one-sigma uncertainties and units, for the report.
 
-Values come from the model fitted on every piece (both folds); σ are the least-squares ones of
-the fit (residual-scaled), NaN where the fit gives none (grid searches, noise terms).
+Each fold's fit gives values and σ — the least-squares ones of the fit (residual-scaled), NaN
+where the fit gives none (grid searches, noise terms); the reported value is the mean of the
+two folds' (two independent halves of the data), with σ = ½·√(σ₀² + σ₁²).
 """
 from __future__ import annotations
 
@@ -16,8 +17,11 @@ def _rows(names: list, theta: np.ndarray, sigma: np.ndarray, effect: str):
 
 
 def _value(v, s, unit: str) -> dict:
-    return {"value": np.round(np.asarray(v, float), 12).tolist(),
-            "sigma": np.round(np.asarray(s, float), 12).tolist(), "unit": unit}
+    """A parameter's value and one-sigma, the same shape (σ NaN where none is known)."""
+    v = np.asarray(v, float)
+    s = np.asarray(s, float)
+    s = s.reshape(v.shape) if s.size == v.size else np.full(v.shape, np.nan)
+    return {"value": np.round(v, 12).tolist(), "sigma": np.round(s, 12).tolist(), "unit": unit}
 
 
 def _gyro_sigma(fit) -> np.ndarray:
@@ -109,7 +113,10 @@ def _noise_params(name: str, noise) -> dict:
     if name == "motion_contamination":
         n = noise["gyr"]
         return {"tremor": _value(n.tremor_deg, np.nan, "deg (4-9 Hz)"),
-                "sway": _value(n.sway_deg, np.nan, "deg (0.1-0.5 Hz)")}
+                "sway": _value(n.sway_deg, np.nan, "deg (0.1-0.5 Hz)"),
+                "confirmed": _value(n.motion_confirmed or (np.nan, np.nan), np.full(2, np.nan),
+                                    "share of the gyro's sway, tremor seen by the "
+                                    "accelerometer")}
     return {}
 
 
@@ -118,3 +125,19 @@ def white_noise(noise) -> dict:
     units = {"acc": "m/s²", "gyr": "rad/s", "mag": "mGauss"}
     return {s: _value(noise[s].sigma, np.full(3, np.nan), units[s] + " per sample")
             for s in ("acc", "gyr", "mag") if s in noise}
+
+
+def mean_of_folds(parts: list[dict]) -> dict:
+    """One effect's parameters from the fits of the folds: mean values, σ of the mean."""
+    out = {}
+    for key, first in parts[0].items():
+        values = np.array([p[key]["value"] for p in parts], float)
+        sigmas = np.array([p[key]["sigma"] for p in parts], float)
+        sigma = np.sqrt(np.sum(sigmas ** 2, axis=0)) / len(parts)
+        out[key] = _value(values.mean(axis=0), sigma, first["unit"])
+    return out
+
+
+def white_noise_of_folds(noises: list) -> dict:
+    """The white noise of each fold's noise model, averaged (see :func:`white_noise`)."""
+    return mean_of_folds([white_noise(n) for n in noises])

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from apmcal.diagnosis import plots
-from apmcal.diagnosis.summary import verdict
+from apmcal.diagnosis.summary import param_text, verdict
 
 SPLITS = (("sensor", "sensor"), ("kind", "holds or moves"), ("band", "frequency band"),
           ("scale", "within or across pieces"), ("time", "time"),
@@ -30,7 +30,9 @@ METHOD = """\
   scored held out. Its *evidence* is the held-out gap it removes, in nats (the log of how many
   times better it predicts the held-out data); it is *supported* when the evidence reaches 15
   nats. Supported effects are then combined greedily, each round adding the one with the most
-  evidence on top of those chosen.
+  evidence on top of those chosen. An effect is *significant* when it is in that combination
+  (or still supported on top of it); one supported alone but not significant only mimicked a
+  part of a larger effect.
 """
 
 
@@ -71,13 +73,23 @@ def _effects_table(result) -> str:
         if e.get("not_tested"):
             rows.append([e["name"], "-", "-", "not tested", e["not_tested"]])
             continue
-        params = "; ".join(f"{k} = {_fmt(p['value'])} {p['unit']}"
+        params = "; ".join(f"{k} = {param_text(p)} {p['unit']}"
                            for k, p in e.get("params", {}).items())
         rows.append([e["name"], f"{100 * e['shrink_heldout']:.0f} %",
-                     f"{e['evidence_nats']:.0f}", "**yes**" if e["significant"] else "no",
-                     params])
-    return _table(rows, ["effect", "held-out shrink", "evidence [nats]", "supported",
-                         "fitted parameters"])
+                     f"{e['evidence_nats']:.0f}", _beyond(e),
+                     "**yes**" if e["significant"] else "no", params])
+    return _table(rows, ["effect", "held-out shrink alone", "evidence alone [nats]",
+                         "evidence with the selection [nats]", "significant",
+                         "fitted parameters (alone)"])
+
+
+def _beyond(e: dict) -> str:
+    """The effect's evidence when it joined the selection, or left on top of it."""
+    if "evidence_when_selected_nats" in e:
+        return f"{e['evidence_when_selected_nats']:.0f} (selected)"
+    if "evidence_beyond_selection_nats" in e:
+        return f"{e['evidence_beyond_selection_nats']:.0f}"
+    return "-"
 
 
 def _fmt(value) -> str:

@@ -5,8 +5,13 @@ Schema 1 (every gap in nats per sample, see :mod:`apmcal.diagnosis.gap`)::
     {"schema": 1, "source": ..., "session": {...},
      "gap": {"total": in-sample, "heldout": held-out, "breakdown": {...},
              "breakdown_heldout": {...}},
-     "effects": [{"name", "shrink_heldout", "shrink_in_sample", "significant", "evidence_nats",
-                  "gap_heldout", "params", "not_tested"}, ...]  (best first),
+     "effects": [{"name", "shrink_heldout", "shrink_in_sample", "gap_heldout", "evidence_nats",
+                  "supported_alone", "significant", "evidence_when_selected_nats",
+                  "evidence_beyond_selection_nats", "params", "not_tested"}, ...]  (best first),
+
+"shrink_*", "gap_*" and "evidence_nats" score the effect alone on the nominal model;
+"supported_alone" is that evidence ≥ 15 nats; "significant" means selected, or still supported
+on top of the selected combination (see :mod:`apmcal.diagnosis.select`).
      "selected": [names], "after": {"total", "heldout", "breakdown", "breakdown_heldout"},
      "white_noise": {...}, "noise_structure": {...}, "notes": [...]}
 """
@@ -45,7 +50,7 @@ class GapResult:
 
     @property
     def top(self) -> str | None:
-        """The best supported effect, or None when no effect is supported."""
+        """The effect ranked first when it is significant, else None."""
         first = self.effects[0] if self.effects else None
         return first["name"] if first and first["significant"] else None
 

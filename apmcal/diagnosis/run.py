@@ -2,7 +2,8 @@
 
 Steps: score the nominal model (in-sample and held-out, with the breakdown of where its gap
 lies); score every candidate effect alone and rank them; select a combination greedily; score
-it; report each tested effect's parameters fitted on all the data.
+it; report each tested effect's parameters (alone, or within the combination when selected;
+the mean of the two folds' fits).
 """
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import numpy as np
 
 from apmcal.diagnosis.breakdown import breakdown
 from apmcal.diagnosis.evaluate import Evaluation, Evaluator
-from apmcal.diagnosis.params import effect_params, white_noise
+from apmcal.diagnosis.params import white_noise_of_folds
 from apmcal.diagnosis.result import GapResult
 from apmcal.diagnosis.select import forward_selection, rank_effects
 
@@ -61,23 +62,33 @@ def diagnose(session, names=None, *, seed: int = 0, progress=None) -> Diagnosis:
     say("candidate effects")
     ranked = rank_effects(ev, names)
     say("combination")
-    selected = forward_selection(ev, ranked)
-    final = ev.evaluate(tuple(selected))
-    effects = [_effect_entry(ev, s) for s in ranked]
-    _, noise, _ = ev.fit(session, ev.reduced, (), None)
+    selection = forward_selection(ev, ranked)
+    selected = selection.selected
+    say("selected model")
+    # the selected model's full evaluation (for its breakdown) beside the noise structure
+    final, (structure,) = ev.beside([("noise_structure", ())],
+                                    lambda: ev.evaluate(tuple(selected)))
+    params = {s.name: ev.summary((s.name,)).params[s.name] for s in ranked if s.tested}
+    for name in selected:           # a selected effect's values within the combination
+        params[name] = ev.summary(tuple(selected)).params[name]
+    effects = [_effect_entry(s, selection, params.get(s.name, {})) for s in ranked]
+    white = white_noise_of_folds([f.noise for f in nominal.folds])
     result = GapResult(session.source, session_summary(session, ev),
                        gap_summary(nominal, session), effects, selected,
-                       gap_summary(final, session), white_noise(noise),
+                       gap_summary(final, session), white, structure,
                        notes=list(session.notes))
     return Diagnosis(result, ev, nominal, final)
 
 
-def _effect_entry(ev: Evaluator, s) -> dict:
-    entry = {"name": s.name, "significant": bool(s.significant), "not_tested": s.reason}
+def _effect_entry(s, selection, params: dict) -> dict:
+    entry = {"name": s.name, "significant": selection.significant(s.name),
+             "supported_alone": bool(s.supported), "not_tested": s.reason}
+    if s.name in selection.joined:
+        entry["evidence_when_selected_nats"] = selection.joined[s.name]
+    if s.name in selection.beyond:
+        entry["evidence_beyond_selection_nats"] = selection.beyond[s.name]
     if s.tested:
-        fit, noise, _ = ev.fit(ev.session, ev.reduced, (s.name,), None)
         entry.update({"shrink_heldout": s.shrink_out, "shrink_in_sample": s.shrink_in,
                       "gap_heldout": s.gap_out, "gap_in_sample": s.gap_in,
-                      "evidence_nats": s.evidence,
-                      "params": effect_params(s.name, fit, noise)})
+                      "evidence_nats": s.evidence, "params": params})
     return entry

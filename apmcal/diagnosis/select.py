@@ -15,7 +15,8 @@ measures the false alarms on other seeds); no
 share of the gap is asked for, because a real effect can sit under a much larger one and
 remove only a sliver of the total until that one is modelled. Greedy forward selection then
 adds, round after round, the supported effect with the most evidence on top of those already
-chosen, for as long as one reaches the threshold.
+chosen, for as long as one reaches the threshold; an effect is *significant* in the end when it
+is in that combination or still supported on top of it.
 """
 from __future__ import annotations
 
@@ -26,8 +27,7 @@ import numpy as np
 from apmcal.diagnosis.effects import BY_NAME, NAMES, unmet
 
 MIN_EVIDENCE_NATS = 15.0    # held-out log-likelihood ratio an effect must reach
-MAX_ROUNDS = 5
-MAX_POOL = 6
+MAX_ROUNDS = 5              # effects in a combination at most
 
 
 @dataclass
@@ -41,7 +41,7 @@ class EffectScore:
     shrink_in: float = float("nan")
     shrink_out: float = float("nan")
     evidence: float = float("nan")       # held-out gap removed [nats]
-    significant: bool = False
+    supported: bool = False              # evidence ≥ MIN_EVIDENCE_NATS
     params: dict = field(default_factory=dict)
 
     @property
@@ -67,10 +67,14 @@ def score(evaluator, base: tuple, name: str) -> EffectScore:
 
 
 def rank(scores: list[EffectScore]) -> list[EffectScore]:
-    """Supported effects first by held-out shrink, then the rest by shrink, untestable last."""
+    """Supported effects first, each group by evidence, untestable last.
+
+    On one base model evidence orders the effects as their held-out shrink does (both are the
+    held-out gap removed), and it stays defined when the base gap is zero or below (the
+    expectation of two draws of one process is subtracted, so a small gap can be negative)."""
     def key(s: EffectScore):
-        return (not s.significant, not s.tested,
-                -(s.shrink_out if np.isfinite(s.shrink_out) else -np.inf))
+        return (not s.supported, not s.tested,
+                -(s.evidence if np.isfinite(s.evidence) else -np.inf))
     return sorted(scores, key=key)
 
 
@@ -89,19 +93,37 @@ def rank_effects(evaluator, names=None) -> list[EffectScore]:
     return rank([score(evaluator, (), n) for n in names])
 
 
+@dataclass
+class Selection:
+    """The greedy combination and what each supported effect adds on top of it [nats]."""
+
+    selected: list[str]
+    joined: dict[str, float]      # evidence of each selected effect in the round it was added
+    beyond: dict[str, float]      # evidence each other supported effect still has on top of
+                                  # the final combination (below the threshold unless the
+                                  # rounds ran out)
+
+    def significant(self, name: str) -> bool:
+        """Part of the combination, or still supported on top of it."""
+        return name in self.selected or self.beyond.get(name, -np.inf) >= MIN_EVIDENCE_NATS
+
+
 def forward_selection(evaluator, ranked: list[EffectScore],
-                      max_rounds: int = MAX_ROUNDS, max_pool: int = MAX_POOL) -> list[str]:
-    """Greedy forward selection among the supported effects (module docstring), the
-    ``max_pool`` with the most evidence alone (the others explain less than they do, and
-    each round costs one evaluation per candidate)."""
-    pool = [s.name for s in sorted((s for s in ranked if s.significant),
-                                   key=lambda s: -s.evidence)][:max_pool]
+                      max_rounds: int = MAX_ROUNDS) -> Selection:
+    """Greedy forward selection among the effects supported alone (module docstring). Every
+    round scores each remaining one on top of the current combination, so the last round says
+    what each effect left out would still add: an effect supported alone only because it
+    mimics part of a larger one ends with little evidence beyond the combination."""
+    pool = [s.name for s in sorted((s for s in ranked if s.supported),
+                                   key=lambda s: -s.evidence)]
     selected: list[str] = []
-    for _ in range(max_rounds):
+    joined: dict[str, float] = {}
+    while True:
         evaluator.prefetch([tuple(selected) + (n,) for n in pool if n not in selected])
         trials = [score(evaluator, tuple(selected), n) for n in pool if n not in selected]
-        trials = [s for s in trials if s.significant]
-        if not trials:
-            break
-        selected.append(max(trials, key=lambda s: s.evidence).name)
-    return selected
+        beyond = {s.name: s.evidence for s in trials}
+        best = max(trials, key=lambda s: s.evidence, default=None)
+        if best is None or not best.supported or len(selected) >= max_rounds:
+            return Selection(selected, joined, beyond)
+        selected.append(best.name)
+        joined[best.name] = best.evidence

@@ -230,6 +230,13 @@ def session_from_log(contents, opts) -> Session:
         raise ApmcalError(f"no still period of {opts.min_still_s:g} s or more: the diagnosis "
                           "compares still periods (or lower --min-still)", contents.path)
     segments, pieces = cut_session(t, holds, acc)
+    for fold in (0, 1):
+        if not np.any(pieces.is_hold & (pieces.fold == fold)):
+            still = sum(h.end - h.start for h in holds)
+            raise ApmcalError(f"only {still:.0f} s still in {len(holds)} period(s): the "
+                              "diagnosis fits on one half of the still data and scores on the "
+                              "other, and needs at least two still pieces (record longer "
+                              "still poses)", contents.path)
     left_out = max(len(holds) - 1 - sum(s.kind == "motion" for s in segments), 0)
     if left_out:
         notes = list(notes) + [f"{left_out} stretch(es) between holds not scored as moves: "

@@ -95,7 +95,18 @@ class GeometryFit:
         m = blocks.group_means(z)
         if not self.geometry:
             return m
-        u = np.linalg.solve(self.forward, m.T).T
+        return self.orientation(m)
+
+    def orientation(self, z: np.ndarray) -> np.ndarray:
+        """The unit vector(s) u whose reading F·r·u + k2 ⊙ (F·r·u)² is closest to z (rows,
+        offset and θ removed): the quadratic term is taken off z first — otherwise its part
+        across the field would tilt u and be lost from the fit — by the fixed point
+        s = z − k2 ⊙ s² (|k2·s| ≪ 1: two steps leave an error of order (k2·s)³)."""
+        s = z
+        if np.any(self.k2):
+            for _ in range(2):
+                s = z - self.k2 * s ** 2
+        u = np.linalg.solve(self.forward, s.T).T
         return u / np.linalg.norm(u, axis=1, keepdims=True)
 
     def truth_of(self, u: np.ndarray) -> np.ndarray:
@@ -195,9 +206,7 @@ def _split_residuals(blocks: Blocks, columns: np.ndarray, layout, kind, radius):
     def residuals(p):
         fit = _unpack(layout, p, kind, radius, k)
         z = y_mean - fit.offset - x_mean @ fit.theta
-        u = np.linalg.solve(fit.forward, z.T).T
-        u /= np.linalg.norm(u, axis=1, keepdims=True)
-        parts = [((z - fit.truth_of(u)) * sw_group).ravel()]
+        parts = [((z - fit.truth_of(fit.orientation(z))) * sw_group).ravel()]
         if k:
             parts.append((y_dev - x_dev @ fit.theta).ravel())
         return np.concatenate(parts)

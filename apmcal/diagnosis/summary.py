@@ -6,6 +6,11 @@ import numpy as np
 from rich.text import Text
 
 
+def _say(console, text) -> None:
+    """One line, wrapped by the terminal rather than inside a number or a list when piped."""
+    console.print(text, soft_wrap=True)
+
+
 def _pct(part: float, total: float) -> str:
     return f"{100 * part / total:.0f} %" if total > 0 else "-"
 
@@ -15,7 +20,7 @@ def verdict(result) -> str:
     gap = result.gap["heldout"]
     after = result.after["heldout"]
     if not result.selected:
-        if gap <= 0 or not any(e["significant"] for e in result.effects):
+        if gap <= 0 or not any(e.get("supported_alone") for e in result.effects):
             return (f"No candidate effect explains the gap (held-out {gap:.2e} nats/sample): "
                     "either the simulator already matches this board, or the gap comes from "
                     "something outside the candidate list.")
@@ -33,43 +38,77 @@ def print_summary(result, console) -> None:
     s = result.session
     temp = (f"; temperature {s['temperature_c'][0]:.1f}-{s['temperature_c'][1]:.1f} °C"
             if "temperature_c" in s else "")
-    console.print(Text(f"apmcal gap — {result.source}", style="bold"))
-    console.print(f"{s['duration_s']:.0f} s at {s['rate_hz']:.0f} Hz; {s['holds']} holds, "
+    _say(console, Text(f"apmcal gap — {result.source}", style="bold"))
+    _say(console, f"{s['duration_s']:.0f} s at {s['rate_hz']:.0f} Hz; {s['holds']} holds, "
                   f"{s['moves']} moves, {s['orientations']} orientations; "
                   f"sensors {', '.join(s['sensors'])}{temp}")
-    console.print(Text(verdict(result), style="bold"))
+    _say(console, Text(verdict(result), style="bold"))
     g = result.gap
-    console.print(f"Gap of the nominal model (real vs its simulated twin): in-sample "
+    _say(console, f"Gap of the nominal model (real vs its simulated twin): in-sample "
                   f"{g['total']:.2e}, held-out {g['heldout']:.2e} nats/sample")
     b, total = g["breakdown_heldout"], g["heldout"]
     for key, what in (("sensor", "by sensor"), ("kind", "holds / moves"),
                       ("band", "by frequency band"), ("segment", "by segment"),
                       ("scale", "within / across pieces"), ("temperature", "by temperature")):
         if key in b:
-            console.print(f"  {what}: {top_parts(b[key], total)}")
+            _say(console, f"  {what}: {top_parts(b[key], total)}")
+    print_noise(result, console)
     print_effects(result, console)
     for note in result.notes:
-        console.print(f"note: {note}")
+        _say(console, f"note: {note}")
+
+
+def noise_line(axes: dict) -> str:
+    """One sensor's noise terms: the white density real/twin ratio per axis, and where the
+    real residuals have a bias instability or random walk (and whether the twin has one)."""
+    ratios = []
+    for name, d in axes.items():
+        real, twin = d["real"].get("white_density"), d["twin"].get("white_density")
+        ratios.append(f"{real['value'] / twin['value']:.2f}" if real and twin else "-")
+    parts = [f"white noise real/twin {' '.join(ratios)}"]
+    for term, label in (("bias_instability", "bias instability"),
+                        ("random_walk", "rate random walk")):
+        found = [f"{name} {param_text(d['real'][term])} (twin "
+                 f"{param_text(d['twin'][term]) if d['twin'].get(term) else 'none'})"
+                 for name, d in axes.items() if d["real"].get(term)]
+        unit = next((d["real"][term]["unit"] for d in axes.values() if d["real"].get(term)), "")
+        parts.append(f"{label} " + (", ".join(found) + f" {unit}" if found else "none"))
+    return "; ".join(parts)
+
+
+def print_noise(result, console) -> None:
+    if not result.noise_structure:
+        return
+    _say(console, "Noise of the hold residuals (IEEE 952 terms by GMWM, real vs twin):")
+    for sensor, axes in result.noise_structure.items():
+        _say(console, f"  {sensor}: {noise_line(axes)}")
 
 
 def print_effects(result, console) -> None:
-    """Supported effects with their fitted parameters; the rest on one line each."""
-    console.print("Candidate effects, each alone on the nominal model (held-out shrink):")
-    for e in result.effects:
-        if e.get("not_tested") or not e["significant"]:
-            continue
-        console.print(Text(f"  supported  {e['name']:<21} {_shrink(e):>6}  evidence "
-                           f"{e['evidence_nats']:.0f} nats", style="bold"))
-        for name, p in e.get("params", {}).items():
-            console.print(f"      {name} = {_value_text(p['value'])} {p['unit']}")
-    rest = [e for e in result.effects if not e.get("not_tested") and not e["significant"]]
+    """Significant effects with their fitted parameters; the rest on one line each."""
+    _say(console, "Candidate effects, each alone on the nominal model (held-out shrink, "
+                  "evidence [nats]):")
+    tested = [e for e in result.effects if not e.get("not_tested")]
+    for e in tested:
+        if e["significant"]:
+            _say(console, Text(f"  significant {e['name']:<21} {_shrink(e):>6}  evidence "
+                               f"{e['evidence_nats']:.0f}", style="bold"))
+            for name, p in e.get("params", {}).items():
+                _say(console, f"      {name} = {param_text(p)} {p['unit']}")
+    redundant = [e for e in tested if e["supported_alone"] and not e["significant"]]
+    if redundant:
+        _say(console, "  supported alone, but explained by the selection (evidence left on top "
+                      "of it): " + ", ".join(f"{e['name']} {_shrink(e)} "
+                                             f"({e.get('evidence_beyond_selection_nats', 0):.0f})"
+                                             for e in redundant))
+    rest = [e for e in tested if not e["supported_alone"]]
     if rest:
-        console.print("  not supported: " + ", ".join(f"{e['name']} {_shrink(e)}" for e in rest))
+        _say(console, "  not supported: " + ", ".join(f"{e['name']} {_shrink(e)}" for e in rest))
     for e in result.effects:
         if e.get("not_tested"):
-            console.print(f"  not testable: {e['name']} ({e['not_tested']})")
+            _say(console, f"  not testable: {e['name']} ({e['not_tested']})")
     if result.selected:
-        console.print(f"Selected combination: {', '.join(result.selected)}")
+        _say(console, f"Selected combination: {', '.join(result.selected)}")
 
 
 def _shrink(e: dict) -> str:
@@ -77,8 +116,11 @@ def _shrink(e: dict) -> str:
     return f"{100 * v:.0f} %" if v is not None and np.isfinite(v) else "-"
 
 
-def _value_text(value) -> str:
-    v = np.asarray(value, dtype=float)
+def param_text(p: dict) -> str:
+    """A fitted parameter as text: "v ± σ" where the fit gives σ, element by element."""
+    v = np.asarray(p["value"], dtype=float)
+    s = np.asarray(p.get("sigma", np.nan), dtype=float)
+    s = s.reshape(v.shape) if s.size == v.size else np.full(v.shape, np.nan)
     if v.ndim == 0:
-        return f"{float(v):.4g}"
-    return "[" + ", ".join(_value_text(x) for x in v) + "]"
+        return f"{float(v):.4g}" + (f" ± {float(s):.2g}" if np.isfinite(s) else "")
+    return "[" + ", ".join(param_text({"value": a, "sigma": b}) for a, b in zip(v, s)) + "]"

@@ -96,14 +96,15 @@ def integrate_attitude(r0: np.ndarray, rate: np.ndarray, dt: np.ndarray) -> np.n
     return out
 
 
-def corrected_move(r_start, r_end, rate, dt) -> np.ndarray:
-    """Attitudes of a move that follows ``rate`` and ends exactly at ``r_end``: the end error
-    Log(R_intᵀ·R_end) is spread linearly in time (body frame). Returns (m + 1, 3, 3)."""
+def corrected_move(r_start, r_end, rate, dt) -> tuple[np.ndarray, np.ndarray]:
+    """Attitudes (m + 1, 3, 3) of a move that follows ``rate`` and ends exactly at ``r_end``:
+    the end error Log(R_intᵀ·R_end) [rad, body frame], also returned, is spread linearly in
+    time."""
     r_int = integrate_attitude(r_start, rate, dt)
     error = Rotation.from_matrix(r_int[-1].T @ r_end).as_rotvec()
     s = np.concatenate(([0.0], np.cumsum(dt))) / max(float(np.sum(dt)), 1e-12)
     corr = Rotation.from_rotvec(np.outer(s, error)).as_matrix()
-    return r_int @ corr
+    return r_int @ corr, error
 
 
 def body_rates(rot: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -128,6 +129,7 @@ def build(session, hold_rot: list[np.ndarray], gyro_rate: np.ndarray) -> Traject
     [rad/s] that moves follow."""
     n = len(session.t)
     rot = np.empty((n, 3, 3))
+    rate = np.zeros((n, 3))        # holds keep one attitude: only moves turn
     hold = np.zeros(n, int)
     blend = np.zeros(n)
     moves = {s.before: s for s in session.segments if s.kind == "motion"}
@@ -141,13 +143,15 @@ def build(session, hold_rot: list[np.ndarray], gyro_rate: np.ndarray) -> Traject
             a, b = move.i0, move.i1
             dt = np.diff(session.t[a - 1:b + 1])
             mid = 0.5 * (gyro_rate[a - 1:b] + gyro_rate[a:b + 1])
-            path = corrected_move(hold_rot[k], hold_rot[k + 1], mid, dt)
+            path, error = corrected_move(hold_rot[k], hold_rot[k + 1], mid, dt)
             rot[a:b] = path[1:-1]
             blend[a:b] = np.linspace(0, 1, b - a + 2)[1:-1]
-    rate = np.zeros((n, 3))        # holds keep one attitude: only moves turn
-    for move in moves.values():     # from the last hold sample to the first of the next hold
-        a, b = max(move.i0 - 1, 0), min(move.i1 + 1, n)
-        rate[a:b] = body_rates(rot[a:b], session.t[a:b])
+            # the twin's gyro in the move: the one the path was integrated from, plus the
+            # closure correction spread evenly, so the twin's fit integrates it along the same
+            # path as the real one's (rates differenced from the path differ at the ends, and
+            # would turn the twin's moves unlike the real ones); the hold samples at either end
+            # stay still
+            rate[a:b] = gyro_rate[a:b] + error / max(float(np.sum(dt)), 1e-12)
     return Trajectory(rot, rate, hold, blend)
 
 

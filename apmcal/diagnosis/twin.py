@@ -19,6 +19,9 @@ from apmcal.diagnosis import trajectory
 from apmcal.diagnosis.model import ModelFit, calibrated_rate, hold_vectors, per_hold
 
 DEG = np.pi / 180.0
+# the twin's noise seeds live far from any seed a simulated "real" log is made with (sitl's
+# --seed): the same seed would give the twin the very noise of the data it is compared with
+TWIN_SEEDS = 0x7D1A << 32
 
 
 def twin_truth(fit: ModelFit, noise, fs: float):
@@ -147,7 +150,7 @@ def simulate(session, fit: ModelFit, noise, seed: int = 0, motion_path=None):
     w_body = rate + _earth_rate(fit, rot)
     tau = fit.dynamics.time_offset_s
     f_acc = Rotation.from_rotvec(rate * tau).apply(f_body) if tau else f_body
-    model = ImuErrorModel(truth, session.fs, seed)
+    model = ImuErrorModel(truth, session.fs, TWIN_SEEDS + seed)
     acc = model.accel(t, f_acc, temperature=session.temp)
     gyr = model.gyro(t, w_body, f_body, temperature=session.temp)
     twin = replace(session, acc=acc, gyr=gyr)

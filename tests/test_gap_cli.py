@@ -1,0 +1,143 @@
+"""``apmcal gap`` end to end on the bundled sample ``logs/gap.bin``.
+
+The sample is a simulated session (the ``diagnosis`` script) of a board whose only error
+beyond the nominal model is a temperature drift (see logs/README.md for the command): the
+diagnosis must find that effect, recover its coefficients (checked against the injected truth,
+``logs/gap.truth.json``), write the files it promises, and its twin file must make the
+simulator behave like the board.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from apmcal.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLE = ROOT / "logs" / "gap.bin"
+TRUTH = json.loads((ROOT / "logs" / "gap.truth.json").read_text())
+SITE = ["--lat", "5.6037", "--lon", "-0.187"]
+
+
+@pytest.fixture(scope="module")
+def diagnosed(tmp_path_factory):
+    out = tmp_path_factory.mktemp("gap")
+    code = main(["gap", str(SAMPLE), *SITE, "--json", str(out / "gap.json"),
+                 "--report", str(out / "report"), "--write-twin", str(out / "twin.json"),
+                 "--quiet"])
+    return code, out, json.loads((out / "gap.json").read_text())
+
+
+def test_the_injected_effect_is_found_and_closes_the_gap(diagnosed):
+    code, _, result = diagnosed
+    assert code == 0
+    assert result["selected"] == ["temperature_drift"]
+    first = result["effects"][0]
+    assert first["name"] == "temperature_drift" and first["significant"]
+    assert first["shrink_heldout"] > 0.95
+    assert result["gap"]["heldout"] > 0.1          # a large gap before ...
+    assert abs(result["after"]["heldout"]) < 0.01 * result["gap"]["heldout"]   # ... gone after
+    # every other candidate is explained by it, or was never supported
+    assert [e["name"] for e in result["effects"] if e["significant"]] == ["temperature_drift"]
+
+
+def test_json_layout_is_the_documented_one(diagnosed):
+    _, _, result = diagnosed
+    assert result["schema"] == 1
+    for key in ("total", "heldout", "breakdown", "breakdown_heldout"):
+        assert key in result["gap"]
+    for e in result["effects"]:
+        assert {"name", "significant", "supported_alone", "not_tested"} <= set(e)
+        if not e["not_tested"]:
+            assert {"shrink_heldout", "evidence_nats", "gap_heldout", "params"} <= set(e)
+    evidence = [e["evidence_nats"] for e in result["effects"]
+                if not e["not_tested"] and e["supported_alone"]]
+    assert evidence == sorted(evidence, reverse=True)        # best first
+    assert set(result["noise_structure"]) == {"acc", "gyr", "mag"}
+
+
+def test_breakdown_parts_add_up_to_the_gap(diagnosed):
+    _, _, result = diagnosed
+    for gap_key, parts_key in (("total", "breakdown"), ("heldout", "breakdown_heldout")):
+        total = result["gap"][gap_key]
+        for split, parts in result["gap"][parts_key].items():
+            assert sum(parts.values()) == pytest.approx(total, rel=1e-9, abs=1e-12), split
+
+
+def test_temperature_coefficients_match_the_injected_ones(diagnosed):
+    _, _, result = diagnosed
+    params = result["effects"][0]["params"]
+    injected = TRUTH["effects"]["temperature"]
+    for key in ("gyro_coef", "acc_coef"):
+        value, sigma = np.array(params[key]["value"]), np.array(params[key]["sigma"])
+        truth = np.array(injected[key])
+        np.testing.assert_allclose(value, truth, rtol=0.08, err_msg=key)
+        assert np.all(np.abs(value - truth) < 4 * sigma), (key, value, truth, sigma)
+
+
+def test_report_has_its_figures(diagnosed):
+    _, out, _ = diagnosed
+    text = (out / "report" / "report.md").read_text()
+    assert "temperature_drift" in text
+    for png in ("segments.png", "bands.png", "psd.png", "allan.png", "temperature.png"):
+        assert (out / "report" / png).stat().st_size > 1000
+        assert f"({png})" in text
+
+
+def test_twin_file_is_a_sitl_truth_with_the_selected_effect(diagnosed):
+    from sitl.truth import NOMINAL_EFFECTS, Truth
+
+    _, out, _ = diagnosed
+    twin = Truth.load(out / "twin.json")
+    on = {name for name, state in twin.enabled.items() if state}
+    assert on == set(NOMINAL_EFFECTS) | {"temperature_drift"}
+    np.testing.assert_allclose(twin.temperature["gyro_coef"],
+                               TRUTH["effects"]["temperature"]["gyro_coef"], rtol=0.08)
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["gap", "/nonexistent/x.bin"], "/nonexistent/x.bin"),
+    (["gap", str(ROOT / "logs" / "tumble.bin")], "still"),
+    (["gap", str(SAMPLE), "--effects", "warp_drive"], "warp_drive"),
+    (["gap", str(SAMPLE), "--lon", "3"], "--lat"),
+    (["gap", str(SAMPLE), "--report", str(ROOT / "logs" / "README.md")], "not a directory"),
+    (["gap"], "log file"),
+])
+def test_bad_input_is_one_line_and_exit_2(argv, fragment, capsys):
+    try:
+        code = main(argv)
+    except SystemExit as exc:           # usage errors end in argparse's exit
+        code = exc.code
+    assert code == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and fragment in err[0], err
+    assert "Traceback" not in err[0]
+
+
+def test_the_twin_of_the_board_behaves_like_it(diagnosed, tmp_path):
+    """Close the loop: the simulator run with the twin file makes a log in which the same
+    effect is found with the same coefficients, and nothing else — the gap is gone once it
+    is modelled."""
+    _, out, real = diagnosed
+    log = tmp_path / "twin.bin"
+    subprocess.run([sys.executable, "-m", "sitl.makelog", "--script", "diagnosis", "--out",
+                    str(log), "--seed", "5", "--rate", "50", "--twin", str(out / "twin.json")],
+                   check=True, cwd=ROOT, timeout=300)
+    json_out = tmp_path / "twin_gap.json"
+    assert main(["gap", str(log), *SITE, "--json", str(json_out), "--quiet",
+                 "--effects", "temperature_drift,bias_drift,bias_random_walk,lowpass_filter,"
+                 "uniform_noise"]) == 0
+    twin = json.loads(json_out.read_text())
+    assert twin["selected"] == ["temperature_drift"]
+    assert 0.5 < twin["gap"]["heldout"] / real["gap"]["heldout"] < 2.0
+    assert abs(twin["after"]["heldout"]) < 0.01 * twin["gap"]["heldout"]
+    fitted = {key: np.array(twin["effects"][0]["params"][key]["value"])
+              for key in ("gyro_coef", "acc_coef")}
+    for key, value in fitted.items():
+        np.testing.assert_allclose(value, real["effects"][0]["params"][key]["value"],
+                                   rtol=0.1, atol=2e-6 if key == "gyro_coef" else 2e-4)
