@@ -143,15 +143,13 @@ def build(session, hold_rot: list[np.ndarray], gyro_rate: np.ndarray) -> Traject
             a, b = move.i0, move.i1
             dt = np.diff(session.t[a - 1:b + 1])
             mid = 0.5 * (gyro_rate[a - 1:b] + gyro_rate[a:b + 1])
-            path, error = corrected_move(hold_rot[k], hold_rot[k + 1], mid, dt)
+            path, _ = corrected_move(hold_rot[k], hold_rot[k + 1], mid, dt)
             rot[a:b] = path[1:-1]
             blend[a:b] = np.linspace(0, 1, b - a + 2)[1:-1]
-            # the twin's gyro in the move: the one the path was integrated from, plus the
-            # closure correction spread evenly, so the twin's fit integrates it along the same
-            # path as the real one's (rates differenced from the path differ at the ends, and
-            # would turn the twin's moves unlike the real ones); the hold samples at either end
-            # stay still
-            rate[a:b] = gyro_rate[a:b] + error / max(float(np.sum(dt)), 1e-12)
+            # the twin's gyro reads the path's own rates (the motion as the model sees it:
+            # ending where the next hold is, whatever the real gyro's unmodelled errors); the
+            # hold samples at either end stay still, as the real board was
+            rate[a:b] = body_rates(path, session.t[a - 1:b + 1])[1:-1]
     return Trajectory(rot, rate, hold, blend)
 
 
