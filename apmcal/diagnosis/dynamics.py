@@ -58,6 +58,9 @@ class Dynamics:
 PRIOR_SIGMA = {"gyro_scale": 0.05, "gyro_gamma": 0.05, "time_offset": 0.005, "alpha": 0.05,
                "k2": 1e-3}
 ACC_TERMS = {"cross_axis": "alpha", "scale_nonlinearity": "k2"}
+# the physical limit of each move parameter (apmcal.diagnosis.plausible.LIMITS)
+BOUND = {"gyro_scale": 0.1, "gyro_gamma": 0.05, "time_offset": 0.05, "alpha": 0.05,
+         "k2": 1e-3}
 
 
 def acc_with_terms(geo, terms: dict):
@@ -238,7 +241,14 @@ def fit_dynamics(session, fit, effects, train: np.ndarray, rate_cal, hold_f, hol
         return np.concatenate(r)
 
     n = len(prior_sigma)
-    sol = least_squares(residuals, np.zeros(n), method="lm", x_scale=1e-3)
+    # kept within twice the physical limits: beyond them a term is not itself any more
+    # (apmcal.diagnosis.plausible flags it) and the twin it makes can be nonsense
+    reach = np.concatenate([np.full(size, 2.0 * BOUND[name]) for name, (size, _) in
+                            layout.items()])
+    low, high = -reach - offset, reach - offset
+    # a holds' value already past the reach starts the fit at the nearest edge
+    sol = least_squares(residuals, np.clip(np.zeros(n), low, high), method="trf",
+                        x_scale=1e-3, bounds=(low, high))
     out = _unpack(sol.x, layout, start)
     from apmcal.solvers.uncertainty import covariance_from_jacobian
     cov, _ = covariance_from_jacobian(sol.jac, sol.fun, n)

@@ -82,7 +82,8 @@ def diagnose(session, names=None, *, seed: int = 0, progress=None) -> Diagnosis:
 
 def _effect_entry(s, selection, params: dict) -> dict:
     entry = {"name": s.name, "significant": selection.significant(s.name),
-             "supported_alone": bool(s.supported), "not_tested": s.reason}
+             "supported_alone": bool(s.supported), "not_tested": s.reason,
+             "implausible": s.implausible}
     if s.name in selection.joined:
         entry["evidence_when_selected_nats"] = selection.joined[s.name]
     if s.name in selection.beyond:

@@ -16,7 +16,9 @@ share of the gap is asked for, because a real effect can sit under a much larger
 remove only a sliver of the total until that one is modelled. Greedy forward selection then
 adds, round after round, the supported effect with the most evidence on top of those already
 chosen, for as long as one reaches the threshold; an effect is *significant* in the end when it
-is in that combination or still supported on top of it.
+is in that combination or still supported on top of it. An effect whose fitted parameters lie
+beyond physical limits (:mod:`apmcal.diagnosis.plausible`) is never supported, whatever its
+evidence: it stands in for something else.
 """
 from __future__ import annotations
 
@@ -25,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from apmcal.diagnosis.effects import BY_NAME, NAMES, unmet
+from apmcal.diagnosis.plausible import implausible
 
 MIN_EVIDENCE_NATS = 15.0    # held-out log-likelihood ratio an effect must reach
 MAX_ROUNDS = 5              # effects in a combination at most
@@ -41,8 +44,9 @@ class EffectScore:
     shrink_in: float = float("nan")
     shrink_out: float = float("nan")
     evidence: float = float("nan")       # held-out gap removed [nats]
-    supported: bool = False              # evidence ≥ MIN_EVIDENCE_NATS
+    supported: bool = False              # evidence ≥ MIN_EVIDENCE_NATS, and plausible
     params: dict = field(default_factory=dict)
+    implausible: str | None = None       # why the fitted parameters cannot be this effect
 
     @property
     def tested(self) -> bool:
@@ -61,9 +65,12 @@ def score(evaluator, base: tuple, name: str) -> EffectScore:
         return EffectScore(name, reason)
     before, after = evaluator.summary(base), evaluator.summary(base + (name,))
     evidence = before.nats_out - after.nats_out
+    params = after.params.get(name, {})
+    why = implausible(name, params) if np.isfinite(evidence) else "its fit diverged"
     return EffectScore(name, None, after.gap_in, after.gap_out,
                        shrink(before.gap_in, after.gap_in), shrink(before.gap_out, after.gap_out),
-                       evidence, evidence >= MIN_EVIDENCE_NATS)
+                       evidence, bool(evidence >= MIN_EVIDENCE_NATS and why is None), params,
+                       why)
 
 
 def rank(scores: list[EffectScore]) -> list[EffectScore]:

@@ -101,7 +101,12 @@ def print_effects(result, console) -> None:
                       "of it): " + ", ".join(f"{e['name']} {_shrink(e)} "
                                              f"({e.get('evidence_beyond_selection_nats', 0):.0f})"
                                              for e in redundant))
-    rest = [e for e in tested if not e["supported_alone"]]
+    odd = [e for e in tested if e.get("implausible")]
+    if odd:
+        _say(console, "  implausible (fitted beyond physical limits: standing in for something "
+                      "the candidates lack): " + ", ".join(
+                          f"{e['name']} {_shrink(e)} ({e['implausible']})" for e in odd))
+    rest = [e for e in tested if not e["supported_alone"] and not e.get("implausible")]
     if rest:
         _say(console, "  not supported: " + ", ".join(f"{e['name']} {_shrink(e)}" for e in rest))
     for e in result.effects:
