@@ -55,9 +55,15 @@ def test_json_layout_is_the_documented_one(diagnosed):
         assert {"name", "significant", "supported_alone", "not_tested"} <= set(e)
         if not e["not_tested"]:
             assert {"shrink_heldout", "evidence_nats", "gap_heldout", "params"} <= set(e)
-    evidence = [e["evidence_nats"] for e in result["effects"]
+    # best first: the selected combination (what it loses without each), then the rest
+    names = [e["name"] for e in result["effects"]]
+    assert names[:len(result["selected"])] == result["selected"]
+    needed = [result["effects"][i]["evidence_in_combination_nats"]
+              for i in range(len(result["selected"]))]
+    assert needed == sorted(needed, reverse=True)
+    evidence = [e["evidence_nats"] for e in result["effects"][len(result["selected"]):]
                 if not e["not_tested"] and e["supported_alone"]]
-    assert evidence == sorted(evidence, reverse=True)        # best first
+    assert evidence == sorted(evidence, reverse=True)
     assert set(result["noise_structure"]) == {"acc", "gyr", "mag"}
 
 

@@ -117,7 +117,7 @@ def run_benchmark(args, console) -> int:
         done.append(case)
         console.print(f"{'+'.join(withheld) or 'none':40s} seed {seed}: first "
                       f"{case.top or 'none':22s} {'ok' if case.hit else 'MISS'}  shrink "
-                      f"{case.shrink:6.2f}  ({case.seconds:.0f} s)")
+                      f"{case.shrink:6.2f}  ({case.seconds:.0f} s)", soft_wrap=True)
     print_tables(done, console)
     if args.json:
         import json

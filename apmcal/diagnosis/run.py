@@ -63,7 +63,7 @@ def diagnose(session, names=None, *, seed: int = 0, progress=None) -> Diagnosis:
     ranked = rank_effects(ev, names)
     say("combination")
     selection = forward_selection(ev, ranked)
-    selected = selection.selected
+    selected = selection.order()
     say("selected model")
     # the selected model's full evaluation (for its breakdown) beside the noise structure
     final, (structure,) = ev.beside([("noise_structure", ())],
@@ -71,6 +71,8 @@ def diagnose(session, names=None, *, seed: int = 0, progress=None) -> Diagnosis:
     params = {s.name: ev.summary((s.name,)).params[s.name] for s in ranked if s.tested}
     for name in selected:           # a selected effect's values within the combination
         params[name] = ev.summary(tuple(selected)).params[name]
+    order = selection.order()       # best first: the combination, then the rest as ranked
+    ranked = sorted(ranked, key=lambda s: order.index(s.name) if s.name in order else len(order))
     effects = [_effect_entry(s, selection, params.get(s.name, {})) for s in ranked]
     white = white_noise_of_folds([f.noise for f in nominal.folds])
     result = GapResult(session.source, session_summary(session, ev),
@@ -83,9 +85,10 @@ def diagnose(session, names=None, *, seed: int = 0, progress=None) -> Diagnosis:
 def _effect_entry(s, selection, params: dict) -> dict:
     entry = {"name": s.name, "significant": selection.significant(s.name),
              "supported_alone": bool(s.supported), "not_tested": s.reason,
-             "implausible": s.implausible}
+             "implausible": s.implausible, "parameters_p_value": s.p_value}
     if s.name in selection.joined:
         entry["evidence_when_selected_nats"] = selection.joined[s.name]
+        entry["evidence_in_combination_nats"] = selection.needed[s.name]
     if s.name in selection.beyond:
         entry["evidence_beyond_selection_nats"] = selection.beyond[s.name]
     if s.tested:

@@ -13,12 +13,14 @@ alike); among 12 such sessions (seeds 201-206 and 301-306, none of the benchmark
 was 13.5 nats, which is what the threshold is set against (``apmcal gap --benchmark``
 measures the false alarms on other seeds); no
 share of the gap is asked for, because a real effect can sit under a much larger one and
-remove only a sliver of the total until that one is modelled. Greedy forward selection then
-adds, round after round, the supported effect with the most evidence on top of those already
-chosen, for as long as one reaches the threshold; an effect is *significant* in the end when it
-is in that combination or still supported on top of it. An effect whose fitted parameters lie
+remove only a sliver of the total until that one is modelled. Stepwise selection then adds,
+round after round, the supported effect with the most evidence on top of those already chosen,
+for as long as one reaches the threshold, and drops an earlier one that the later ones explain;
+an effect is *significant* in the end when it is in that combination or still supported on top
+of it, and the combination is ranked by what it loses without each of its effects. An effect whose fitted parameters lie
 beyond physical limits (:mod:`apmcal.diagnosis.plausible`) is never supported, whatever its
-evidence: it stands in for something else.
+evidence: it stands in for something else; nor is one whose parameters are all within their
+noise of the values that switch it off (:mod:`apmcal.diagnosis.wald`).
 """
 from __future__ import annotations
 
@@ -28,6 +30,7 @@ import numpy as np
 
 from apmcal.diagnosis.effects import BY_NAME, NAMES, unmet
 from apmcal.diagnosis.plausible import implausible
+from apmcal.diagnosis.wald import MAX_P_VALUE, wald_p_value
 
 MIN_EVIDENCE_NATS = 15.0    # held-out log-likelihood ratio an effect must reach
 MAX_ROUNDS = 5              # effects in a combination at most
@@ -44,9 +47,11 @@ class EffectScore:
     shrink_in: float = float("nan")
     shrink_out: float = float("nan")
     evidence: float = float("nan")       # held-out gap removed [nats]
-    supported: bool = False              # evidence ≥ MIN_EVIDENCE_NATS, and plausible
+    supported: bool = False              # evidence ≥ MIN_EVIDENCE_NATS, plausible, and
+                                         # its parameters away from "off" (Wald p)
     params: dict = field(default_factory=dict)
     implausible: str | None = None       # why the fitted parameters cannot be this effect
+    p_value: float | None = None         # Wald test of the parameters (None: not testable)
 
     @property
     def tested(self) -> bool:
@@ -67,10 +72,11 @@ def score(evaluator, base: tuple, name: str) -> EffectScore:
     evidence = before.nats_out - after.nats_out
     params = after.params.get(name, {})
     why = implausible(name, params) if np.isfinite(evidence) else "its fit diverged"
+    p = wald_p_value(name, params)
+    supported = evidence >= MIN_EVIDENCE_NATS and why is None and (p is None or p < MAX_P_VALUE)
     return EffectScore(name, None, after.gap_in, after.gap_out,
                        shrink(before.gap_in, after.gap_in), shrink(before.gap_out, after.gap_out),
-                       evidence, bool(evidence >= MIN_EVIDENCE_NATS and why is None), params,
-                       why)
+                       evidence, bool(supported), params, why, p)
 
 
 def rank(scores: list[EffectScore]) -> list[EffectScore]:
@@ -102,35 +108,73 @@ def rank_effects(evaluator, names=None) -> list[EffectScore]:
 
 @dataclass
 class Selection:
-    """The greedy combination and what each supported effect adds on top of it [nats]."""
+    """The stepwise combination and what each supported effect adds to it [nats]."""
 
     selected: list[str]
     joined: dict[str, float]      # evidence of each selected effect in the round it was added
     beyond: dict[str, float]      # evidence each other supported effect still has on top of
                                   # the final combination (below the threshold unless the
                                   # rounds ran out)
+    needed: dict[str, float] = field(default_factory=dict)   # evidence each selected effect
+                                  # has given all the others: what the combination loses
+                                  # without it
+    dropped: list[str] = field(default_factory=list)  # added once, then explained by later ones
 
     def significant(self, name: str) -> bool:
         """Part of the combination, or still supported on top of it."""
         return name in self.selected or self.beyond.get(name, -np.inf) >= MIN_EVIDENCE_NATS
 
+    def order(self) -> list[str]:
+        """The combination, the effect it needs most first."""
+        return sorted(self.selected, key=lambda n: -self.needed.get(n, np.inf))
+
 
 def forward_selection(evaluator, ranked: list[EffectScore],
                       max_rounds: int = MAX_ROUNDS) -> Selection:
-    """Greedy forward selection among the effects supported alone (module docstring). Every
-    round scores each remaining one on top of the current combination, so the last round says
-    what each effect left out would still add: an effect supported alone only because it
-    mimics part of a larger one ends with little evidence beyond the combination."""
+    """Stepwise selection among the effects supported alone (module docstring). Every round
+    scores each remaining one on top of the current combination and adds the best; then an
+    effect added earlier that the later ones explain (no longer supported given all the others:
+    a random walk standing in for a temperature drift and a g-sensitivity together) is dropped
+    for good. The last round says what each effect left out would still add."""
     pool = [s.name for s in sorted((s for s in ranked if s.supported),
                                    key=lambda s: -s.evidence)]
     selected: list[str] = []
     joined: dict[str, float] = {}
-    while True:
-        evaluator.prefetch([tuple(selected) + (n,) for n in pool if n not in selected])
-        trials = [score(evaluator, tuple(selected), n) for n in pool if n not in selected]
+    dropped: list[str] = []
+    for _ in range(2 * max_rounds + 1):     # each effect is added once and dropped at most once
+        others = [n for n in pool if n not in selected]
+        evaluator.prefetch([tuple(selected) + (n,) for n in others])
+        trials = [score(evaluator, tuple(selected), n) for n in others]
         beyond = {s.name: s.evidence for s in trials}
-        best = max(trials, key=lambda s: s.evidence, default=None)
+        best = max((s for s in trials if s.name not in dropped), key=lambda s: s.evidence,
+                   default=None)
         if best is None or not best.supported or len(selected) >= max_rounds:
-            return Selection(selected, joined, beyond)
+            break
         selected.append(best.name)
         joined[best.name] = best.evidence
+        weakest = weakest_unsupported(evaluator, selected)
+        if weakest is not None:
+            selected.remove(weakest)
+            joined.pop(weakest)
+            dropped.append(weakest)
+    return Selection(selected, joined, beyond, leave_one_out(evaluator, selected), dropped)
+
+
+def leave_one_out(evaluator, selected: list[str]) -> dict[str, float]:
+    """Evidence of each selected effect on top of all the others [nats]."""
+    evaluator.prefetch([tuple(n for n in selected if n != name) for name in selected])
+    return {name: score(evaluator, tuple(n for n in selected if n != name), name).evidence
+            for name in selected}
+
+
+def weakest_unsupported(evaluator, selected: list[str]) -> str | None:
+    """The earlier-selected effect with the least evidence given all the others, when that
+    evidence no longer supports it (the one just added is not questioned)."""
+    if len(selected) < 2:
+        return None
+    earlier = selected[:-1]
+    evaluator.prefetch([tuple(n for n in selected if n != name) for name in earlier])
+    scores = [score(evaluator, tuple(n for n in selected if n != name), name)
+              for name in earlier]
+    worst = min(scores, key=lambda s: s.evidence)
+    return None if worst.supported else worst.name

@@ -5,6 +5,9 @@ from __future__ import annotations
 import numpy as np
 from rich.text import Text
 
+from apmcal.diagnosis.select import MIN_EVIDENCE_NATS
+from apmcal.diagnosis.wald import MAX_P_VALUE
+
 
 def _say(console, text) -> None:
     """One line, wrapped by the terminal rather than inside a number or a list when piped."""
@@ -108,12 +111,23 @@ def print_effects(result, console) -> None:
                           f"{e['name']} {_shrink(e)} ({e['implausible']})" for e in odd))
     rest = [e for e in tested if not e["supported_alone"] and not e.get("implausible")]
     if rest:
-        _say(console, "  not supported: " + ", ".join(f"{e['name']} {_shrink(e)}" for e in rest))
+        _say(console, "  not supported: " + ", ".join(f"{e['name']} {_shrink(e)}{_chance(e)}"
+                                                      for e in rest))
     for e in result.effects:
         if e.get("not_tested"):
             _say(console, f"  not testable: {e['name']} ({e['not_tested']})")
     if result.selected:
         _say(console, f"Selected combination: {', '.join(result.selected)}")
+
+
+def _chance(e: dict) -> str:
+    """Why an effect with enough evidence is still not supported: its parameters are all
+    within their noise of "off" (Wald test, apmcal.diagnosis.wald)."""
+    p = e.get("parameters_p_value")
+    if p is None or e.get("evidence_nats", 0.0) < MIN_EVIDENCE_NATS or p < MAX_P_VALUE:
+        return ""
+    return (f" (evidence {e['evidence_nats']:.0f}, but its parameters are within their noise "
+            f"of off: p {p:.2g})")
 
 
 def _shrink(e: dict) -> str:
