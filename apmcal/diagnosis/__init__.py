@@ -15,7 +15,9 @@ on data the fit did not see. The flow, one module per step:
   twin residuals, and :mod:`~apmcal.diagnosis.breakdown` — where it lies;
 - :mod:`~apmcal.diagnosis.evaluate` — a model scored in-sample and held-out, both ways round;
 - :mod:`~apmcal.diagnosis.effects` and :mod:`~apmcal.diagnosis.select` — the candidate effects,
-  ranked by held-out shrink with a significance test, and a greedy combination;
+  ranked by held-out evidence, with :mod:`~apmcal.diagnosis.wald` (are the parameters away
+  from "off"?) and :mod:`~apmcal.diagnosis.plausible` (within physical limits?), and a
+  stepwise combination;
 - :mod:`~apmcal.diagnosis.run` — all of it for one session; :mod:`~apmcal.diagnosis.result`,
   :mod:`~apmcal.diagnosis.summary`, :mod:`~apmcal.diagnosis.report`,
   :mod:`~apmcal.diagnosis.plots`, :mod:`~apmcal.diagnosis.twin_file` — what the user gets;

@@ -48,6 +48,16 @@ class Case:
         """Null: nothing supported; otherwise the effect ranked first is a withheld one."""
         return self.top is None if not self.withheld else self.top in self.withheld
 
+    @property
+    def extra(self) -> list:
+        """Selected effects that were not withheld (stand-ins for part of a withheld one)."""
+        return [n for n in self.selected if n not in self.withheld]
+
+    @property
+    def exact(self) -> bool:
+        """The selected combination is exactly the withheld effects."""
+        return set(self.selected) == set(self.withheld)
+
 
 def truth_for(withheld: tuple, seed: int):
     """The "real" board: nominal errors plus the withheld effects, everything else off."""
@@ -128,7 +138,7 @@ def run_benchmark(args, console) -> int:
 
 
 def print_tables(done: list[Case], console) -> None:
-    """Confusion counts, first-rank rate, shrink and false alarms."""
+    """Confusion counts, first-rank rate, exact combinations, shrink and false alarms."""
     effect_cases = [c for c in done if c.withheld]
     null_cases = [c for c in done if not c.withheld]
     confusion: dict = {}
@@ -136,17 +146,28 @@ def print_tables(done: list[Case], console) -> None:
         key = "+".join(c.withheld)
         confusion.setdefault(key, {})
         confusion[key][c.top or "none"] = confusion[key].get(c.top or "none", 0) + 1
-    console.print("withheld effect -> effect ranked first (count)")
+    def say(text: str) -> None:         # one line each, however narrow the terminal
+        console.print(text, soft_wrap=True)
+
+    say("withheld effect -> effect ranked first (count)")
     for key, row in confusion.items():
-        console.print(f"  {key:40s} " + ", ".join(f"{k}: {v}" for k, v in sorted(row.items())))
+        say(f"  {key:40s} " + ", ".join(f"{k}: {v}" for k, v in sorted(row.items())))
     hits = np.mean([c.hit for c in effect_cases]) if effect_cases else float("nan")
     alarms = np.mean([not c.hit for c in null_cases]) if null_cases else float("nan")
     shrinks = [c.shrink for c in effect_cases if np.isfinite(c.shrink)]
-    console.print(f"withheld effect ranked first: {100 * hits:.0f} % of {len(effect_cases)} "
-                  f"cases (target ≥ 90 %)")
-    console.print(f"held-out shrink of the withheld effect: median "
-                  f"{100 * np.median(shrinks) if shrinks else float('nan'):.0f} %, "
-                  f"≥ 50 % in {np.mean(np.array(shrinks) >= 0.5) * 100 if shrinks else 0:.0f} %"
-                  f" of the cases")
-    console.print(f"false alarms: {100 * alarms:.0f} % of {len(null_cases)} sessions without an "
-                  f"extra effect (target ≤ 5 %)")
+    say(f"withheld effect ranked first: {100 * hits:.0f} % of {len(effect_cases)} "
+        f"cases (target ≥ 90 %)")
+    exact = np.mean([c.exact for c in effect_cases]) if effect_cases else float("nan")
+    extras: dict = {}
+    for c in effect_cases:
+        for name in c.extra:
+            extras[name] = extras.get(name, 0) + 1
+    say(f"selected combination exactly the withheld effects: {100 * exact:.0f} % of the cases; "
+        f"effects selected besides: " + (", ".join(f"{k} {v}×" for k, v in
+                                                   sorted(extras.items())) or "none"))
+    say(f"held-out shrink of the withheld effect: median "
+        f"{100 * np.median(shrinks) if shrinks else float('nan'):.0f} %, "
+        f"≥ 50 % in {np.mean(np.array(shrinks) >= 0.5) * 100 if shrinks else 0:.0f} %"
+        f" of the cases")
+    say(f"false alarms: {100 * alarms:.0f} % of {len(null_cases)} sessions without an "
+        f"extra effect (target ≤ 5 %)")

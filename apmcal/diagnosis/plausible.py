@@ -45,11 +45,15 @@ EARTH_RATE_FACTOR = 2.0
 
 
 def implausible(name: str, params: dict) -> str | None:
-    """Why the fitted ``params`` of effect ``name`` cannot be that effect, or None."""
+    """Why the fitted ``params`` of effect ``name`` cannot be that effect, or None. A parameter
+    without a value (NaN: a half of the data could not fit it, e.g. too few orientations in
+    it) leaves the effect undetermined, which counts the same."""
     for (effect, key), limit in LIMITS.items():
         if effect != name or key not in params:
             continue
         value = np.asarray(params[key]["value"], dtype=float)
+        if not np.all(np.isfinite(value)):
+            return f"{key} not determined by both halves of the data"
         if (effect, key) in OFFSET_FROM_ONE:
             value = value - 1.0
         worst = float(np.nanmax(np.abs(value))) if value.size else 0.0

@@ -29,10 +29,12 @@ METHOD = """\
 - **Effects.** Each candidate is added to the nominal model alone, refitted, re-twinned and
   scored held out. Its *evidence* is the held-out gap it removes, in nats (the log of how many
   times better it predicts the held-out data); it is *supported* when the evidence reaches 15
-  nats. Supported effects are then combined greedily, each round adding the one with the most
-  evidence on top of those chosen. An effect is *significant* when it is in that combination
-  (or still supported on top of it); one supported alone but not significant only mimicked a
-  part of a larger effect.
+  nats, its fitted parameters differ from the values that switch it off (Wald test, p < 0.001)
+  and lie within physical limits (else it is *implausible*: standing in for something else).
+  Supported effects are then combined stepwise: each round adds the one with the most evidence
+  on top of those chosen and drops an earlier one the later ones explain. An effect is
+  *significant* when it is in that combination (or still supported on top of it); one supported
+  alone but not significant only mimicked a part of a larger effect.
 """
 
 

@@ -141,6 +141,16 @@ def split_evenly(i0: int, i1: int, fs: float, max_piece_s: float,
     return list(zip(edges[:-1].tolist(), edges[1:].tolist()))
 
 
+def scorable_holds(t: np.ndarray, holds: list,
+                   min_piece_s: float = MIN_PIECE_S) -> tuple[list, int]:
+    """The holds with at least one piece to score, and how many were too short: a hold
+    without pieces has no fitted orientation, so it belongs to the move it interrupts."""
+    fs = float(1.0 / np.median(np.diff(t)))
+    kept = [h for h in holds if any(split_evenly(a, b, fs, MAX_PIECE_S, min_piece_s)
+                                    for a, b in contiguous_runs(h.kept()))]
+    return kept, len(holds) - len(kept)
+
+
 def _hold_label(k: int, seg) -> str:
     return f"hold {k + 1}" + (f" ({seg.pose})" if seg.pose else "")
 
@@ -229,6 +239,13 @@ def session_from_log(contents, opts) -> Session:
     if not holds:
         raise ApmcalError(f"no still period of {opts.min_still_s:g} s or more: the diagnosis "
                           "compares still periods (or lower --min-still)", contents.path)
+    holds, short = scorable_holds(t, holds)
+    if short:
+        notes = list(notes) + [f"{short} still period(s) shorter than {MIN_PIECE_S:g} s taken "
+                               "as part of the moves around them"]
+    if not holds:
+        raise ApmcalError(f"no still period of {MIN_PIECE_S:g} s or more to analyse",
+                          contents.path)
     segments, pieces = cut_session(t, holds, acc)
     for fold in (0, 1):
         if not np.any(pieces.is_hold & (pieces.fold == fold)):

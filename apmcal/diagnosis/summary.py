@@ -107,7 +107,7 @@ def print_effects(result, console) -> None:
     odd = [e for e in tested if e.get("implausible")]
     if odd:
         _say(console, "  implausible (fitted beyond physical limits: standing in for something "
-                      "the candidates lack): " + ", ".join(
+                      "the candidates lack) or undetermined: " + ", ".join(
                           f"{e['name']} {_shrink(e)} ({e['implausible']})" for e in odd))
     rest = [e for e in tested if not e["supported_alone"] and not e.get("implausible")]
     if rest:
