@@ -166,7 +166,8 @@ def print_tables(done: list[Case], console) -> None:
         f"effects selected besides: " + (", ".join(f"{k} {v}×" for k, v in
                                                    sorted(extras.items())) or "none"))
     say(f"held-out shrink of the withheld effect: median "
-        f"{100 * np.median(shrinks) if shrinks else float('nan'):.0f} %, "
+        f"{100 * np.median(shrinks) if shrinks else float('nan'):.0f} %, smallest "
+        f"{100 * np.min(shrinks) if shrinks else float('nan'):.0f} %, "
         f"≥ 50 % in {np.mean(np.array(shrinks) >= 0.5) * 100 if shrinks else 0:.0f} %"
         f" of the cases")
     say(f"false alarms: {100 * alarms:.0f} % of {len(null_cases)} sessions without an "
