@@ -44,10 +44,13 @@ def test_physical_limits_and_undetermined_parameters():
     assert "Earth's rate" in implausible("earth_rate", {"vertical": _param(2e-3, 1e-6)})
 
 
+def _hold(i0: int, i1: int) -> SimpleNamespace:
+    """A still period of samples i0 .. i1-1, none of them left out."""
+    return SimpleNamespace(i0=i0, i1=i1, kept=lambda: np.arange(i0, i1))
+
+
 def test_a_hold_too_short_to_score_joins_the_moves():
     t = np.arange(0.0, 100.0, 0.01)                    # 100 Hz
-    hold = lambda i0, i1: SimpleNamespace(i0=i0, i1=i1,                       # noqa: E731
-                                          kept=lambda: np.arange(i0, i1))
-    holds = [hold(0, 1000), hold(1200, 1350), hold(1500, 3000)]     # 10 s, 1.5 s, 15 s
+    holds = [_hold(0, 1000), _hold(1200, 1350), _hold(1500, 3000)]      # 10 s, 1.5 s, 15 s
     kept, short = scorable_holds(t, holds)
     assert [h.i0 for h in kept] == [0, 1500] and short == 1

@@ -14,15 +14,17 @@ was 12.2 nats (a gyro random walk), which is what the threshold is set against (
 --benchmark`` measures the false alarms on other seeds). Held-out evidence alone let a model
 with many parameters through by chance (gyro scale and misalignment, 18 nats with every value
 within 2σ of "off" on one benchmark seed), hence the Wald test as well. No share of the gap is
-asked for, because a real effect can sit under a much larger one and
-remove only a sliver of the total until that one is modelled. Stepwise selection then adds,
-round after round, the supported effect with the most evidence on top of those already chosen,
-for as long as one reaches the threshold, and drops an earlier one that the later ones explain;
-an effect is *significant* in the end when it is in that combination or still supported on top
-of it, and the combination is ranked by what it loses without each of its effects. An effect whose fitted parameters lie
-beyond physical limits (:mod:`apmcal.diagnosis.plausible`) is never supported, whatever its
-evidence: it stands in for something else; nor is one whose parameters are all within their
-noise of the values that switch it off (:mod:`apmcal.diagnosis.wald`).
+asked for, because a real effect can sit under a much larger one and remove only a sliver of
+the total until that one is modelled.
+
+Stepwise selection then adds, round after round, the supported effect with the most evidence
+on top of those already chosen, for as long as one reaches the threshold, and drops an earlier
+one that the later ones explain; an effect is *significant* in the end when it is in that
+combination or still supported on top of it, and the combination is ranked by what it loses
+without each of its effects. An effect whose fitted parameters lie beyond physical limits
+(:mod:`apmcal.diagnosis.plausible`) is never supported, whatever its evidence: it stands in for
+something else; nor is one whose parameters are all within their noise of the values that
+switch it off (:mod:`apmcal.diagnosis.wald`).
 """
 from __future__ import annotations
 
