@@ -110,11 +110,7 @@ def add_gap_parser(sub) -> None:
     gap.add_argument("--lon", type=number_type(float, -180, 180, what="longitude [deg]"),
                      default=None, help="longitude [deg] (needs --lat): WMM field and "
                                         "declination for the compass")
-    gap.add_argument("--instance", type=int, default=None, help="IMU instance (default: first)")
-    gap.add_argument("--min-still", type=POSITIVE_SECONDS, default=2.0, metavar="S",
-                     help="shortest still period counted as a hold [s] (default 2)")
-    gap.add_argument("--firmware", choices=["3.2", "3.3+"], default=None,
-                     help="parameter generation (default: from the log)")
+    add_session_options(gap)
     gap.add_argument("--effects", default=None, metavar="A,B,...",
                      help="candidate effects to test (default: all; see apmcal.diagnosis."
                           "effects)")
@@ -132,6 +128,15 @@ def add_gap_parser(sub) -> None:
     gap.add_argument("--quiet", action="store_true")
 
 
+def add_session_options(p: argparse.ArgumentParser) -> None:
+    """Which samples of a log make the session: IMU instance, holds, parameter generation."""
+    p.add_argument("--instance", type=int, default=None, help="IMU instance (default: first)")
+    p.add_argument("--min-still", type=POSITIVE_SECONDS, default=2.0, metavar="S",
+                   help="shortest still period counted as a hold [s] (default 2)")
+    p.add_argument("--firmware", choices=["3.2", "3.3+"], default=None,
+                   help="parameter generation (default: from the log; Copter 3.2 is APM 2.x)")
+
+
 def add_calibration_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--method", default="auto", choices=["auto", "ferraris", "static", "ellipsoid"])
     p.add_argument("--lat", type=number_type(float, -90, 90, what="latitude [deg]"), default=None,
@@ -140,11 +145,7 @@ def add_calibration_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lon", type=number_type(float, -180, 180, what="longitude [deg]"),
                    default=None, help="longitude [deg], -180 to 180 (needs --lat): only for the "
                                       "magnetometer's field magnitude (WMM)")
-    p.add_argument("--instance", type=int, default=None, help="IMU instance (default: first)")
-    p.add_argument("--min-still", type=POSITIVE_SECONDS, default=2.0, metavar="S",
-                   help="shortest still period counted as a hold [s] (default 2)")
-    p.add_argument("--firmware", choices=["3.2", "3.3+"], default=None,
-                   help="parameter generation (default: from the log; Copter 3.2 is APM 2.x)")
+    add_session_options(p)
     p.add_argument("--param-file", default=None, help="write proposed parameters (.param)")
     p.add_argument("--json", default=None,
                    help="write summary and calibration as JSON (also when --param-file fails)")
@@ -268,9 +269,9 @@ def summarise_and_calibrate(contents, args):
                 output["param_file"] = args.param_file
                 console.print(f"wrote {args.param_file}")
     if args.json:
-        from apmcal.solvers.result import _jsonable
+        from apmcal.solvers.result import jsonable
 
-        text = json.dumps(_jsonable(output), indent=2) + "\n"
+        text = json.dumps(jsonable(output), indent=2) + "\n"
         try:
             Path(args.json).write_text(text)
         except OSError as exc:

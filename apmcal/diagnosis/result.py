@@ -23,9 +23,8 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from apmcal.errors import ApmcalError
+from apmcal.solvers.result import jsonable
 
 SCHEMA = 1
 UNITS = {"gap": "nats per residual sample (Kullback-Leibler divergence, real vs twin)",
@@ -57,11 +56,12 @@ class GapResult:
         return first["name"] if first and first["significant"] else None
 
     def to_dict(self) -> dict:
-        return _jsonable({"schema": SCHEMA, "units": UNITS, "source": self.source,
-                          "session": self.session, "gap": self.gap, "effects": self.effects,
-                          "selected": self.selected, "after": self.after,
-                          "white_noise": self.white_noise,
-                          "noise_structure": self.noise_structure, "notes": self.notes})
+        return jsonable({"schema": SCHEMA, "units": UNITS, "source": self.source,
+                         "session": self.session, "gap": self.gap, "effects": self.effects,
+                         "selected": self.selected, "after": self.after,
+                         "white_noise": self.white_noise,
+                         "noise_structure": self.noise_structure, "notes": self.notes},
+                        nan_as_null=True)
 
     def save(self, path) -> None:
         try:
@@ -82,19 +82,3 @@ class GapResult:
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise ApmcalError(f"not an apmcal gap result ({exc})", str(path)) from None
 
-
-def _jsonable(obj):
-    """numpy values → JSON; NaN and infinity → null (JSON has neither)."""
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, (np.floating, float)):
-        return float(obj) if np.isfinite(obj) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj

@@ -68,11 +68,11 @@ def diagnose(session, names=None, *, seed: int = 0, progress=None) -> Diagnosis:
     # the selected model's full evaluation (for its breakdown) beside the noise structure
     final, (structure,) = ev.beside([("noise_structure", ())],
                                     lambda: ev.evaluate(tuple(selected)))
-    params = {s.name: ev.summary((s.name,)).params[s.name] for s in ranked if s.tested}
-    for name in selected:           # a selected effect's values within the combination
-        params[name] = ev.summary(tuple(selected)).params[name]
-    order = selection.order()       # best first: the combination, then the rest as ranked
-    ranked = sorted(ranked, key=lambda s: order.index(s.name) if s.name in order else len(order))
+    params = {s.name: s.params for s in ranked if s.tested}     # each alone ...
+    params.update(ev.summary(tuple(selected)).params)    # ... the selected within the combination
+    # best first: the combination, then the rest as ranked
+    ranked = sorted(ranked, key=lambda s: selected.index(s.name) if s.name in selected
+                    else len(selected))
     effects = [_effect_entry(s, selection, params.get(s.name, {})) for s in ranked]
     white = white_noise_of_folds([f.noise for f in nominal.folds])
     result = GapResult(session.source, session_summary(session, ev),

@@ -122,7 +122,6 @@ class Selection:
     needed: dict[str, float] = field(default_factory=dict)   # evidence each selected effect
                                   # has given all the others: what the combination loses
                                   # without it
-    dropped: list[str] = field(default_factory=list)  # added once, then explained by later ones
 
     def significant(self, name: str) -> bool:
         """Part of the combination, or still supported on top of it."""
@@ -161,7 +160,7 @@ def forward_selection(evaluator, ranked: list[EffectScore],
             selected.remove(weakest)
             joined.pop(weakest)
             dropped.append(weakest)
-    return Selection(selected, joined, beyond, leave_one_out(evaluator, selected), dropped)
+    return Selection(selected, joined, beyond, leave_one_out(evaluator, selected))
 
 
 def leave_one_out(evaluator, selected: list[str]) -> dict[str, float]:

@@ -97,7 +97,7 @@ class Calibration:
         d = {"method": self.method}
         d.update({name: cal.to_dict() for name, cal in self.sensors.items()})
         d["params"] = dict(self.params)
-        d["report"] = _jsonable(self.report)
+        d["report"] = jsonable(self.report)
         return d
 
     @classmethod
@@ -117,14 +117,17 @@ class Calibration:
             raise ApmcalError(f"not a calibration file ({exc})", path) from None
 
 
-def _jsonable(obj):
-    """numpy arrays and scalars → plain lists and floats, recursively."""
+def jsonable(obj, nan_as_null: bool = False):
+    """numpy arrays and scalars → plain lists and numbers, recursively; with ``nan_as_null``
+    NaN and infinity → None (strict JSON has neither)."""
     if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
+        return {str(k): jsonable(v, nan_as_null) for k, v in obj.items()}
     if isinstance(obj, np.ndarray):
-        return obj.tolist()
+        return jsonable(obj.tolist(), nan_as_null)
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v, nan_as_null) for v in obj]
     if isinstance(obj, np.generic):
-        return obj.item()
+        obj = obj.item()
+    if nan_as_null and isinstance(obj, float) and not np.isfinite(obj):
+        return None
     return obj
