@@ -55,6 +55,7 @@ def number_type(kind, low=None, high=None, low_open=False, what="a number"):
 
 
 POSITIVE_SECONDS = number_type(float, 0, low_open=True, what="seconds")
+SAMPLE_RATE_HZ = number_type(float, 10, 2000, what="Hz")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -125,6 +126,10 @@ def add_gap_parser(sub) -> None:
                      help="instead of a log: simulate sessions with one effect withheld from "
                           "the twin and check the diagnosis finds it")
     gap.add_argument("--quick", action="store_true", help="with --benchmark: a small run")
+    gap.add_argument("--rate", type=SAMPLE_RATE_HZ, default=None, metavar="HZ",
+                     help="with --benchmark: the simulated sessions' sample rate [Hz] "
+                          "(default 100, 50 with --quick; above 200 the slow effects are "
+                          "scored on block means)")
     gap.add_argument("--quiet", action="store_true")
 
 

@@ -70,6 +70,23 @@ def test_fit_recovers_white_noise_and_random_walk_from_levels():
     np.testing.assert_allclose(s, sigma, rtol=1e-9)    # nominal: the high-frequency floor
 
 
+def test_fit_with_rounding_survives_a_pair_of_equal_piece_means():
+    """Rounding plus a random walk: two consecutive piece means that happen to be equal (a
+    squared difference of ~0) once made the first weighted step return zero white noise."""
+    sigma, step, levels = 8.7e-4, 1.06e-3, 11
+    n = 50_000 / 2.0 ** np.arange(levels)
+    v = np.full(levels, sigma ** 2 + step ** 2 / 12)
+    rng = np.random.default_rng(2)
+    white = np.full(8, 2 / 5000)                  # 1/n_a + 1/n_b of pieces of 5000 samples
+    walk = np.full(8, 20.0)
+    squares = (sigma ** 2 + step ** 2 / 12) * white[:, None] * rng.chisquare(1, (8, 3))
+    squares[3] = 1e-30                           # equal means
+    pairs = MeanPairs(squares, white, walk)
+    s, _, _ = fit_channels(np.column_stack([v] * 3), n, FS, cutoff_hz=None, random_walk=True,
+                           floor=np.full(3, v[0]), step=np.full(3, step), pairs=pairs)
+    np.testing.assert_allclose(s, sigma, rtol=0.05)
+
+
 def test_floor_sees_white_noise_not_a_strong_slow_signal():
     from apmcal.diagnosis.noise_fit import floor_gain, floor_stat
     t = np.arange(40_000) / FS

@@ -119,7 +119,7 @@ def cases(quick: bool) -> list[tuple]:
 
 def run_benchmark(args, console) -> int:
     """Run the cases, print the tables (and write them as JSON with --json)."""
-    rate = 50.0 if args.quick else 100.0
+    rate = args.rate or (50.0 if args.quick else 100.0)
     fs = rate
     done = []
     for withheld, seed in cases(args.quick):

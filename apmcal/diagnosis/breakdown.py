@@ -14,29 +14,34 @@ TIME_BINS = 8
 TEMP_BINS = 6
 
 
-def _rate(cell) -> float:
-    """Sample rate [Hz] of the cell's block."""
-    dt = np.diff(cell.block.t)
-    dt = dt[dt > 0]
-    return float(1.0 / np.median(dt)) if len(dt) else float("nan")
+def _rate(cell, rates: dict | None = None) -> float:
+    """Sample rate [Hz] of the cell's block (``rates``: known rates by block, filled here —
+    one block carries hundreds of cells)."""
+    rates = {} if rates is None else rates
+    key = id(cell.block)
+    if key not in rates:
+        dt = np.diff(cell.block.t)
+        dt = dt[dt > 0]
+        rates[key] = float(1.0 / np.median(dt)) if len(dt) else float("nan")
+    return rates[key]
 
 
-def band_label(cell) -> str:
+def band_label(cell, rates: dict | None = None) -> str:
     """A cell's frequency band: level j covers fs/2^(j+1) .. fs/2^j Hz."""
     if cell.level == LEVEL_MEANS:
         return "slower than a piece (piece means)"
-    fs = _rate(cell)
+    fs = _rate(cell, rates)
     lo_level, hi_level = min(cell.levels), max(cell.levels)
     hi = fs / 2 ** lo_level
     lo = fs / 2 ** (hi_level + 1)
     return f"{lo:.3g}-{hi:.3g} Hz"
 
 
-def _band_key(cell) -> tuple:
+def _band_key(cell, rates: dict | None = None) -> tuple:
     """Sort bands fast to slow (piece means last)."""
     if cell.level == LEVEL_MEANS:
         return (1, 0.0)
-    return (0, -_rate(cell) / 2 ** min(cell.levels))
+    return (0, -_rate(cell, rates) / 2 ** min(cell.levels))
 
 
 def _edges(lo: float, hi: float, bins: int) -> np.ndarray:
@@ -55,14 +60,15 @@ def breakdown(cells: list, n_samples: int, session) -> dict:
     parts: dict = {k: defaultdict(float) for k in ("sensor", "axis", "segment", "band",
                                                    "scale", "kind")}
     band_order: dict = {}
+    rates: dict = {}
     seg_nats = np.zeros(len(session.segments))
     for c in cells:
         total = c.total * scale
         parts["sensor"][c.channel.split("_")[0]] += total
         parts["axis"][c.channel] += total
-        label = band_label(c)
+        label = band_label(c, rates)
         parts["band"][label] += total
-        band_order[label] = _band_key(c)
+        band_order[label] = _band_key(c, rates)
         within = "across pieces (slower than a piece)" if c.level == LEVEL_MEANS \
             else "within pieces"
         parts["scale"][within] += total

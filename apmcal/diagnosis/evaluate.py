@@ -316,14 +316,15 @@ def _sample_sigma(session) -> dict:
 
 
 def _lattice_steps(session) -> dict:
-    """Quantization step per axis of each sensor's hold samples (None: not on a lattice)."""
+    """Quantization step per axis of each sensor's hold samples (None: not on a lattice; not
+    looked for in block means, whose lattice is not the sensor's)."""
     pc = session.pieces
     ids = pc.select(hold=True)
     idx = np.concatenate([np.arange(a, b) for a, b in zip(pc.i0[ids], pc.i1[ids])])
     out = {}
     for sensor, x in (("acc", session.acc), ("gyr", session.gyr)):
-        out[sensor] = _steps(x[idx])
-    if session.mag is not None:
+        out[sensor] = None if sensor in session.averaged else _steps(x[idx])
+    if session.mag is not None and "mag" not in session.averaged:
         m = session.mag
         out["mag"] = _steps(np.concatenate([m.values[a:b] for a, b in zip(m.i0[ids], m.i1[ids])]))
     return out

@@ -186,7 +186,10 @@ def ml_variances(v: np.ndarray, n: np.ndarray, design: np.ndarray, fixed: np.nda
     scale = np.maximum(design.max(axis=0), 1e-300)
     d = design / scale
     floor = 1e-12 * max(float(np.max(v)), 1e-300)
-    m = np.maximum(v, floor)
+    # M ≥ fixed whatever c is: starting the weights below it (a squared difference of two
+    # piece means that happens to be near zero) gave one row a weight so large that the
+    # first NNLS step returned c = 0, a white noise of zero beside the rounding
+    m = np.maximum(v, np.maximum(fixed, floor))
     c = np.zeros(d.shape[1])
     for _ in range(iterations):
         w = np.sqrt(n) / m

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from apmcal.diagnosis import plots
-from apmcal.diagnosis.summary import param_text, verdict
+from apmcal.diagnosis.summary import param_text, rate_note, verdict
 
 SPLITS = (("sensor", "sensor"), ("kind", "holds or moves"), ("band", "frequency band"),
           ("scale", "within or across pieces"), ("time", "time"),
@@ -67,6 +67,11 @@ def _session_table(result) -> str:
     if s.get("integer_format"):
         rows.append(["stored as integers by the log format", ", ".join(s["integer_format"])])
     return _table(rows, ["", ""])
+
+
+def _rate_paragraph(result) -> str:
+    note = rate_note(result)
+    return f"The {note[0].upper()}{note[1:]}.\n" if note else ""
 
 
 def _effects_table(result) -> str:
@@ -130,7 +135,7 @@ def write_report(diagnosis, directory) -> Path:
             text += [f"### By {what}", "", _parts_table(parts, g["heldout"]), ""]
     text += [_figure(figures, "segments.png", "Held-out gap by segment"),
              _figure(figures, "bands.png", "Held-out gap by frequency band"), "",
-             "## Which unmodelled effect", "", _effects_table(result), "",
+             "## Which unmodelled effect", "", _rate_paragraph(result), _effects_table(result), "",
              "## Real against twin", "",
              _figure(figures, "psd.png", "Power spectral density of the hold residuals"),
              _figure(figures, "allan.png", "Allan deviation of the hold residuals"),

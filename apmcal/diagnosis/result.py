@@ -8,14 +8,17 @@ Schema 1 (every gap in nats per sample, see :mod:`apmcal.diagnosis.gap`)::
      "effects": [{"name", "shrink_heldout", "shrink_in_sample", "gap_heldout", "evidence_nats",
                   "supported_alone", "significant", "evidence_when_selected_nats",
                   "evidence_beyond_selection_nats", "params", "not_tested",
-                  "implausible"}, ...]  (best first),
+                  "implausible", "scored_at_hz"}, ...]  (best first),
      "selected": [names], "after": {"total", "heldout", "breakdown", "breakdown_heldout"},
      "white_noise": {...}, "noise_structure": {...}, "notes": [...]}
 
 "shrink_*", "gap_*" and "evidence_nats" score the effect alone on the nominal model;
 "supported_alone" is that evidence ≥ 15 nats with plausible parameters ("implausible" says why
 not, :mod:`apmcal.diagnosis.plausible`); "significant" means selected, or still supported
-on top of the selected combination (see :mod:`apmcal.diagnosis.select`).
+on top of the selected combination (see :mod:`apmcal.diagnosis.select`). "scored_at_hz" is
+the sample rate the effect was scored at: the recording's, or for a slow effect in a recording
+faster than 200 Hz the block means' (:mod:`apmcal.diagnosis.decimate`), whose gaps are per
+averaged sample.
 """
 from __future__ import annotations
 

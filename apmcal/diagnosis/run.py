@@ -12,10 +12,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from apmcal.diagnosis.breakdown import breakdown
+from apmcal.diagnosis.decimate import (FINE_EFFECTS, SHAPES_BLOCK_MEANS, block_factor,
+                                       decimated)
 from apmcal.diagnosis.evaluate import Evaluation, Evaluator
 from apmcal.diagnosis.params import white_noise_of_folds
 from apmcal.diagnosis.result import GapResult
-from apmcal.diagnosis.select import forward_selection, rank_effects
+from apmcal.diagnosis.select import (candidates, forward_selection, merged, rank,
+                                     rank_effects)
 
 
 @dataclass
@@ -59,10 +62,7 @@ def diagnose(session, names=None, *, seed: int = 0, progress=None) -> Diagnosis:
     ev = Evaluator(session, seed)
     say("nominal model")
     nominal = ev.evaluate(())
-    say("candidate effects")
-    ranked = rank_effects(ev, names)
-    say("combination")
-    selection = forward_selection(ev, ranked)
+    ranked, selection = _rank_and_select(ev, names, say)
     selected = selection.order()
     say("selected model")
     # the selected model's full evaluation (for its breakdown) beside the noise structure
@@ -82,10 +82,38 @@ def diagnose(session, names=None, *, seed: int = 0, progress=None) -> Diagnosis:
     return Diagnosis(result, ev, nominal, final)
 
 
+def _rank_and_select(ev: Evaluator, names, say):
+    """Every candidate scored alone, and the stepwise combination.
+
+    A recording faster than :data:`~apmcal.diagnosis.decimate.SLOW_RATE_HZ` is scored in
+    stages: the fine effects alone at its own rate; the slow ones on its block means, on top of
+    a low-pass filter when one was found (it colours the noise down into the slow band: left
+    out, a random walk would stand in for it); then the fine effects' combination at the
+    recorded rate, on top of the slow effects selected."""
+    k = block_factor(ev.session.fs)
+    if k == 1:
+        say("candidate effects")
+        ranked = rank_effects(ev, names)
+        say("combination")
+        return ranked, forward_selection(ev, ranked)
+    slow_names = [n for n in candidates(names) if n not in FINE_EFFECTS]
+    fine_names = [n for n in candidates(names) if n in FINE_EFFECTS]
+    say("candidate effects")
+    ranked_fine = rank_effects(ev, fine_names)
+    carried = tuple(s.name for s in ranked_fine if s.supported and s.name in SHAPES_BLOCK_MEANS)
+    slow_ev = Evaluator(decimated(ev.session, k), ev.seed)
+    ranked_slow = rank_effects(slow_ev, slow_names, base=carried)
+    say("combination")
+    slow = forward_selection(slow_ev, ranked_slow, base=carried)
+    fine = forward_selection(ev, ranked_fine, base=tuple(slow.order()))
+    return rank(ranked_slow + ranked_fine), merged(slow, fine)
+
+
 def _effect_entry(s, selection, params: dict) -> dict:
     entry = {"name": s.name, "significant": selection.significant(s.name),
              "supported_alone": bool(s.supported), "not_tested": s.reason,
-             "implausible": s.implausible, "parameters_p_value": s.p_value}
+             "implausible": s.implausible, "parameters_p_value": s.p_value,
+             "scored_at_hz": s.rate_hz}
     if s.name in selection.joined:
         entry["evidence_when_selected_nats"] = selection.joined[s.name]
         entry["evidence_in_combination_nats"] = selection.needed[s.name]

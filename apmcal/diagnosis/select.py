@@ -56,6 +56,8 @@ class EffectScore:
     params: dict = field(default_factory=dict)
     implausible: str | None = None       # why the fitted parameters cannot be this effect
     p_value: float | None = None         # Wald test of the parameters (None: not testable)
+    rate_hz: float = float("nan")        # sample rate it was scored at (the recording's, or
+                                         # lower for a slow effect: apmcal.diagnosis.decimate)
 
     @property
     def tested(self) -> bool:
@@ -80,7 +82,7 @@ def score(evaluator, base: tuple, name: str) -> EffectScore:
     supported = evidence >= MIN_EVIDENCE_NATS and why is None and (p is None or p < MAX_P_VALUE)
     return EffectScore(name, None, after.gap_in, after.gap_out,
                        shrink(before.gap_in, after.gap_in), shrink(before.gap_out, after.gap_out),
-                       evidence, bool(supported), params, why, p)
+                       evidence, bool(supported), params, why, p, evaluator.session.fs)
 
 
 def rank(scores: list[EffectScore]) -> list[EffectScore]:
@@ -103,11 +105,12 @@ def testable(evaluator, names) -> list[str]:
     return [n for n in names if not unmet(BY_NAME[n], evaluator.session, evaluator.context)]
 
 
-def rank_effects(evaluator, names=None) -> list[EffectScore]:
-    """Every candidate alone on top of the nominal model, ranked."""
-    names = candidates(names)
-    evaluator.prefetch([()] + [(n,) for n in testable(evaluator, names)])
-    return rank([score(evaluator, (), n) for n in names])
+def rank_effects(evaluator, names=None, base: tuple = ()) -> list[EffectScore]:
+    """Every candidate alone on top of the nominal model (and of ``base``, effects already
+    chosen at another rate), ranked."""
+    names, base = candidates(names), tuple(base)
+    evaluator.prefetch([base] + [base + (n,) for n in testable(evaluator, names)])
+    return rank([score(evaluator, base, n) for n in names])
 
 
 @dataclass
@@ -132,52 +135,64 @@ class Selection:
         return sorted(self.selected, key=lambda n: -self.needed.get(n, np.inf))
 
 
-def forward_selection(evaluator, ranked: list[EffectScore],
-                      max_rounds: int = MAX_ROUNDS) -> Selection:
+def forward_selection(evaluator, ranked: list[EffectScore], max_rounds: int = MAX_ROUNDS,
+                      base: tuple = ()) -> Selection:
     """Stepwise selection among the effects supported alone (module docstring). Every round
     scores each remaining one on top of the current combination and adds the best; then an
     effect added earlier that the later ones explain (no longer supported given all the others:
     a random walk standing in for a temperature drift and a g-sensitivity together) is dropped
-    for good. The last round says what each effect left out would still add."""
+    for good. The last round says what each effect left out would still add. ``base``: effects
+    already chosen (at another rate, :mod:`apmcal.diagnosis.decimate`), part of every model and
+    not questioned here."""
     pool = [s.name for s in sorted((s for s in ranked if s.supported),
                                    key=lambda s: -s.evidence)]
+    base = tuple(base)
     selected: list[str] = []
     joined: dict[str, float] = {}
     dropped: list[str] = []
     for _ in range(2 * max_rounds + 1):     # each effect is added once and dropped at most once
         others = [n for n in pool if n not in selected]
-        evaluator.prefetch([tuple(selected) + (n,) for n in others])
-        trials = [score(evaluator, tuple(selected), n) for n in others]
+        evaluator.prefetch([base + tuple(selected) + (n,) for n in others])
+        trials = [score(evaluator, base + tuple(selected), n) for n in others]
         beyond = {s.name: s.evidence for s in trials}
         best = max((s for s in trials if s.name not in dropped), key=lambda s: s.evidence,
                    default=None)
-        if best is None or not best.supported or len(selected) >= max_rounds:
+        if best is None or not best.supported or len(base) + len(selected) >= max_rounds:
             break
         selected.append(best.name)
         joined[best.name] = best.evidence
-        weakest = weakest_unsupported(evaluator, selected)
+        weakest = weakest_unsupported(evaluator, selected, base)
         if weakest is not None:
             selected.remove(weakest)
             joined.pop(weakest)
             dropped.append(weakest)
-    return Selection(selected, joined, beyond, leave_one_out(evaluator, selected))
+    return Selection(selected, joined, beyond, leave_one_out(evaluator, selected, base))
 
 
-def leave_one_out(evaluator, selected: list[str]) -> dict[str, float]:
-    """Evidence of each selected effect on top of all the others [nats]."""
-    evaluator.prefetch([tuple(n for n in selected if n != name) for name in selected])
-    return {name: score(evaluator, tuple(n for n in selected if n != name), name).evidence
+def _without(selected: list[str], name: str, base: tuple = ()) -> tuple:
+    return tuple(base) + tuple(n for n in selected if n != name)
+
+
+def leave_one_out(evaluator, selected: list[str], base: tuple = ()) -> dict[str, float]:
+    """Evidence of each selected effect on top of all the others (and ``base``) [nats]."""
+    evaluator.prefetch([_without(selected, name, base) for name in selected])
+    return {name: score(evaluator, _without(selected, name, base), name).evidence
             for name in selected}
 
 
-def weakest_unsupported(evaluator, selected: list[str]) -> str | None:
+def weakest_unsupported(evaluator, selected: list[str], base: tuple = ()) -> str | None:
     """The earlier-selected effect with the least evidence given all the others, when that
     evidence no longer supports it (the one just added is not questioned)."""
     if len(selected) < 2:
         return None
     earlier = selected[:-1]
-    evaluator.prefetch([tuple(n for n in selected if n != name) for name in earlier])
-    scores = [score(evaluator, tuple(n for n in selected if n != name), name)
-              for name in earlier]
+    evaluator.prefetch([_without(selected, name, base) for name in earlier])
+    scores = [score(evaluator, _without(selected, name, base), name) for name in earlier]
     worst = min(scores, key=lambda s: s.evidence)
     return None if worst.supported else worst.name
+
+
+def merged(slow: Selection, fine: Selection) -> Selection:
+    """One selection from the slow effects' and the fine effects' (each made at its own rate)."""
+    return Selection(slow.selected + fine.selected, {**slow.joined, **fine.joined},
+                     {**slow.beyond, **fine.beyond}, {**slow.needed, **fine.needed})

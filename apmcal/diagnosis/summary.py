@@ -91,6 +91,9 @@ def print_effects(result, console) -> None:
     """Significant effects with their fitted parameters; the rest on one line each."""
     _say(console, "Candidate effects, each alone on the nominal model (held-out shrink, "
                   "evidence [nats]):")
+    note = rate_note(result)
+    if note:
+        _say(console, f"  ({note})")
     tested = [e for e in result.effects if not e.get("not_tested")]
     for e in tested:
         if e["significant"]:
@@ -118,6 +121,20 @@ def print_effects(result, console) -> None:
             _say(console, f"  not testable: {e['name']} ({e['not_tested']})")
     if result.selected:
         _say(console, f"Selected combination: {', '.join(result.selected)}")
+
+
+def rate_note(result) -> str | None:
+    """How a fast recording was scored (apmcal.diagnosis.decimate), or None when every
+    effect was scored at the recorded rate."""
+    rate = result.session["rate_hz"]
+    slow = {round(e["scored_at_hz"]) for e in result.effects
+            if e.get("scored_at_hz") and e["scored_at_hz"] < 0.9 * rate}
+    if not slow:
+        return None
+    return (f"slow effects scored on the session averaged to {', '.join(map(str, slow))} Hz, "
+            f"on top of a low-pass filter when one was found; rounding, the low-pass filter "
+            f"and the noise's distribution at the recorded {rate:.0f} Hz, on top of the slow "
+            f"effects selected")
 
 
 def _chance(e: dict) -> str:
