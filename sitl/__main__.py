@@ -6,7 +6,7 @@ import sys
 
 from sitl.errors import SitlError
 from sitl import motion
-from sitl.cli_common import add_truth_args, make_truth
+from sitl.cli_common import add_firmware_args, add_truth_args, apply_firmware_args, make_truth
 
 
 def parse_args(argv=None):
@@ -23,6 +23,7 @@ def parse_args(argv=None):
                     help="parameter persistence file (JSON), kept across restarts")
     ap.add_argument("--tlog", help="also record the session to this .tlog")
     add_truth_args(ap)
+    add_firmware_args(ap)
     return ap.parse_args(argv)
 
 
@@ -36,6 +37,7 @@ def main(argv=None) -> int:
             truth.save(args.write_truth)
         vehicle = SimVehicle(truth, args.script, args.firmware, args.param_file, seed=args.seed,
                              duration=args.duration if args.script != "operator" else None)
+        apply_firmware_args(vehicle, args)
         endpoint = MavlinkVehicle(vehicle, args.connection, args.speedup, args.tlog)
         try:
             endpoint.serve(args.duration)
