@@ -367,12 +367,27 @@ def cmd_live(args) -> int:
     contents = read_log(log_path)
     status, proposal = summarise_and_calibrate(contents, args)
     if args.upload:
-        if proposal is None or proposal.rejected:
-            raise ApmcalError("not uploading: out of the firmware's limits: "
-                              + ", ".join(proposal.rejected if proposal else ["everything"]),
-                              args.connection)
-        upload_values(args.connection, proposal.values, args.backup, params, console, args.baud)
+        values = values_to_upload(proposal, args.connection, console)
+        upload_values(args.connection, values, args.backup, params, console, args.baud)
     return status
+
+
+def values_to_upload(proposal, connection: str, console) -> dict[str, float]:
+    """The proposed values that passed the firmware's limits.
+
+    A sensor out of limits is withheld whole (ParamProposal.rejected); the others are uploaded
+    all the same, since a rejected compass (say) says nothing against the accelerometer and
+    gyro values. Nothing to upload at all is an ApmcalError.
+    """
+    if proposal is None or not proposal.values:
+        why = ", ".join(proposal.rejected) if proposal and proposal.rejected else "none proposed"
+        raise ApmcalError(f"not uploading: no parameter within the firmware's limits ({why})",
+                          connection)
+    if proposal.rejected:
+        console.print("not uploading, out of the firmware's limits: "
+                      + ", ".join(proposal.rejected) + "; uploading the other "
+                      f"{len(proposal.values)} values")
+    return dict(proposal.values)
 
 
 def record_with_progress(link, duration_s: float, console) -> int:

@@ -13,7 +13,8 @@ def parse_args(argv=None):
     ap = argparse.ArgumentParser(prog="python -m sitl",
                                  description="Simulated APM 2.8 (ArduCopter 3.2/3.3) on MAVLink.")
     ap.add_argument("connection", nargs="?", default="udpout:127.0.0.1:14550",
-                    help="pymavlink connection string (default udpout:127.0.0.1:14550)")
+                    help="pymavlink connection string (default udpout:127.0.0.1:14550), or "
+                         "'pty': a simulated serial port, its device (/dev/pts/N) printed first")
     ap.add_argument("--write-truth", metavar="FILE.json", help="write the injected errors used")
     ap.add_argument("--speedup", type=float, default=1.0, help="simulated s per wall-clock s")
     ap.add_argument("--script", default="onepos", choices=motion.SCRIPTS)
@@ -39,6 +40,8 @@ def main(argv=None) -> int:
                              duration=args.duration if args.script != "operator" else None)
         apply_firmware_args(vehicle, args)
         endpoint = MavlinkVehicle(vehicle, args.connection, args.speedup, args.tlog)
+        if hasattr(endpoint.conn, "device"):        # a pty: say where the serial port is
+            print(f"serial port: {endpoint.conn.device}", flush=True)
         try:
             endpoint.serve(args.duration)
         except KeyboardInterrupt:
