@@ -277,8 +277,10 @@ def summarise_and_calibrate(contents, args):
     could not be (it then says why under "param_file_error"), before that error is raised.
     """
     from apmcal import report
+    from apmcal.sources.units import require_plausible_units
 
     console = console_for(args)
+    require_plausible_units(contents)       # a sensor in impossible units is not data (issue 9)
     summary = report.summarize(contents)
     report.print_summary(summary, console)
     output = {"summary": summary}

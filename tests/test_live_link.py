@@ -119,7 +119,8 @@ def test_live_faulty_highres_compass_firmware(tmp_path):
     out = tmp_path / "live.json"
     try:
         wait_for_boot(tmp_path / "sitl-params.json")
-        status = main(["live", f"udp:127.0.0.1:{port}", "--duration", "8", "--quiet",
+        status = main(["live", f"udp:127.0.0.1:{port}", "--duration", "8", "--rate", "20",
+                       "--quiet",
                        "--save-log", str(tmp_path / "live.tlog"), "--json", str(out),
                        "--upload", "--backup", str(tmp_path / "backup.param")])
     finally:
@@ -202,3 +203,21 @@ def test_only_the_rejected_sensor_is_withheld_from_an_upload(capsys):
     assert "COMPASS_OFS_X" in capsys.readouterr().out
     with pytest.raises(cli.ApmcalError, match="COMPASS_OFS_X"):
         cli.values_to_upload(ParamProposal(rejected=proposal.rejected), "udp:x", console)
+
+
+def test_a_missing_pyserial_is_named_in_one_line(monkeypatch, tmp_path, capsys):
+    monkeypatch.setitem(sys.modules, "serial", None)       # as if pyserial were not installed
+    device = str(tmp_path / "ttyACM0")
+    assert main(["restore", device, "x.param", "--baud", "57600"]) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and device in err[0] and "pip install pyserial" in err[0]
+
+
+@pytest.mark.parametrize("command", ["live", "restore"])
+def test_a_log_file_given_as_connection_is_refused_in_one_line(capsys, command):
+    """pymavlink would read it as a log, and hang at its end (restore) or fail inside."""
+    log = str(ROOT / "logs" / "onepos.tlog")
+    args = [command, log, "x.param"] if command == "restore" else [command, log]
+    assert main(args) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and log in err[0] and "apmcal log" in err[0]

@@ -105,10 +105,19 @@ def test_plausible_units_pass_including_an_uncalibrated_compass():
 
 def test_a_log_with_nothing_plausible_is_refused_with_the_reason():
     from apmcal.errors import ApmcalError
-    from apmcal.sources._common import finish
+    from apmcal.sources.units import require_plausible_units
 
     out = LogContents(path="x.tlog", format="tlog",
                       recordings=[recording("HIGHRES_IMU", acc_m_s2=[0, 0, -1000.0])])
     with pytest.raises(ApmcalError) as err:
-        finish(out, ["HIGHRES_IMU"])
+        require_plausible_units(out)
     assert "x.tlog" in str(err.value) and "HIGHRES_IMU[0] acc" in str(err.value)
+
+
+def test_csv_units_are_the_users_to_declare():
+    from apmcal.sources.units import require_plausible_units
+
+    counts = recording("csv", acc_m_s2=[0, 0, -16384.0])          # raw counts are allowed
+    out = LogContents(path="x.csv", format="csv", recordings=[counts])
+    require_plausible_units(out)
+    assert out.recordings[0].sensors == ["acc"]

@@ -310,16 +310,8 @@ def add_recording(out: LogContents, df: pd.DataFrame, message: str, instance: in
 
 
 def finish(out: LogContents, found: list[str]) -> LogContents:
-    """Units checked against physics (:mod:`apmcal.sources.units`); vehicle/firmware/params
-    attached to each recording; ApmcalError when there is no (usable) IMU data."""
-    from apmcal.sources.units import drop_implausible_sensors
-
-    had_recordings = bool(out.recordings)
-    unit_errors = drop_implausible_sensors(out)
+    """Attach vehicle/firmware/params to each recording; ApmcalError when there is no IMU data."""
     if not out.recordings:
-        if had_recordings:
-            raise ApmcalError("no IMU data in plausible units: " + "; ".join(unit_errors),
-                              out.path)
         names = ", ".join(sorted(set(found))[:20]) or "nothing recognisable"
         raise ApmcalError(f"no IMU messages (found: {names})", out.path)
     for r in out.recordings:

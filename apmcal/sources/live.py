@@ -255,6 +255,10 @@ def open_connection(connection: str, baud: int = DEFAULT_BAUD):
     """
     from pymavlink import mavutil
 
+    if Path(connection).is_file():
+        # pymavlink would read a file as a log (and hang at its end) or run it as a program
+        raise ApmcalError("a file, not a connection (a serial port, udp:, tcp:): to calibrate "
+                          f"a log use `apmcal log {connection}`", connection)
     chatter = io.StringIO()
     try:
         with contextlib.redirect_stdout(chatter):

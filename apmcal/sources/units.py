@@ -10,6 +10,10 @@ message, the magnitude seen and the range expected. The pipeline then takes that
 another message of the same IMU (RAW_IMU / SCALED_IMU*), when the log has one, and the sensors
 that passed are calibrated (and can be uploaded) as usual.
 
+The check runs on what a reader returns, before the summary and the calibration (the readers
+themselves decode faithfully, whatever the values). CSV files are not checked: their units are
+the user's to declare (``--layout``, unit options, raw counts allowed).
+
 The ranges are wide on purpose: they must pass any real board, however badly calibrated, and
 catch unit mix-ups, which are factors of 10 or more (µT, gauss, mG, mrad/s, deg/s).
 """
@@ -18,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from apmcal.constants import STANDARD_GRAVITY
+from apmcal.errors import ApmcalError
 from apmcal.recording import SENSOR_COLUMNS, LogContents, Recording
 
 # The Earth's field is 150..1000 mGauss at the surface (issue 9; ArduPilot's compass calibrator
@@ -103,3 +108,13 @@ def drop_implausible_sensors(out: LogContents) -> list[str]:
             kept.append(rec)
     out.recordings = kept
     return reasons
+
+
+def require_plausible_units(contents: LogContents) -> None:
+    """:func:`drop_implausible_sensors` on an ArduPilot log (not a CSV file); ApmcalError naming
+    every reason when no recording is left."""
+    if contents.format == "csv" or not contents.recordings:
+        return
+    reasons = drop_implausible_sensors(contents)
+    if not contents.recordings:
+        raise ApmcalError("no IMU data in plausible units: " + "; ".join(reasons), contents.path)
