@@ -21,9 +21,11 @@ ROOT = Path(__file__).resolve().parents[1]
 SITL_QUIET = "motion_contamination,temperature_drift"
 
 
-def start_sitl(tmp_path, connection, *extra):
+def start_sitl(tmp_path, connection, *extra, speedup: float = 4.0):
+    """The simulated vehicle; a low ``speedup`` keeps it answering on a loaded machine (it
+    advances its sensors to the wall clock before it reads what the ground station sent)."""
     return subprocess.Popen(
-        [sys.executable, "-m", "sitl", connection, "--firmware", "3.3", "--speedup", "4",
+        [sys.executable, "-m", "sitl", connection, "--firmware", "3.3", "--speedup", str(speedup),
          "--param-file", str(tmp_path / "sitl-params.json"), "--disable", SITL_QUIET,
          "--write-truth", str(tmp_path / "truth.json"), *extra],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -115,11 +117,11 @@ def test_live_faulty_highres_compass_firmware(tmp_path):
     RAW_IMU and uploaded; the user is told about HIGHRES_IMU."""
     port = free_udp_port()
     proc = start_sitl(tmp_path, f"udpout:127.0.0.1:{port}", "--script", "tumble",
-                      "--duration", "600", "--seed", "21", "--highres-mag-bug")
+                      "--duration", "600", "--seed", "21", "--highres-mag-bug", speedup=2.0)
     out = tmp_path / "live.json"
     try:
         wait_for_boot(tmp_path / "sitl-params.json")
-        status = main(["live", f"udp:127.0.0.1:{port}", "--duration", "8", "--rate", "20",
+        status = main(["live", f"udp:127.0.0.1:{port}", "--duration", "12", "--rate", "20",
                        "--quiet",
                        "--save-log", str(tmp_path / "live.tlog"), "--json", str(out),
                        "--upload", "--backup", str(tmp_path / "backup.param")])

@@ -14,8 +14,9 @@ The check runs on what a reader returns, before the summary and the calibration 
 themselves decode faithfully, whatever the values). CSV files are not checked: their units are
 the user's to declare (``--layout``, unit options, raw counts allowed).
 
-The ranges are wide on purpose: they must pass any real board, however badly calibrated, and
-catch unit mix-ups, which are factors of 10 or more (µT, gauss, mG, mrad/s, deg/s).
+The ranges are wide on purpose: they must pass any real board, however badly calibrated. They
+catch the gross mix-ups (gauss or the firmware's mGauss×1000 for mGauss, g or mG for m/s², mrad/s
+for rad/s); smaller ones (µT for mGauss ×0.1, deg/s for rad/s ×57 on a small bias) can pass.
 """
 from __future__ import annotations
 
