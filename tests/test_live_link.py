@@ -1,7 +1,6 @@
 """Issue 9, the link to a vehicle: serial ports (--baud, pyserial) tried over a pseudo-terminal,
 tcp refusals in one line, the faulty-HIGHRES_IMU firmware live, Ctrl-C, --version."""
 import json
-import os
 import select
 import signal
 import socket
