@@ -5,7 +5,8 @@
     apmcal upload CONNECTION FILE.param [--backup FILE]
     apmcal restore CONNECTION BACKUP.param
 
-Every failure the user can cause ends in one line on stderr and a non-zero exit status.
+Every failure the user can cause ends in one line on stderr and a non-zero exit status; Ctrl-C
+ends with one line and status 130 (128 + SIGINT, the shell's convention).
 """
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ from apmcal.errors import ApmcalError
 
 EXIT_USER_ERROR = 2
 EXIT_INTERNAL_ERROR = 3
+EXIT_INTERRUPTED = 130          # 128 + SIGINT, what a shell reports for a Ctrl-C'd program
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -61,6 +63,7 @@ SAMPLE_RATE_HZ = number_type(float, 10, 2000, what="Hz")
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(prog="apmcal", description=__doc__.split("\n")[0])
     parser.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     log = sub.add_parser("log", help="summarise and calibrate from a .tlog, .bin, .log or .csv file")
@@ -72,6 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     live = sub.add_parser("live", help="record from a vehicle over MAVLink and calibrate")
     live.add_argument("connection", help="pymavlink connection string, e.g. udp:127.0.0.1:14550")
+    add_baud_option(live)
     live.add_argument("--duration", type=POSITIVE_SECONDS, default=60.0,
                       help="seconds to record (default 60)")
     live.add_argument("--rate", type=number_type(int, 1, 1000, what="an integer rate [Hz]"),
@@ -93,13 +97,35 @@ def build_parser() -> argparse.ArgumentParser:
     upload.add_argument("connection")
     upload.add_argument("param_file")
     upload.add_argument("--backup", default=None)
+    add_baud_option(upload)
 
     restore = sub.add_parser("restore", help="put back the values of a backup .param file")
     restore.add_argument("connection")
     restore.add_argument("backup_file")
+    add_baud_option(restore)
 
     add_gap_parser(sub)
     return parser
+
+
+def package_version() -> str:
+    """The installed distribution's version (pyproject.toml), "unknown" when not installed."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("apmcal")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
+def add_baud_option(p: argparse.ArgumentParser) -> None:
+    """--baud for serial connections (/dev/ttyACM0, /dev/ttyUSB0, COM3), as MAVProxy has."""
+    from apmcal.sources.live import DEFAULT_BAUD
+
+    p.add_argument("--baud", type=number_type(int, 1, 12_000_000, what="a baud rate"),
+                   default=DEFAULT_BAUD,
+                   help=f"serial baud rate (default {DEFAULT_BAUD}: USB; 57600 for 3DR/SiK "
+                        "telemetry radios); ignored by udp:/tcp: connections")
 
 
 def add_gap_parser(sub) -> None:
@@ -158,6 +184,15 @@ def add_calibration_options(p: argparse.ArgumentParser) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line; Ctrl-C anywhere in it (imports included) ends in one line, 130."""
+    try:
+        return run(argv)
+    except KeyboardInterrupt:
+        print("apmcal: interrupted (Ctrl-C)", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+def run(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if getattr(args, "lon", None) is not None and args.lat is None:
@@ -179,9 +214,6 @@ def main(argv: list[str] | None = None) -> int:
             err.path = getattr(args, "file", None) or getattr(args, "connection", None)
         print(f"apmcal: error: {err}", file=sys.stderr)
         return EXIT_USER_ERROR
-    except KeyboardInterrupt:
-        print("apmcal: interrupted", file=sys.stderr)
-        return 130
     except Exception as exc:  # a bug of ours: still one line unless --debug
         if args.debug:
             raise
@@ -215,7 +247,10 @@ def check_writable(path, what: str) -> None:
         why = "permission denied"
     else:
         return
-    raise ApmcalError(f"cannot write {what}: {why}", str(path))
+    # refused before reading or recording anything: no other output (--json included) is
+    # written either, so the user fixes the path and loses nothing
+    raise ApmcalError(f"cannot write {what}: {why}; stopped before any work, nothing written",
+                      str(path))
 
 
 def check_outputs(args) -> None:
@@ -247,8 +282,10 @@ def summarise_and_calibrate(contents, args):
     could not be (it then says why under "param_file_error"), before that error is raised.
     """
     from apmcal import report
+    from apmcal.sources.units import require_plausible_units
 
     console = console_for(args)
+    require_plausible_units(contents)       # a sensor in impossible units is not data (issue 9)
     summary = report.summarize(contents)
     report.print_summary(summary, console)
     output = {"summary": summary}
@@ -315,7 +352,7 @@ def cmd_live(args) -> int:
     if args.upload:     # the default backup goes to the current directory: check that too
         check_writable(args.backup or default_backup_name(), "backup file")
     try:
-        link = VehicleLink(args.connection, record_to=log_path)
+        link = VehicleLink(args.connection, record_to=log_path, baud=args.baud)
     except OSError as exc:
         if exc.filename is None or Path(exc.filename) != Path(log_path):
             raise
@@ -337,12 +374,27 @@ def cmd_live(args) -> int:
     contents = read_log(log_path)
     status, proposal = summarise_and_calibrate(contents, args)
     if args.upload:
-        if proposal is None or proposal.rejected:
-            raise ApmcalError("not uploading: out of the firmware's limits: "
-                              + ", ".join(proposal.rejected if proposal else ["everything"]),
-                              args.connection)
-        upload_values(args.connection, proposal.values, args.backup, params, console)
+        values = values_to_upload(proposal, args.connection, console)
+        upload_values(args.connection, values, args.backup, params, console, args.baud)
     return status
+
+
+def values_to_upload(proposal, connection: str, console) -> dict[str, float]:
+    """The proposed values that passed the firmware's limits.
+
+    A sensor out of limits is withheld whole (ParamProposal.rejected); the others are uploaded
+    all the same, since a rejected compass (say) says nothing against the accelerometer and
+    gyro values. Nothing to upload at all is an ApmcalError.
+    """
+    if proposal is None or not proposal.values:
+        why = ", ".join(proposal.rejected) if proposal and proposal.rejected else "none proposed"
+        raise ApmcalError(f"not uploading: no parameter within the firmware's limits ({why})",
+                          connection)
+    if proposal.rejected:
+        console.print("not uploading, out of the firmware's limits: "
+                      + ", ".join(proposal.rejected) + "; uploading the other "
+                      f"{len(proposal.values)} values")
+    return dict(proposal.values)
 
 
 def record_with_progress(link, duration_s: float, console) -> int:
@@ -375,13 +427,13 @@ def default_backup_name() -> str:
     return f"apmcal-backup-{time.strftime('%Y%m%d-%H%M%S')}.param"
 
 
-def upload_values(connection, values, backup, vehicle_params, console):
+def upload_values(connection, values, backup, vehicle_params, console, baud):
     from apmcal.sources.live import VehicleLink
     from apmcal.vehicle.upload import upload_params
 
     backup = backup or default_backup_name()
     check_writable(backup, "backup file")
-    with VehicleLink(connection) as link:
+    with VehicleLink(connection, baud=baud) as link:
         result = upload_params(link, values, backup, vehicle_params)
     console.print(f"wrote and verified {len(result.written)} parameters; backup in {backup} "
                   f"(undo: apmcal restore {connection} {backup})")
@@ -400,7 +452,7 @@ def cmd_upload(args) -> int:
     from apmcal.vehicle.paramfile import read_param_file
 
     values = read_param_file(args.param_file)
-    upload_values(args.connection, values, args.backup, None, console_for(args))
+    upload_values(args.connection, values, args.backup, None, console_for(args), args.baud)
     return 0
 
 
@@ -408,7 +460,7 @@ def cmd_restore(args) -> int:
     from apmcal.sources.live import VehicleLink
     from apmcal.vehicle.upload import restore_params
 
-    with VehicleLink(args.connection) as link:
+    with VehicleLink(args.connection, baud=args.baud) as link:
         result = restore_params(link, args.backup_file)
     console = console_for(args)
     console.print(f"restored {len(result.written)} parameters from {args.backup_file}")

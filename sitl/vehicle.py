@@ -27,6 +27,10 @@ INTERVAL_MAX_HZ = 400.0       # MAV_CMD_SET_MESSAGE_INTERVAL fastest rate simula
 MSG_IDS = {"RAW_IMU": 27, "SCALED_IMU2": 116, "HIGHRES_IMU": 105, "SCALED_PRESSURE": 29,
            "HEARTBEAT": 0, "SYS_STATUS": 1}
 ACC_MG = 1000.0 / 9.80665     # RAW_IMU: get_accel()*1000/9.80665 (ardupilot-facts.md)
+# HIGHRES_IMU xmag/ymag/zmag per mGauss of field: MAVLink says gauss. ArduPilot firmware of about
+# May 2024 - Feb 2026 sent mGauss×1000 instead (issue 9), 1e6 times too much: --highres-mag-bug
+HIGHRES_GAUSS_PER_MGAUSS = 1e-3
+FAULTY_HIGHRES_MAG_PER_MGAUSS = 1e3
 
 
 def _int16(x, truncate: bool = True) -> list[int]:
@@ -59,6 +63,9 @@ class SimVehicle:
     duration : float, optional
         Script length for stretchable scripts (onepos, warmup, tumble, motors).
     """
+
+    #: HIGHRES_IMU magnetic field units per mGauss (FAULTY_HIGHRES_MAG_PER_MGAUSS: the bug)
+    highres_mag_per_mgauss = HIGHRES_GAUSS_PER_MGAUSS
 
     def __init__(self, truth: Truth | None = None, script: str = "onepos", generation: str = "3.2",
                  param_file=None, fs: float = 1000.0, seed: int = 0, record: bool = False,
@@ -284,7 +291,7 @@ class SimVehicle:
                                                        int(temp * 100))
         if name == "HIGHRES_IMU":
             return mavlink.MAVLink_highres_imu_message(
-                usec, *acc, *gyr, *(mag / 1000.0), self._pressure_hpa(), 0.0,
+                usec, *acc, *gyr, *(mag * self.highres_mag_per_mgauss), self._pressure_hpa(), 0.0,
                 float(self.truth.site["alt"]), float(temp), 0x1FFF, 0)
         if name == "SCALED_PRESSURE":
             return mavlink.MAVLink_scaled_pressure_message(ms, self._pressure_hpa(), 0.0,

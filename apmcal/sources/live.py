@@ -6,6 +6,8 @@ one conversion path for live and logged data, and the user keeps the raw recordi
 """
 from __future__ import annotations
 
+import contextlib
+import io
 import math
 import struct
 import time
@@ -26,6 +28,13 @@ STREAMED_MESSAGE_IDS = {**IMU_MESSAGE_IDS, "SCALED_PRESSURE": 29}
 READS_IN_FLIGHT = 20
 MAV_AUTOPILOT_INVALID = 8       # HEARTBEAT.autopilot of anything that is not a flight controller
 
+# serial links (USB: any rate works; 3DR/SiK telemetry radios: 57600 unless reconfigured)
+DEFAULT_BAUD = 115200
+# tcp: a refused connection is tried this many times, this many seconds apart (pymavlink's
+# mavtcp ``retries`` counts the attempts)
+TCP_ATTEMPTS = 3
+TCP_RETRY_DELAY_S = 1.0
+
 
 def float32(value: float) -> float:
     """``value`` as the vehicle stores it (PARAM_VALUE carries float32)."""
@@ -43,18 +52,17 @@ class VehicleLink:
         How long to wait for the first HEARTBEAT before giving up.
     record_to : path, optional
         Every received message is appended there as a .tlog record.
+    baud : int
+        Serial links only (ignored by network links, as in MAVProxy).
     """
 
-    def __init__(self, connection: str, timeout_s: float = 10.0, record_to: str | Path | None = None):
+    def __init__(self, connection: str, timeout_s: float = 10.0,
+                 record_to: str | Path | None = None, baud: int = DEFAULT_BAUD):
         from pymavlink import mavutil
 
         self.connection = connection
         self._mavutil = mavutil
-        try:
-            self.master = mavutil.mavlink_connection(connection, source_system=255,
-                                                     source_component=190, autoreconnect=False)
-        except Exception as exc:  # pymavlink raises many types for a bad connection string
-            raise ApmcalError(f"cannot open connection ({exc})", connection) from None
+        self.master = open_connection(connection, baud)
         self._tlog = None
         try:
             heartbeat = self.wait_heartbeat(timeout_s)
@@ -237,6 +245,37 @@ class VehicleLink:
 
     def __exit__(self, *exc):
         self.close()
+
+
+def open_connection(connection: str, baud: int = DEFAULT_BAUD):
+    """pymavlink's connection for ``connection``, or ApmcalError saying why not.
+
+    pymavlink prints its tcp retries ("[Errno 111] Connection refused sleeping") on stdout, where
+    the report goes: they are swallowed, and a refusal after TCP_ATTEMPTS ends in one error.
+    """
+    from pymavlink import mavutil
+
+    if Path(connection).is_file():
+        # pymavlink would read a file as a log (and hang at its end) or run it as a program
+        raise ApmcalError("a file, not a connection (a serial port, udp:, tcp:): to calibrate "
+                          f"a log use `apmcal log {connection}`", connection)
+    chatter = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(chatter):
+            return mavutil.mavlink_connection(connection, baud=int(baud), source_system=255,
+                                              source_component=190, autoreconnect=False,
+                                              retries=TCP_ATTEMPTS,
+                                              reconnect_delay=TCP_RETRY_DELAY_S)
+    except ModuleNotFoundError as exc:      # pyserial is a dependency, but may be missing
+        raise ApmcalError(f"cannot open connection: serial links need the {exc.name} module "
+                          f"(pip install pyserial)", connection) from None
+    except ConnectionRefusedError:
+        raise ApmcalError(f"cannot open connection: refused {TCP_ATTEMPTS} times, "
+                          f"{TCP_RETRY_DELAY_S:g} s apart: is the vehicle (SITL, MAVProxy's "
+                          "output) listening there?", connection) from None
+    except Exception as exc:  # pymavlink raises many types for a bad connection string
+        why = " ".join(str(exc).split()) or type(exc).__name__
+        raise ApmcalError(f"cannot open connection ({why})", connection) from None
 
 
 class _ParamList:
