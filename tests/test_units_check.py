@@ -121,3 +121,21 @@ def test_csv_units_are_the_users_to_declare():
     out = LogContents(path="x.csv", format="csv", recordings=[counts])
     require_plausible_units(out)
     assert out.recordings[0].sensors == ["acc"]
+
+
+def test_gap_drops_the_faulty_compass_too(tmp_path, capsys):
+    """``apmcal gap`` reads logs by its own path: the same check, the compass from RAW_IMU."""
+    short_ferraris_tlog(tmp_path / "good.tlog", faulty_highres_mag=False)
+    short_ferraris_tlog(tmp_path / "faulty.tlog", faulty_highres_mag=True)
+    out = {}
+    for name in ("good", "faulty"):
+        assert main(["gap", str(tmp_path / f"{name}.tlog"), "--effects", "bias_drift",
+                     "--json", str(tmp_path / f"{name}.json")]) == 0
+        out[name] = json.loads((tmp_path / f"{name}.json").read_text())
+    printed = capsys.readouterr().out
+    assert printed.count("HIGHRES_IMU[0] mag") == 1 and "mGauss×1000" in printed
+    assert "mag" in out["faulty"]["session"]["sensors"]
+    # the compass noise the twin was given is RAW_IMU's (1 mGauss steps), not 1e6 times more
+    good = np.array(out["good"]["white_noise"]["mag"]["value"], dtype=float)
+    faulty = np.array(out["faulty"]["white_noise"]["mag"]["value"], dtype=float)
+    assert np.all(faulty < 10 * good + 1.0), (good, faulty)
