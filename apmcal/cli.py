@@ -443,7 +443,7 @@ def cmd_restore(args) -> int:
     console = console_for(args)
     console.print(f"restored {len(result.written)} parameters from {args.backup_file}")
     print_skipped(result, console)
-    print_left_out(result.left_out, console, args.all_params)
+    print_left_out(getattr(result, "left_out", []), console, args.all_params)
     return 0
 
 
