@@ -85,21 +85,26 @@ class LossyUdpProxy:
         while not self._stop.is_set():
             try:
                 packet, self.vehicle_address = self.vehicle_side.recvfrom(65536)
-            except socket.timeout:
+            except (socket.timeout, ConnectionError):
                 continue
             if not self.down.drop(packet):
-                self.gcs_side.sendto(packet, self.gcs_address)
+                self._send(self.gcs_side, packet, self.gcs_address)
 
     def _forward_up(self) -> None:
         while not self._stop.is_set():
             try:
                 packet, _ = self.gcs_side.recvfrom(65536)
-            except socket.timeout:
-                continue
-            except ConnectionError:      # the GCS socket is not open yet (ICMP unreachable)
+            except (socket.timeout, ConnectionError):   # ICMP unreachable: GCS not open yet
                 continue
             if self.vehicle_address is not None and not self.up.drop(packet):
-                self.vehicle_side.sendto(packet, self.vehicle_address)
+                self._send(self.vehicle_side, packet, self.vehicle_address)
+
+    @staticmethod
+    def _send(sock: socket.socket, packet: bytes, address) -> None:
+        try:
+            sock.sendto(packet, address)
+        except OSError:     # nobody listening there (yet): a lost packet, as on a real link
+            pass
 
     def __enter__(self):
         for t in self._threads:

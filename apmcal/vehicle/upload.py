@@ -200,22 +200,21 @@ def _roll_back(link: VehicleLink, report: UploadReport, also: str | None, cause:
     failed = {}
     try:
         for name in names:
-            reported = _put_back(link, name, report.previous[name])
-            if not _is_held(reported, report.previous[name]):
-                failed[name] = reported
+            previous = report.previous[name]
+            if not math.isfinite(previous):   # ardupilot-facts.md: NaN is dropped, never stored
+                failed[name] = "held a non-finite value before, which cannot be written back"
+            elif not _is_held(reported := _put_back(link, name, previous), previous):
+                failed[name] = _reported(reported)
     except KeyboardInterrupt:
         raise ApmcalError(f"{cause}; rollback interrupted: {restore}", link.connection) from None
     if failed:
-        lost = [n for n in failed if not math.isfinite(report.previous[n])]
-        note = (f" ({', '.join(lost)} held a non-finite value before, which cannot be written "
-                f"back)" if lost else "")
-        raise ApmcalError(f"{cause}; rollback not confirmed for {_listed(failed)}{note}: "
-                          f"{restore}", link.connection)
+        raise ApmcalError(f"{cause}; rollback not confirmed for {_listed(failed)}: {restore}",
+                          link.connection)
 
 
-def _listed(reported: dict[str, float | None]) -> str:
+def _listed(said: dict[str, str]) -> str:
     """'A (vehicle reports 0.3), B (no answer)'."""
-    return ", ".join(f"{name} ({_reported(value)})" for name, value in reported.items())
+    return ", ".join(f"{name} ({why})" for name, why in said.items())
 
 
 def _is_held(reported: float | None, value: float) -> bool:
@@ -225,9 +224,7 @@ def _is_held(reported: float | None, value: float) -> bool:
 
 def _put_back(link: VehicleLink, name: str, value: float) -> float | None:
     """What the vehicle last reported for ``name`` after being set back to ``value`` (that
-    value once confirmed); None when it never answered or ``value`` cannot be written."""
-    if not math.isfinite(value):    # ardupilot-facts.md: NaN is dropped, never stored
-        return None
+    value once confirmed); None when it never answered."""
     return link.set_param(name, value, attempts=ROLLBACK_ATTEMPTS)
 
 
@@ -259,12 +256,12 @@ def restore_params(link: VehicleLink, backup_path: str | Path,
                           left_out=[n for n, v in wanted.items() if n not in in_scope
                                     and n in current and not same_float32(current[n], v)])
     failed = {}
-    for name, value in changed.items():
+    for name, value in changed.items():     # read_param_file refuses NaN: all are finite
         reported = _put_back(link, name, value)
         if _is_held(reported, value):
             report.written[name] = reported
         else:
-            failed[name] = reported
+            failed[name] = _reported(reported)
     if failed:
         skipped = (f"; {len(report.skipped)} names the vehicle does not have skipped"
                    if report.skipped else "")
