@@ -32,14 +32,14 @@ ROLLBACK_ATTEMPTS = 5       # a put-back matters more than a write: more tries b
 #: "How the firmware applies the parameters") and the other results of a calibration:
 #: temperature calibration (INS_TCAL*), compass scale (COMPASS_SCALE*), level trim (AHRS_TRIM_*).
 CALIBRATION_PREFIXES = CALIBRATION_PARAM_PREFIXES + ("INS_TCAL", "COMPASS_SCALE", "AHRS_TRIM")
+#: The same, in words, for messages and help texts
+CALIBRATION_IN_WORDS = ("INS_ACC*/INS_GYR* offsets and scales, INS_TCAL*, COMPASS_OFS/DIA/ODI/"
+                        "MOT/SCALE/ORIENT/EXTERN*, AHRS_ORIENTATION, AHRS_TRIM_*")
 #: Never written, even with all_params: counters and statistics the vehicle keeps itself
 #: (ArduPilot's AP_Stats STAT_BOOTCNT/FLTTIME/RUNTIME, saved every 30 s and overwritten from its
 #: own count; writing STAT_RESET resets them all; SYS_NUM_RESETS of older firmware) and the
 #: firmware's identity (a FORMAT_VERSION it does not expect makes it erase every parameter at
 #: the next boot).
-#: The same, in words, for messages and help texts
-CALIBRATION_IN_WORDS = ("INS_ACC*/INS_GYR* offsets and scales, INS_TCAL*, COMPASS_OFS/DIA/ODI/"
-                        "MOT/SCALE/ORIENT/EXTERN*, AHRS_ORIENTATION, AHRS_TRIM_*")
 NEVER_WRITTEN_PREFIXES = ("STAT_", "SYS_NUM_RESETS", "FORMAT_VERSION", "SYSID_SW_MREV",
                           "SYSID_SW_TYPE")
 
