@@ -2,8 +2,8 @@
 
     apmcal log FILE [--method M] [--lat DEG --lon DEG] [--param-file OUT] [--json OUT]
     apmcal live CONNECTION [--duration S] [--rate HZ] [--method M] [--upload] ...
-    apmcal upload CONNECTION FILE.param [--backup FILE]
-    apmcal restore CONNECTION BACKUP.param
+    apmcal upload CONNECTION FILE.param [--backup FILE] [--all-params]
+    apmcal restore CONNECTION BACKUP.param [--all-params]
 
 Every failure the user can cause ends in one line on stderr and a non-zero exit status; Ctrl-C
 ends with one line and status 130 (128 + SIGINT, the shell's convention).
@@ -93,16 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
     live.add_argument("--backup", default=None, help="backup file (default apmcal-backup-<time>.param)")
     add_calibration_options(live)
 
-    upload = sub.add_parser("upload", help="write a .param file to a vehicle, verified")
-    upload.add_argument("connection")
-    upload.add_argument("param_file")
-    upload.add_argument("--backup", default=None)
-    add_baud_option(upload)
-
-    restore = sub.add_parser("restore", help="put back the values of a backup .param file")
-    restore.add_argument("connection")
-    restore.add_argument("backup_file")
-    add_baud_option(restore)
+    add_upload_parsers(sub)
 
     add_gap_parser(sub)
     return parser
@@ -126,6 +117,45 @@ def add_baud_option(p: argparse.ArgumentParser) -> None:
                    default=DEFAULT_BAUD,
                    help=f"serial baud rate (default {DEFAULT_BAUD}: USB; 57600 for 3DR/SiK "
                         "telemetry radios); ignored by udp:/tcp: connections")
+
+
+ALL_PARAMS_HELP = ("also write parameters that are not calibration (counters such as STAT_* "
+                   "are never written)")
+
+
+def add_upload_parsers(sub) -> None:
+    """``apmcal upload`` and ``apmcal restore``."""
+    from apmcal.vehicle.upload import CALIBRATION_IN_WORDS
+
+    upload = sub.add_parser(
+        "upload", help="write a .param file to a vehicle: backed up, verified, rolled back on "
+                       "failure",
+        description="Write the calibration parameters of a .param file (NAME VALUE lines) to a "
+                    "vehicle. Every parameter of the vehicle is first saved to a backup file; "
+                    "each write is verified by read-back; if one cannot be confirmed, or on "
+                    "Ctrl-C, every change is put back. Only calibration parameters "
+                    f"({CALIBRATION_IN_WORDS}) unless --all-params; the file is checked "
+                    "before anything is written.")
+    upload.add_argument("connection", help="pymavlink connection string, e.g. "
+                                           "udp:127.0.0.1:14550")
+    upload.add_argument("param_file", help="the parameters to write (.param: NAME VALUE lines)")
+    upload.add_argument("--backup", default=None,
+                        help="backup file (default apmcal-backup-<time>.param)")
+    upload.add_argument("--all-params", action="store_true", help=ALL_PARAMS_HELP)
+    add_baud_option(upload)
+
+    restore = sub.add_parser(
+        "restore", help="put back the calibration parameters of a backup .param file",
+        description="Put back the values of a backup file (as written by upload or live "
+                    "--upload), each verified by read-back. Only calibration parameters that "
+                    "differ from the vehicle are written unless --all-params; counters the "
+                    "vehicle keeps (STAT_*) never are. Every name is tried, then the ones that "
+                    "could not be confirmed are listed.")
+    restore.add_argument("connection", help="pymavlink connection string, e.g. "
+                                            "udp:127.0.0.1:14550")
+    restore.add_argument("backup_file", help="the backup .param file")
+    restore.add_argument("--all-params", action="store_true", help=ALL_PARAMS_HELP)
+    add_baud_option(restore)
 
 
 def add_gap_parser(sub) -> None:
@@ -427,14 +457,15 @@ def default_backup_name() -> str:
     return f"apmcal-backup-{time.strftime('%Y%m%d-%H%M%S')}.param"
 
 
-def upload_values(connection, values, backup, vehicle_params, console, baud):
+def upload_values(connection, values, backup, vehicle_params, console, baud,
+                  all_params=False):
     from apmcal.sources.live import VehicleLink
     from apmcal.vehicle.upload import upload_params
 
     backup = backup or default_backup_name()
     check_writable(backup, "backup file")
     with VehicleLink(connection, baud=baud) as link:
-        result = upload_params(link, values, backup, vehicle_params)
+        result = upload_params(link, values, backup, vehicle_params, all_params)
     console.print(f"wrote and verified {len(result.written)} parameters; backup in {backup} "
                   f"(undo: apmcal restore {connection} {backup})")
     print_skipped(result, console)
@@ -450,22 +481,37 @@ def print_skipped(result, console) -> None:
 
 def cmd_upload(args) -> int:
     from apmcal.vehicle.paramfile import read_param_file
+    from apmcal.vehicle.upload import check_scope
 
-    values = read_param_file(args.param_file)
-    upload_values(args.connection, values, args.backup, None, console_for(args), args.baud)
+    values = read_param_file(args.param_file)      # the file is checked before connecting
+    check_scope(values, args.param_file, args.all_params)
+    upload_values(args.connection, values, args.backup, None, console_for(args), args.baud,
+                  args.all_params)
     return 0
 
 
 def cmd_restore(args) -> int:
     from apmcal.sources.live import VehicleLink
+    from apmcal.vehicle.paramfile import read_param_file
     from apmcal.vehicle.upload import restore_params
 
+    read_param_file(args.backup_file)       # a missing or bad file fails before connecting
     with VehicleLink(args.connection, baud=args.baud) as link:
-        result = restore_params(link, args.backup_file)
+        result = restore_params(link, args.backup_file, all_params=args.all_params)
     console = console_for(args)
     console.print(f"restored {len(result.written)} parameters from {args.backup_file}")
     print_skipped(result, console)
+    print_left_out(getattr(result, "left_out", []), console, args.all_params)
     return 0
+
+
+def print_left_out(names: list[str], console, all_params: bool) -> None:
+    """The backup's values restore did not write although the vehicle holds others."""
+    if names:
+        why = ("counters the vehicle keeps itself" if all_params else
+               "not calibration parameters; --all-params restores all but counters")
+        shown = ", ".join(names[:12]) + (" ..." if len(names) > 12 else "")
+        console.print(f"left {len(names)} differing parameters as they are ({why}): {shown}")
 
 
 def cmd_gap(args) -> int:
