@@ -209,16 +209,20 @@ def test_only_the_rejected_sensor_is_withheld_from_an_upload(capsys):
 def test_a_missing_pyserial_is_named_in_one_line(monkeypatch, tmp_path, capsys):
     monkeypatch.setitem(sys.modules, "serial", None)       # as if pyserial were not installed
     device = str(tmp_path / "ttyACM0")
-    assert main(["restore", device, "x.param", "--baud", "57600"]) == 2
+    backup = tmp_path / "x.param"
+    backup.write_text("INS_ACCOFFS_X 0.1\n")      # restore reads its file before connecting
+    assert main(["restore", device, str(backup), "--baud", "57600"]) == 2
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
     assert len(err) == 1 and device in err[0] and "pip install pyserial" in err[0]
 
 
 @pytest.mark.parametrize("command", ["live", "restore"])
-def test_a_log_file_given_as_connection_is_refused_in_one_line(capsys, command):
+def test_a_log_file_given_as_connection_is_refused_in_one_line(capsys, command, tmp_path):
     """pymavlink would read it as a log, and hang at its end (restore) or fail inside."""
     log = str(ROOT / "logs" / "onepos.tlog")
-    args = [command, log, "x.param"] if command == "restore" else [command, log]
+    backup = tmp_path / "x.param"
+    backup.write_text("INS_ACCOFFS_X 0.1\n")      # restore reads its file before connecting
+    args = [command, log, str(backup)] if command == "restore" else [command, log]
     assert main(args) == 2
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
     assert len(err) == 1 and log in err[0] and "apmcal log" in err[0]
