@@ -62,8 +62,10 @@ def decimated(session: Session, k: int) -> Session:
     """``session`` averaged over blocks of ``k`` samples (``k`` = 1: the session itself).
 
     Holds, moves and pieces keep their identity and fold, each shrunk to the blocks wholly
-    inside it. Averages of rounded readings are not on the sensor's lattice: the averaged
-    sensors are scored as floating-point data (the rounding is part of their white noise)."""
+    inside it. The mean of ``k`` readings rounded to a step lies on a lattice of step / ``k``:
+    a sensor the log stores as integers stays one, on that finer lattice (left out, the twin's
+    continuous block means would differ from the real ones at the finest scale by the lattice
+    alone)."""
     if k == 1:
         return session
     pc = session.pieces
@@ -76,13 +78,8 @@ def decimated(session: Session, k: int) -> Session:
         segments=[_segment(s, k) for s in session.segments], pieces=pieces,
         temp=block_means(session.temp, k), current=block_means(session.current, k),
         notes=list(session.notes))
-    averaged = {"acc", "gyr"}
     if session.mag is not None:
         out.mag = _mag(session, out, k)
-        if out.mag.t is out.t:
-            averaged.add("mag")
-    out.averaged = frozenset(averaged)
-    out.integer_sensors = session.integer_sensors - out.averaged
     return out
 
 

@@ -316,15 +316,16 @@ def _sample_sigma(session) -> dict:
 
 
 def _lattice_steps(session) -> dict:
-    """Quantization step per axis of each sensor's hold samples (None: not on a lattice; not
-    looked for in block means, whose lattice is not the sensor's)."""
+    """Quantization step per axis of each sensor's hold samples (None: not on a lattice). In
+    block means of rounded readings it is the step over the block length, which the twin's
+    rounding then reproduces (apmcal.diagnosis.decimate)."""
     pc = session.pieces
     ids = pc.select(hold=True)
     idx = np.concatenate([np.arange(a, b) for a, b in zip(pc.i0[ids], pc.i1[ids])])
     out = {}
     for sensor, x in (("acc", session.acc), ("gyr", session.gyr)):
-        out[sensor] = None if sensor in session.averaged else _steps(x[idx])
-    if session.mag is not None and "mag" not in session.averaged:
+        out[sensor] = _steps(x[idx])
+    if session.mag is not None:
         m = session.mag
         out["mag"] = _steps(np.concatenate([m.values[a:b] for a, b in zip(m.i0[ids], m.i1[ids])]))
     return out

@@ -274,8 +274,11 @@ def fit_channels(v: np.ndarray, n: np.ndarray, fs: float, *, cutoff_hz: float | 
 def lattice_step(x: np.ndarray, min_fraction: float = 0.9) -> float | None:
     """The quantization step of samples on a lattice (their most common non-zero successive
     difference, when ``min_fraction`` of the differences are multiples of it), else None."""
-    d = np.abs(np.diff(np.asarray(x, float)))
-    d = d[d > 0]
+    x = np.asarray(x, float)
+    d = np.abs(np.diff(x))
+    # differences at the float's own resolution are equal samples (means of rounded readings
+    # carry a last-bit error), not a lattice step
+    d = d[d > 1e-9 * max(float(np.max(np.abs(x))), 1e-300)]
     if len(d) < 100:
         return None
     step = float(np.min(d))

@@ -101,8 +101,6 @@ class Session:
     # sensors whose log format stores integers (RAW_IMU's mG / mrad/s / mGauss, dataflash
     # MAG's int16 mGauss): their rounding is the recording's, part of every twin
     integer_sensors: frozenset = frozenset()
-    # sensors whose samples are block means of the recording's (apmcal.diagnosis.decimate)
-    averaged: frozenset = frozenset()
 
     @property
     def fs(self) -> float:
