@@ -37,6 +37,8 @@ def main(argv=None) -> int:
         vehicle = SimVehicle(truth, args.script, args.firmware, args.param_file, seed=args.seed,
                              duration=args.duration if args.script != "operator" else None)
         endpoint = MavlinkVehicle(vehicle, args.connection, args.speedup, args.tlog)
+        if args.script == "operator":
+            start_operator_console(endpoint)
         try:
             endpoint.serve(args.duration)
         except KeyboardInterrupt:
@@ -50,6 +52,29 @@ def main(argv=None) -> int:
         print(f"sitl: {args.connection}: {err}", file=sys.stderr)
         return 2
     return 0
+
+
+def start_operator_console(endpoint, keys=None, out=None) -> None:
+    """Operator mode: you are the person at the vehicle. A pose typed here (level, left,
+    right, nose down, nose up, back) and Enter turns the simulated vehicle to it (3 s)."""
+    import threading
+
+    from sitl.vehicle import parse_pose_text
+
+    keys, out = keys or sys.stdin, out or sys.stderr
+    print("sitl operator: type a pose (level, left, right, nose down, nose up, back) and Enter "
+          "to turn the vehicle", file=out, flush=True)
+
+    def read() -> None:
+        for line in keys:
+            pose = parse_pose_text(line)
+            if pose is None:
+                print(f"sitl operator: no pose in {line.strip()!r}", file=out, flush=True)
+                continue
+            endpoint.call_soon(lambda v, p=pose: v.goto_pose(p))
+            print(f"sitl operator: turning to {pose}", file=out, flush=True)
+
+    threading.Thread(target=read, daemon=True).start()
 
 
 if __name__ == "__main__":
