@@ -130,8 +130,8 @@ def test_auto_waits_until_the_vehicle_is_still_in_the_pose(sim):
     assert list(result.holds) == ORDER
     assert operator.asked().count((2, "left")) == 2
     assert len(operator.said("rejected")) == 1 and "RIGHT" in operator.said("rejected")[0]
-    # the end of a turn is slow enough to pass for still a fraction of a second early
-    slack = 0.3
+    # the last half second of a turn moves less than 3°: it passes for still
+    slack = 0.6
     assert result.holds["nosedown"].start >= arrival_times(v, "nosedown")[-1] - slack
     assert result.holds["nosedown"].start > arrival_times(v, "via")[-1] + 2.0
     assert result.holds["noseup"].start >= arrival_times(v, "noseup")[-1] - slack

@@ -40,8 +40,11 @@ from apmcal.preprocessing.static import ARDUPILOT_FACE, MAX_TILT_DEG, pose_of
 G0 = 9.80665
 STILL_WINDOW_S = 1.0        # vehicle seconds of stillness before a pose is judged
 STILL_MIN_SAMPLES = 3       # ... and at least this many samples in them
-STILL_ACC_STD = 0.3         # m/s², per axis, over the window: no turning, no knocks
-STILL_GYRO = 0.1            # rad/s (≈ 6°/s), every sample of the window
+# a hand-held vehicle trembles (a few °/s at 4-9 Hz) but does not turn: the window's mean rate
+# is small, and no sample is fast
+STILL_ACC_STD = 0.3         # m/s², per axis, over the window: no rocking, no knocks
+STILL_MEAN_RATE = 0.05      # rad/s (≈ 3°/s), norm of the window's mean rate: not turning
+STILL_PEAK_RATE = 0.35      # rad/s (≈ 20°/s), every sample of the window: no jerk
 WRONG_POSE_GRACE_S = 3.0    # --auto: vehicle seconds still in a wrong pose before it is rejected
 NO_DATA_TIMEOUT_S = 10.0    # wall seconds without an IMU message: the stream stopped
 ABORT_WORDS = {"q", "quit", "abort", "stop"}
@@ -195,7 +198,8 @@ class StillWindow:
         acc = np.array([s.acc for s in self.samples])
         gyr = np.array([s.gyr for s in self.samples])
         return bool(acc.std(axis=0).max() < STILL_ACC_STD
-                    and np.linalg.norm(gyr, axis=1).max() < STILL_GYRO)
+                    and np.linalg.norm(gyr.mean(axis=0)) < STILL_MEAN_RATE
+                    and np.linalg.norm(gyr, axis=1).max() < STILL_PEAK_RATE)
 
     def mean_acc(self) -> np.ndarray:
         return np.mean([s.acc for s in self.samples], axis=0)
