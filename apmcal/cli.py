@@ -82,12 +82,16 @@ def build_parser() -> argparse.ArgumentParser:
                       default=50, help="IMU stream rate [Hz], 1 to 1000 (default 50)")
     live.add_argument("--save-log", default=None, help="keep the recording as this .tlog")
     live.add_argument("--guide", choices=["ardupilot6"], default=None,
-                      help="prompt ArduPilot's six accel-cal faces one by one (instead of "
-                           "--duration)")
+                      help="prompt ArduPilot's six accel-cal poses one by one, check each "
+                           "(instead of --duration); Enter confirms a pose")
+    live.add_argument("--auto", action="store_true",
+                      help="with --guide: no Enter, wait for the vehicle to be still in the "
+                           "pose asked for")
     live.add_argument("--hold", type=POSITIVE_SECONDS, default=10.0,
-                      help="seconds per face with --guide")
-    live.add_argument("--move", type=number_type(float, 0, what="seconds"), default=5.0,
-                      help="seconds to turn to the next face with --guide")
+                      help="seconds held still per pose with --guide (vehicle clock)")
+    live.add_argument("--face-timeout", type=POSITIVE_SECONDS, default=120.0,
+                      help="longest wait for each pose with --guide: key press, stillness, "
+                           "hold (default 120 s)")
     live.add_argument("--upload", action="store_true",
                       help="write the proposed parameters to the vehicle (backed up, verified)")
     live.add_argument("--backup", default=None, help="backup file (default apmcal-backup-<time>.param)")
@@ -213,23 +217,31 @@ def add_calibration_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true")
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run the command line; Ctrl-C anywhere in it (imports included) ends in one line, 130."""
+def main(argv: list[str] | None = None, *, operator=None) -> int:
+    """Run the command line; Ctrl-C anywhere in it (imports included) ends in one line, 130.
+    ``operator``: where ``live --guide`` prompts and reads key presses (default: this
+    terminal; a :class:`apmcal.sources.guided.Operator`, for tests)."""
     try:
-        return run(argv)
+        return run(argv, operator)
     except KeyboardInterrupt:
         print("apmcal: interrupted (Ctrl-C)", file=sys.stderr)
         return EXIT_INTERRUPTED
 
 
-def run(argv: list[str] | None) -> int:
+def run(argv: list[str] | None, operator=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.guide_operator = operator
     if getattr(args, "lon", None) is not None and args.lat is None:
         # longitude alone would be silently unused (gravity and Earth rate need the latitude,
         # the WMM field both)
         parser.error("--lon needs --lat (the magnetic field model needs both; --lat alone is "
                      "fine)")
+    if getattr(args, "auto", False) and not args.guide:
+        parser.error("--auto needs --guide (it waits for each guided pose)")
+    if getattr(args, "guide", None) and args.hold < args.min_still:
+        parser.error(f"--hold {args.hold:g} is shorter than --min-still {args.min_still:g}: "
+                     "the calibration would not find the poses as still periods")
     command = {"log": cmd_log, "live": cmd_live, "upload": cmd_upload,
                "restore": cmd_restore, "gap": cmd_gap}[args.command]
     try:
@@ -391,9 +403,7 @@ def cmd_live(args) -> int:
         params = link.fetch_params()
         link.request_imu_stream(args.rate)
         if args.guide:
-            from apmcal.sources.guided import record_six_faces
-
-            n = record_six_faces(link, args.hold, args.move, console.print)
+            n = record_guided(link, args)
         else:
             console.print(f"recording {args.duration:g} s from {args.connection} to {log_path}")
             n = record_with_progress(link, args.duration, console)
@@ -425,6 +435,22 @@ def values_to_upload(proposal, connection: str, console) -> dict[str, float]:
                       + ", ".join(proposal.rejected) + "; uploading the other "
                       f"{len(proposal.values)} values")
     return dict(proposal.values)
+
+
+def record_guided(link, args) -> int:
+    """The six poses, prompted and checked (apmcal.sources.guided); the IMU message count.
+
+    Six accepted poses are what the six-face method needs: with ``--method auto`` it is used,
+    and a face the calibration then cannot find is an error, never another method.
+    """
+    from apmcal.sources.guided import GuideOptions, TerminalOperator, record_six_faces
+
+    operator = args.guide_operator or TerminalOperator(sys.stdin, sys.stdout)
+    result = record_six_faces(link, GuideOptions(args.hold, args.auto, args.face_timeout),
+                              operator)
+    if args.method == "auto":
+        args.method = "ferraris"
+    return result.n_imu
 
 
 def record_with_progress(link, duration_s: float, console) -> int:

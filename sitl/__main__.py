@@ -42,6 +42,8 @@ def main(argv=None) -> int:
         endpoint = MavlinkVehicle(vehicle, args.connection, args.speedup, args.tlog)
         if hasattr(endpoint.conn, "device"):        # a pty: say where the serial port is
             print(f"serial port: {endpoint.conn.device}", flush=True)
+        if args.script == "operator":
+            start_operator_console(endpoint)
         try:
             endpoint.serve(args.duration)
         except KeyboardInterrupt:
@@ -55,6 +57,29 @@ def main(argv=None) -> int:
         print(f"sitl: {args.connection}: {err}", file=sys.stderr)
         return 2
     return 0
+
+
+def start_operator_console(endpoint, keys=None, out=None) -> None:
+    """Operator mode: you are the person at the vehicle. A pose typed here (level, left,
+    right, nose down, nose up, back) and Enter turns the simulated vehicle to it (3 s)."""
+    import threading
+
+    from sitl.vehicle import parse_pose_text
+
+    keys, out = keys or sys.stdin, out or sys.stderr
+    print("sitl operator: type a pose (level, left, right, nose down, nose up, back) and Enter "
+          "to turn the vehicle", file=out, flush=True)
+
+    def read() -> None:
+        for line in keys:
+            pose = parse_pose_text(line)
+            if pose is None:
+                print(f"sitl operator: no pose in {line.strip()!r}", file=out, flush=True)
+                continue
+            endpoint.call_soon(lambda v, p=pose: v.goto_pose(p))
+            print(f"sitl operator: turning to {pose}", file=out, flush=True)
+
+    threading.Thread(target=read, daemon=True).start()
 
 
 if __name__ == "__main__":

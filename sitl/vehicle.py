@@ -102,6 +102,7 @@ class SimVehicle:
         self.gyro_boot_s = gyro_boot_s
         self._boot_gyro: list = [] if self.params["INS_GYR_CAL"] == 1 else None
         self.record, self._hist = record, []
+        self.commands: list = []              # (time [s], COMMAND_LONG) received, for tests
         self.last: dict = {}
         self._next_1hz = 0.0
         self._count_boot()
@@ -360,11 +361,8 @@ class SimVehicle:
         elif kind == "REQUEST_DATA_STREAM":
             self.request_stream(msg.req_stream_id, msg.req_message_rate, bool(msg.start_stop))
         elif kind == "COMMAND_LONG":
+            self.commands.append((self.t, msg))
             self._command(msg)
-        elif kind == "STATUSTEXT" and self.script == "operator":
-            pose = parse_pose_text(msg.text)
-            if pose:
-                self.goto_pose(pose)
 
     def _param_value(self, name: str) -> None:
         self.queue(self.t, mavlink.MAVLink_param_value_message(
@@ -383,22 +381,34 @@ class SimVehicle:
             else:
                 result = mavlink.MAV_RESULT_DENIED
         elif cmd == mavlink.MAV_CMD_ACCELCAL_VEHICLE_POS:
-            pose = motion.ACCELCAL_POSES.get(int(msg.param1))
-            if self.script == "operator" and pose:
-                self.goto_pose(pose)
-                result = mavlink.MAV_RESULT_ACCEPTED
-            else:
-                result = mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+            # the firmware takes it only while its own accel cal waits for that very pose
+            # (AP_AccelCal::gcs_vehicle_position), else MAV_RESULT_FAILED; no onboard accel
+            # cal runs here, and the vehicle does not move on a command
+            result = mavlink.MAV_RESULT_FAILED
         self.queue(self.t, mavlink.MAVLink_command_ack_message(cmd, result))
 
     # ---- operator mode --------------------------------------------------------------------
-    def goto_pose(self, pose: str, move_s: float = 3.0) -> None:
-        """Operator mode: turn to ``pose`` (a :data:`sitl.motion.POSES` name) starting now."""
+    def goto_pose(self, pose, move_s: float = 3.0, label: str | None = None) -> None:
+        """Operator mode: turn to ``pose`` (a :data:`sitl.motion.POSES` name, or an attitude
+        matrix R_nb) starting now, or when the turns asked for before are done."""
         m = self.motion
         if self.t > m.duration:
             m.hold(self.t - m.duration, m.segments[-1].label if m.segments else "level")
-        m.move_to(motion.pose_matrix(pose), move_s)
-        m.hold(0.5, pose)   # the pose label continues through the implicit final hold
+        target = motion.pose_matrix(pose) if isinstance(pose, str) else pose
+        m.move_to(target, move_s)
+        # the pose label continues through the implicit final hold
+        m.hold(0.5, label or (pose if isinstance(pose, str) else "pose"))
+
+    def stay(self, seconds: float) -> None:
+        """Operator mode: keep the current pose ``seconds`` longer before the next turn."""
+        m = self.motion
+        if self.t > m.duration:
+            m.hold(self.t - m.duration, m.segments[-1].label if m.segments else "level")
+        m.hold(seconds, m.segments[-1].label if m.segments else "level")
+
+    def motion_done(self) -> bool:
+        """True once every turn asked for is over (the vehicle rests in its last pose)."""
+        return self.t >= self.motion.duration
 
 
 _TEXT_POSES = (("nose down", "nosedown"), ("nosedown", "nosedown"), ("nose up", "noseup"),
@@ -407,7 +417,7 @@ _TEXT_POSES = (("nose down", "nosedown"), ("nosedown", "nosedown"), ("nose up", 
 
 
 def parse_pose_text(text: str) -> str | None:
-    """Pose named in an operator prompt ("Place vehicle nose DOWN", "x_p"), else None."""
+    """Pose named in an operator's words ("nose DOWN", "on its LEFT side", "x_p"), else None."""
     low = text.lower()
     face = re.search(r"\b([xyz]_[pa])\b", low)
     if face:

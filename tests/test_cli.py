@@ -120,7 +120,7 @@ def test_json_is_written_when_the_param_file_step_fails(tmp_path, capsys):
     (["live", "udp:127.0.0.1:1", "--duration", "nan"], "--duration"),
     (["live", "udp:127.0.0.1:1", "--duration", "inf"], "--duration"),
     (["live", "udp:127.0.0.1:1", "--hold", "0"], "--hold"),
-    (["live", "udp:127.0.0.1:1", "--move", "-1"], "--move"),
+    (["live", "udp:127.0.0.1:1", "--face-timeout", "-1"], "--face-timeout"),
     (["live", "udp:127.0.0.1:1", "--lat", "91"], "--lat"),
     (["log", "x.tlog", "--min-still", "0"], "--min-still"),
     (["log", "x.tlog", "--min-still", "nan"], "--min-still"),
@@ -139,9 +139,9 @@ def test_bad_option_values_are_one_line_usage_errors(argv, option, capsys):
 
 def test_option_values_at_their_limits_parse():
     args = cli.build_parser().parse_args(
-        ["live", "udp:127.0.0.1:1", "--rate", "1000", "--move", "0", "--duration", "0.5",
-         "--hold", "1e-3", "--lat", "-90", "--lon", "180", "--min-still", "0.1"])
-    assert (args.rate, args.move, args.lat, args.lon) == (1000, 0.0, -90.0, 180.0)
+        ["live", "udp:127.0.0.1:1", "--rate", "1000", "--face-timeout", "1e-3", "--duration",
+         "0.5", "--hold", "1e-3", "--lat", "-90", "--lon", "180", "--min-still", "0.1"])
+    assert (args.rate, args.face_timeout, args.lat, args.lon) == (1000, 1e-3, -90.0, 180.0)
     assert cli.build_parser().parse_args(["log", "x.tlog", "--lat", "47.4"]).lon is None
 
 

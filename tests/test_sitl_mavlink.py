@@ -120,7 +120,9 @@ def test_message_interval_up_to_400hz_and_ack():
     assert len(messages(v2, "RAW_IMU")) == 50
 
 
-def test_operator_mode_accelcal_command_and_text():
+def test_operator_mode_turns_on_request_and_refuses_accelcal_commands():
+    """MAV_CMD_ACCELCAL_VEHICLE_POS is answered as the firmware does without its own accel cal
+    running (MAV_RESULT_FAILED) and moves nothing; the operator turns the vehicle."""
     v = SimVehicle(only(), "operator", "3.3", record=True)
     v.params.set("INS_GYR_CAL", 0, save=False)
     v._boot_gyro = None
@@ -128,20 +130,23 @@ def test_operator_mode_accelcal_command_and_text():
     v.run_for(1.0)
     v.handle(mavlink.MAVLink_command_long_message(1, 1, mavlink.MAV_CMD_ACCELCAL_VEHICLE_POS, 0,
                                                   4, 0, 0, 0, 0, 0, 0))
-    assert messages(v, "COMMAND_ACK")[0].result == mavlink.MAV_RESULT_ACCEPTED
+    assert messages(v, "COMMAND_ACK")[0].result == mavlink.MAV_RESULT_FAILED
+    assert [m.command for _, m in v.commands] == [mavlink.MAV_CMD_ACCELCAL_VEHICLE_POS]
     v.run_for(4.0)
     m = messages(v, "RAW_IMU")[-1]
+    assert (m.xacc, m.yacc, m.zacc) == (0, 0, -1000)                  # still level
+    v.goto_pose("nosedown")
+    assert not v.motion_done()
+    v.run_for(4.0)
+    assert v.motion_done()
+    m = messages(v, "RAW_IMU")[-1]
     assert (m.xacc, m.yacc, m.zacc) == (-1000, 0, 0)                  # nose down
-    v.handle(mavlink.MAVLink_statustext_message(6, b"Place vehicle on its LEFT side"))
+    v.goto_pose(parse_pose_text("on its LEFT side"))
     v.run_for(4.0)
     m = messages(v, "RAW_IMU")[-1]
     assert (m.xacc, m.yacc, m.zacc) == (0, 1000, 0)
     labels = [s[0] for s in v.motion.sections()]
     assert labels == ["level", "transition", "nosedown", "transition", "left"]
-    h = v.history()                                      # attitude truth available to tests
-    assert h["rot"].shape == (9000, 3, 3) and h["rate"].shape == (9000, 3)
-    assert parse_pose_text("Place vehicle nose DOWN and press any key") == "nosedown"
-    assert parse_pose_text("hold x_a now") == "x_a"
 
 
 def test_command_line_serves_and_writes_truth(tmp_path):
@@ -163,3 +168,42 @@ def test_command_line_serves_and_writes_truth(tmp_path):
     d = json.loads(truth.read_text())
     assert d["effects"]["seed"] == 9 and d["effects"]["enabled"]["acc_noise"] is False
     assert set(d) >= {"acc", "gyr", "mag"}
+
+
+def test_a_stalled_endpoint_lags_instead_of_bursting():
+    """After a stall the simulated clock advances at most MAX_CATCH_UP_S of wall time per poll
+    (a burst would overflow the ground station's UDP buffer)."""
+    v = SimVehicle(only(), "operator", "3.3")
+    ep = MavlinkVehicle(v, f"udpout:127.0.0.1:{_free_port()}", speedup=4.0)
+    try:
+        ep.poll()
+        time.sleep(0.6)                      # 2.4 s of simulated time owed
+        ep.poll()
+        assert v.t <= ep.MAX_CATCH_UP_S * 4.0 + 0.05
+        ep.call_soon(lambda vehicle: vehicle.goto_pose("back"))
+        ep.poll()
+        assert v.motion.sections()[-1][0] == "back"
+    finally:
+        ep.close()
+
+
+def test_operator_console_turns_the_vehicle_to_typed_poses():
+    import io
+
+    from sitl.__main__ import start_operator_console
+
+    class Endpoint:
+        calls = []
+
+        def call_soon(self, fn):
+            self.calls.append(fn)
+
+    ep, out, v = Endpoint(), io.StringIO(), SimVehicle(only(), "operator", "3.3")
+    start_operator_console(ep, io.StringIO("nose down\nsideways\nback\n"), out)
+    deadline = time.monotonic() + 5
+    while len(ep.calls) < 2 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    for fn in ep.calls:
+        fn(v)
+    assert [s[0] for s in v.motion.sections()][-3:] == ["nosedown", "transition", "back"]
+    assert "no pose in 'sideways'" in out.getvalue()
