@@ -4,6 +4,7 @@
     apmcal live CONNECTION [--duration S] [--rate HZ] [--method M] [--upload] ...
     apmcal upload CONNECTION FILE.param [--backup FILE]
     apmcal restore CONNECTION BACKUP.param
+    apmcal tcal LOG [--param-file OUT] [--upload CONNECTION]
 
 Every failure the user can cause ends in one line on stderr and a non-zero exit status.
 """
@@ -99,7 +100,62 @@ def build_parser() -> argparse.ArgumentParser:
     restore.add_argument("backup_file")
 
     add_gap_parser(sub)
+    add_tcal_parser(sub)
     return parser
+
+
+def add_tcal_parser(sub) -> None:
+    """``apmcal tcal LOG``: ArduPilot's IMU temperature calibration (issue 11)."""
+    tcal = sub.add_parser("tcal", help="fit ArduPilot's IMU temperature calibration "
+                                       "(INS_TCALn_*) from a still warm-up log")
+    tcal.add_argument("file", help="dataflash .bin/.log (IMU with temperature, or TCLR) or "
+                                   ".tlog (RAW_IMU/SCALED_IMU with temperature)")
+    tcal.add_argument("--records", choices=["auto", "imu", "tclr"], default="auto",
+                      help="TCLR (the firmware learner's records), IMU samples, or auto: "
+                           "TCLR when present (default)")
+    tcal.add_argument("--instance", type=int, default=None, help="IMU instance (default: all)")
+    tcal.add_argument("--min-still", type=POSITIVE_SECONDS, default=2.0, metavar="S",
+                      help="shortest still period used [s] (default 2)")
+    tcal.add_argument("--param-file", default=None, help="write INS_TCALn_* (.param)")
+    tcal.add_argument("--upload", default=None, metavar="CONNECTION",
+                      help="write INS_TCALn_* to the vehicle (backed up, verified)")
+    tcal.add_argument("--backup", default=None, help="backup file with --upload "
+                                                     "(default apmcal-backup-<time>.param)")
+    tcal.add_argument("--json", default=None, help="write the fit as JSON")
+    tcal.add_argument("--quiet", action="store_true")
+
+
+def cmd_tcal(args) -> int:
+    from apmcal.sources import read_log
+    from apmcal.tcal_pipeline import calibrate_temperature, tcal_params
+    from apmcal.tcal_report import print_tcal
+
+    check_writable(args.param_file, "parameter file")
+    check_writable(args.json, "JSON file")
+    if args.upload:
+        check_writable(args.backup or default_backup_name(), "backup file")
+    console = console_for(args)
+    results = calibrate_temperature(read_log(args.file), args.records, args.instance,
+                                    args.min_still)
+    print_tcal(results, console)
+    values = tcal_params(results)
+    if args.json:
+        from apmcal.solvers.result import jsonable
+
+        text = json.dumps(jsonable({"tcal": [r.to_dict() for r in results], "params": values}),
+                          indent=2) + "\n"
+        try:
+            Path(args.json).write_text(text)
+        except OSError as exc:
+            raise ApmcalError(f"cannot write JSON file ({exc.strerror or exc})", args.json) from None
+    if args.param_file:
+        from apmcal.vehicle.paramfile import write_param_file
+
+        write_param_file(args.param_file, values, f"apmcal tcal of {args.file}")
+        console.print(f"wrote {args.param_file}")
+    if args.upload:
+        upload_values(args.upload, values, args.backup, None, console)
+    return 0
 
 
 def add_gap_parser(sub) -> None:
@@ -166,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--lon needs --lat (the magnetic field model needs both; --lat alone is "
                      "fine)")
     command = {"log": cmd_log, "live": cmd_live, "upload": cmd_upload,
-               "restore": cmd_restore, "gap": cmd_gap}[args.command]
+               "restore": cmd_restore, "gap": cmd_gap, "tcal": cmd_tcal}[args.command]
     try:
         with warnings.catch_warnings():
             if not args.debug:

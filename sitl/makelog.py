@@ -55,9 +55,10 @@ def write_tlog(v: SimVehicle, out: Path, rate: float, seconds: float) -> None:
         _drain(v, seconds, lambda t, m: w.write(START_UNIX + t, v.encode(m)))
 
 
-def write_bin(v: SimVehicle, out: Path, rate: float, seconds: float) -> None:
+def write_bin(v: SimVehicle, out: Path, rate: float, seconds: float,
+              imu_instance: bool = False) -> None:
     v.set_interval("HIGHRES_IMU", rate)
-    with DataflashWriter(out) as w:
+    with DataflashWriter(out, imu_instance=imu_instance) as w:
         for name in v.params.names:
             w.parm(0, name, v.params[name])
         w.msg(0, VERSION_TEXT[v.generation])
@@ -112,6 +113,8 @@ def main(argv=None) -> int:
                     help="script length [s] (onepos/warmup/tumble/motors)")
     ap.add_argument("--set", action="append", metavar="NAME=VALUE",
                     help="parameter in force (default: all neutral)")
+    ap.add_argument("--imu-instance", action="store_true",
+                    help=".bin: IMU records with the 4.x instance column I")
     add_truth_args(ap)
     args = ap.parse_args(argv)
     try:
@@ -119,7 +122,7 @@ def main(argv=None) -> int:
         seconds = v.motion.duration + 1.0
         out = Path(args.out)
         if out.suffix.lower() == ".bin":
-            write_bin(v, out, args.rate, seconds)
+            write_bin(v, out, args.rate, seconds, args.imu_instance)
         elif out.suffix.lower() == ".tlog":
             write_tlog(v, out, args.rate, seconds)
         else:
