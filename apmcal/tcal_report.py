@@ -22,10 +22,10 @@ def print_tcal(results, console) -> None:
             d = np.array([r.tmin_c, r.tmax_c]) - TEMP_REFERENCE_C
             drift = np.diff(polynomial(fit.coeffs, d), axis=0)[0]
             kind = "ACC" if sensor == "acc" else "GYR"
-            console.print(f"  {name} (INS_TCAL{r.instance + 1}_{kind}k, "
-                          f"1e-6 {unit}/K^k; {fit.n_blocks} blocks, residual RMS "
-                          + ", ".join(f"{v:.2g}" for v in fit.residual_rms) + f" {unit})")
+            console.print(f"  {name}: INS_TCAL{r.instance + 1}_{kind}1..3 [1e-6 {unit}/K^k], "
+                          f"{fit.n_blocks} blocks, residual RMS "
+                          + "/".join(f"{v:.2g}" for v in fit.residual_rms) + f" {unit}")
             for j, axis in enumerate("XYZ"):
-                terms = "  ".join(f"c{k + 1} {fit.coeffs[k, j]:+11.4g} ± {fit.sigma[k, j]:<9.2g}"
-                                  for k in range(3))
-                console.print(f"    {axis}: {terms}  drift over the range {drift[j]:+.3g} {unit}")
+                terms = " ".join(f"c{k + 1} {fit.coeffs[k, j]:+.4g} ± {fit.sigma[k, j]:.2g}"
+                                 for k in range(3))
+                console.print(f"    {axis}  {terms}  drift {drift[j]:+.3g} {unit}")
