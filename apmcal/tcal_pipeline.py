@@ -121,7 +121,8 @@ def _from_tclr(instance: int, data: dict, path: str) -> TcalResult:
     fits = {}
     for s in ("acc", "gyr"):
         try:
-            fits[s] = fit_tcal(data[s]["temp_c"], data[s]["values"], data[s]["n"])
+            fits[s] = fit_tcal(data[s]["temp_c"], data[s]["values"], data[s]["n"],
+                               t_s=data[s]["t_s"])
         except ApmcalError as err:
             raise ApmcalError(f"IMU instance {instance} {s}: {err.why}", path) from None
     return TcalResult(instance, "TCLR", fits, tmin, tmax)
@@ -170,7 +171,7 @@ def _from_samples(recording, contents, min_still_s: float, block_s: float) -> Tc
     fits = {}
     for s, values in (("acc", blocks.acc), ("gyr", blocks.gyr)):
         try:
-            fits[s] = fit_tcal(blocks.temp_c, values, blocks.n, blocks.group)
+            fits[s] = fit_tcal(blocks.temp_c, values, blocks.n, blocks.group, blocks.t_s)
         except ApmcalError as err:
             raise ApmcalError(f"IMU instance {inst} {s}: {err.why}", path) from None
     still_s = float(sum(seg.duration for seg in segments))

@@ -11,12 +11,14 @@ sample by P(T) − P(T_cal), so the raw drift is what P must describe); a_g: one
 orientation group (gravity, bias); weights w_i = samples in the block. The σ of each coefficient
 is the least-squares covariance (XᵀWX)⁻¹ scaled by the weighted residual variance (the noise is
 read from the data), times a batch-means factor ≥ 1 when the residuals are correlated over many
-blocks (slow noise such as a gyro random walk, or quantization steps swept by the drift, which
-otherwise would make σ too small; :func:`_batch_means_factor`).
+blocks (quantization steps swept by the drift; :func:`_batch_means_factor`), plus the
+covariance of a random walk whose intensity the short-lag residual differences show
+(:func:`random_walk_q2`): during a warm-up the temperature rises monotonically in time, so a
+gyro random walk is confounded with the polynomial and invisible in the residual scatter.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -27,6 +29,7 @@ SCALE_FACTOR = 1.0e6        # ... SCALE_FACTOR (parameters hold the coefficients
 MAX_INFLATION = 100.0       # cap of the batch-means variance factor
 MIN_DOF = 4                 # blocks beyond the parameters needed to read the noise
 MIN_BATCHES = 10            # the longest batches: a tenth of the blocks
+WALK_SHOWS = 0.3            # a random walk counts when it adds ≥ this × the white part
 
 
 @dataclass
@@ -46,6 +49,9 @@ class TcalFit:
         The correlation factor applied to each axis's variance (1: none).
     n_blocks, n_samples : int
         Blocks and samples fitted.
+    random_walk : (3,) array
+        Random-walk intensity q read from the residuals [unit/√s] (0: none seen), whose
+        covariance is included in ``sigma``.
     """
 
     coeffs: np.ndarray
@@ -54,16 +60,18 @@ class TcalFit:
     inflation: np.ndarray
     n_blocks: int
     n_samples: int
+    random_walk: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def to_dict(self) -> dict:
         return {"c1_c2_c3_xyz": self.coeffs.tolist(), "sigma": self.sigma.tolist(),
                 "residual_rms": self.residual_rms.tolist(),
-                "sigma_inflation": self.inflation.tolist(), "blocks": self.n_blocks,
+                "sigma_inflation": self.inflation.tolist(),
+                "random_walk_per_sqrt_s": self.random_walk.tolist(), "blocks": self.n_blocks,
                 "samples": self.n_samples}
 
 
 def fit_tcal(temp_c: np.ndarray, values: np.ndarray, weights: np.ndarray,
-             group: np.ndarray | None = None) -> TcalFit:
+             group: np.ndarray | None = None, t_s: np.ndarray | None = None) -> TcalFit:
     """Weighted least-squares fit of ArduPilot's cubic (see the module docstring).
 
     Parameters
@@ -76,6 +84,9 @@ def fit_tcal(temp_c: np.ndarray, values: np.ndarray, weights: np.ndarray,
         Samples per block (or any weight ∝ 1/variance).
     group : (m,) int array, optional
         Orientation group of each block (one free constant each); default all 0.
+    t_s : (m,) array, optional
+        Time of each block [s]: with it, a random walk read from the residuals is added to the
+        covariance (:func:`random_walk_q2`).
 
     Raises
     ------
@@ -110,9 +121,44 @@ def fit_tcal(temp_c: np.ndarray, values: np.ndarray, weights: np.ndarray,
     inflation = _batch_means_factor(wr, q, s2)
     xtwx_inv = np.linalg.inv((x * w[:, None]).T @ x)
     var = np.outer(np.diag(xtwx_inv)[-3:], s2 * inflation)
+    q2 = np.zeros(3)
+    if t_s is not None:
+        t_s = np.asarray(t_s, dtype=float)
+        q2 = np.array([random_walk_q2(t_s, resid[:, j]) for j in range(3)])
+        if np.any(q2 > 0):
+            # a random walk of variance q²·t: cov = A Σ Aᵀ, A = (XᵀWX)⁻¹XᵀW, Σ_ij = q²·min(t)
+            a = (xtwx_inv @ (x * w[:, None]).T)[-3:]
+            t0 = t_s - t_s.min()
+            walk = a @ np.minimum.outer(t0, t0) @ a.T
+            var = var + np.outer(np.diag(walk), q2)
     return TcalFit(coeffs=beta[-3:] * SCALE_FACTOR, sigma=np.sqrt(var) * SCALE_FACTOR,
                    residual_rms=np.sqrt(np.sum(w[:, None] * resid ** 2, axis=0) / w.sum()),
-                   inflation=inflation, n_blocks=m, n_samples=int(w.sum()))
+                   inflation=inflation, n_blocks=m, n_samples=int(w.sum()),
+                   random_walk=np.sqrt(q2))
+
+
+def random_walk_q2(t_s: np.ndarray, r: np.ndarray, max_lag: int | None = None) -> float:
+    """Random-walk intensity q² [unit²/s] read from the residuals ``r`` of the blocks at times
+    ``t_s``; 0 when none shows.
+
+    For a random walk, the mean squared difference of residuals k blocks apart grows as
+    V(k) = 2σ_b² + q²·Δt(k), white noise alone keeps it flat: q² is the slope of V against
+    the mean Δt, over k = 1 .. ``max_lag`` (default a tenth of the blocks: short enough
+    that the polynomial has not absorbed the walk yet). It counts only when the walk adds at least
+    0.3 × the white part at the longest lag (WALK_SHOWS): V(k) of white noise scatters by
+    about 10 %, so noise alone seldom passes. A walk confounds with the drift whenever the
+    temperature rises monotonically in time; the residual scatter alone cannot see it.
+    """
+    m = len(r)
+    lags = [k for k in range(1, max(3, (max_lag or m // 10)) + 1) if k < m - 1]
+    if len(lags) < 3:
+        return 0.0
+    dt = np.array([np.mean(t_s[k:] - t_s[:-k]) for k in lags])
+    v = np.array([np.mean((r[k:] - r[:-k]) ** 2) for k in lags])
+    slope, white = np.polyfit(dt, v, 1)
+    if slope <= 0 or slope * dt[-1] < WALK_SHOWS * max(white, v[0]):
+        return 0.0
+    return float(slope)
 
 
 def _batch_means_factor(wr: np.ndarray, q: np.ndarray, s2: np.ndarray) -> np.ndarray:

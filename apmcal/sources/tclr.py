@@ -12,7 +12,7 @@ import numpy as np
 
 from apmcal.errors import ApmcalError
 
-TCLR_COLUMNS = ("I", "SType", "Temp", "X", "Y", "Z", "NSamp")
+TCLR_COLUMNS = ("TimeUS", "I", "SType", "Temp", "X", "Y", "Z", "NSamp")
 STYPE = {0: "acc", 1: "gyr"}
 
 
@@ -21,8 +21,8 @@ def read_tclr(path, fmt: str) -> dict[int, dict[str, dict[str, np.ndarray]]]:
 
     Returns
     -------
-    dict instance → {"acc"/"gyr" → {"temp_c": (m,), "values": (m, 3), "n": (m,)}}; empty when
-    the log has no TCLR record.
+    dict instance → {"acc"/"gyr" → {"temp_c": (m,) [°C], "values": (m, 3), "n": (m,),
+    "t_s": (m,) [s]}}; empty when the log has no TCLR record.
     """
     if fmt == "bin":
         from apmcal.sources.dataflash import read_bin_messages
@@ -47,11 +47,12 @@ def read_tclr(path, fmt: str) -> dict[int, dict[str, dict[str, np.ndarray]]]:
     values = np.column_stack([np.asarray(cols[c], dtype=float) for c in ("X", "Y", "Z")])
     temp = np.asarray(cols["Temp"], dtype=float)
     nsamp = np.asarray(cols["NSamp"], dtype=float)
+    t_s = np.asarray(cols["TimeUS"], dtype=float) * 1e-6
     ok = np.isfinite(values).all(axis=1) & np.isfinite(temp) & (nsamp > 0)
     for i in np.unique(inst):
         for code, sensor in STYPE.items():
             sel = ok & (inst == i) & (stype == code)
             if np.any(sel):
                 out.setdefault(int(i), {})[sensor] = {"temp_c": temp[sel], "values": values[sel],
-                                                      "n": nsamp[sel]}
+                                                      "n": nsamp[sel], "t_s": t_s[sel]}
     return out
