@@ -147,7 +147,8 @@ def cmd_tcal(args) -> int:
         try:
             Path(args.json).write_text(text)
         except OSError as exc:
-            raise ApmcalError(f"cannot write JSON file ({exc.strerror or exc})", args.json) from None
+            raise ApmcalError(f"cannot write JSON file ({exc.strerror or exc})",
+                              args.json) from None
     if args.param_file:
         from apmcal.vehicle.paramfile import write_param_file
 
