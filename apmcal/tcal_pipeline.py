@@ -148,9 +148,19 @@ def _from_samples(recording, contents, min_still_s: float, block_s: float) -> Tc
     generation = "3.3+" if old is not None else firmware_generation(contents.params,
                                                                     contents.firmware)
     try:
-        raw = prepare(recording, generation).raw     # offsets, scales, AHRS_ORIENTATION undone
+        prepared = prepare(recording, generation)   # offsets, scales, AHRS_ORIENTATION undone
     except ApmcalError as err:
         raise ApmcalError(err.why, path, err.where) from None
+    raw = prepared.raw
+    for sensor, step in prepared.floor_steps.items():
+        if sensor in ("acc", "gyr"):
+            # apmcal.preprocessing.resolution: int16 telemetry truncated toward zero, noise
+            # below one step: each block mean keeps up to half a step of error, a sawtooth in
+            # the drifting value that no σ here accounts for
+            unit = "m/s²" if sensor == "acc" else "rad/s"
+            notes.append(f"{sensor}: noise below the {recording.message} step ({step:.3g} "
+                         f"{unit}, truncated toward zero): the fit carries up to half a step of "
+                         f"error per block that its σ does not include; prefer a dataflash log")
     t, temp = raw.t, raw.data["temp"].to_numpy(dtype=float)
     acc, gyr = raw.xyz("acc"), raw.xyz("gyr")
     if old is not None and old.enable == 1:

@@ -169,6 +169,27 @@ def test_calibration_in_force_and_board_rotation_are_undone(tmp_path):
     assert np.abs(expect[0] - expect[1]) > 5 * sigma["acc"][0][:2].max()
 
 
+def test_telemetry_log_temperature_is_used(tmp_path):
+    """A .tlog's RAW_IMU temperature (cdegC): the accelerometer (1 mG steps, noise of several
+    steps) is fitted as from a dataflash log; the gyro's 1 mrad/s steps exceed its noise, which
+    the result says rather than trusting its σ."""
+    truth = Truth.random(3).with_effects(disable=["all"], enable=EFFECTS)
+    truth.temperature.update(ambient_c=22.0, rise_k=26.0, tau_s=60.0)
+    truth_path, log, out = tmp_path / "t.json", tmp_path / "w.tlog", tmp_path / "fit.json"
+    truth.save(truth_path)
+    assert makelog(["--script", "warmup", "--duration", "150", "--fs", "50", "--rate", "50",
+                    "--firmware", "3.3", "--seed", "3", "--truth", str(truth_path),
+                    "--out", str(log)]) == 0
+    assert main(["tcal", str(log), "--json", str(out), "--quiet"]) == 0
+    (fit,) = json.loads(out.read_text())["tcal"]
+    assert fit["source"] == "RAW_IMU"
+    expect = injected(truth)["acc"]
+    z = (np.array(fit["acc"]["c1_c2_c3_xyz"]) - expect) / np.array(fit["acc"]["sigma"])
+    assert np.all(np.abs(z) <= Z_MAX), z
+    assert any(n.startswith("gyr: noise below the RAW_IMU step") for n in fit["notes"])
+    assert not any(n.startswith("acc:") for n in fit["notes"])
+
+
 # ----------------------------------------------------------------------------- TCLR records
 TCLR_TYPE, TCLR_FORMAT = 140, "<QBBffffI"
 
