@@ -156,6 +156,8 @@ def cmd_tcal(args) -> int:
         console.print(f"wrote {args.param_file}")
     if args.upload:
         upload_values(args.upload, values, args.backup, None, console)
+        # AP_InertialSensor_tempcal.cpp: INS_TCALn_ENABLE is @RebootRequired
+        console.print("INS_TCALn_ENABLE takes effect at the vehicle's next reboot")
     return 0
 
 
