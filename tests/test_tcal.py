@@ -71,6 +71,49 @@ def assert_matches_truth(fit: dict, truth: Truth) -> None:
         assert sigma[0].max() < 0.1 * np.abs(expect[0]).max(), (sensor, sigma[0], expect[0])
 
 
+# ----------------------------------------------------------------------------- formula, solver
+def test_correction_agrees_with_the_simulated_firmware():
+    """apmcal's reading of the parameters (what it adds back) and sitl's firmware (what it
+    subtracts) agree, clamping to [TMIN, TMAX] and the default CALTEMP −300 included."""
+    from apmcal.vehicle.tcal_params import tcal_from_params
+    from sitl.firmware import temperature_correction
+
+    rng = np.random.default_rng(4)
+    temps = np.linspace(-10.0, 80.0, 200)
+    for caltemp in (30.0, None):
+        params = {"INS_TCAL1_ENABLE": 1.0, "INS_TCAL1_TMIN": 15.0, "INS_TCAL1_TMAX": 55.0}
+        for kind in ("ACC", "GYR"):
+            for k, scale in ((1, 1000.0), (2, 30.0), (3, 1.0)):
+                params.update({f"INS_TCAL1_{kind}{k}_{a}": rng.normal() * scale for a in "XYZ"})
+            params[f"INS_{kind}1_CALTEMP"] = -300.0 if caltemp is None else caltemp
+        ours = tcal_from_params({k: v for k, v in params.items()
+                                 if caltemp is not None or not k.endswith("CALTEMP")}, 0)
+        for sensor, kind in (("acc", "ACC"), ("gyr", "GYR")):
+            expect = temperature_correction(temps, params, kind)
+            assert np.allclose(ours.correction(sensor, temps), expect, rtol=1e-12, atol=1e-15)
+            # flat outside [TMIN, TMAX], zero at the calibration temperature
+            assert np.allclose(expect[temps <= 15.0], expect[0])
+            t_cal = 15.0 if caltemp is None else caltemp
+            assert np.allclose(ours.correction(sensor, np.array([t_cal])), 0.0, atol=1e-15)
+
+
+def test_solver_recovers_a_cubic_with_one_constant_per_orientation():
+    from apmcal.solvers.tcal import fit_tcal
+
+    rng = np.random.default_rng(2)
+    temp = np.sort(rng.uniform(20.0, 50.0, 300))
+    group = (np.arange(300) // 50) % 3          # three orientations, visited twice each
+    coeffs = np.array([[500.0, -300.0, 80.0], [12.0, -4.0, 2.0], [0.3, 0.1, -0.2]])
+    const = np.array([[0.0, 0.0, -9.8], [9.8, 0.0, 0.0], [0.0, -9.8, 0.0]])
+    clean = const[group] + polynomial(coeffs, temp - 35.0)
+    fit = fit_tcal(temp, clean, np.full(300, 100.0), group)
+    assert np.allclose(fit.coeffs, coeffs, rtol=1e-6, atol=1e-6)
+    noisy = clean + rng.standard_normal(clean.shape) * 1e-3
+    fit = fit_tcal(temp, noisy, np.full(300, 100.0), group, t_s=np.arange(300) * 2.0)
+    z = (fit.coeffs - coeffs) / fit.sigma
+    assert np.all(np.abs(z) < 4) and np.all(fit.random_walk == 0)
+
+
 @pytest.fixture(scope="module")
 def warm(tmp_path_factory):
     folder = tmp_path_factory.mktemp("tcal")
