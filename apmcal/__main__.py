@@ -1,5 +1,9 @@
 import sys
 
-from apmcal.cli import main
+try:
+    from apmcal.cli import main
+except KeyboardInterrupt:        # Ctrl-C before the command line's own handler is in place
+    print("apmcal: interrupted (Ctrl-C)", file=sys.stderr)
+    sys.exit(130)                # 128 + SIGINT, as cli.EXIT_INTERRUPTED
 
 sys.exit(main())

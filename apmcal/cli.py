@@ -2,11 +2,12 @@
 
     apmcal log FILE [--method M] [--lat DEG --lon DEG] [--param-file OUT] [--json OUT]
     apmcal live CONNECTION [--duration S] [--rate HZ] [--method M] [--upload] ...
-    apmcal upload CONNECTION FILE.param [--backup FILE]
-    apmcal restore CONNECTION BACKUP.param
+    apmcal upload CONNECTION FILE.param [--backup FILE] [--all-params]
+    apmcal restore CONNECTION BACKUP.param [--all-params]
     apmcal tcal LOG [--param-file OUT] [--upload CONNECTION]
 
-Every failure the user can cause ends in one line on stderr and a non-zero exit status.
+Every failure the user can cause ends in one line on stderr and a non-zero exit status; Ctrl-C
+ends with one line and status 130 (128 + SIGINT, the shell's convention).
 """
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ from apmcal.errors import ApmcalError
 
 EXIT_USER_ERROR = 2
 EXIT_INTERNAL_ERROR = 3
+EXIT_INTERRUPTED = 130          # 128 + SIGINT, what a shell reports for a Ctrl-C'd program
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -62,6 +64,7 @@ SAMPLE_RATE_HZ = number_type(float, 10, 2000, what="Hz")
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(prog="apmcal", description=__doc__.split("\n")[0])
     parser.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     log = sub.add_parser("log", help="summarise and calibrate from a .tlog, .bin, .log or .csv file")
@@ -73,6 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     live = sub.add_parser("live", help="record from a vehicle over MAVLink and calibrate")
     live.add_argument("connection", help="pymavlink connection string, e.g. udp:127.0.0.1:14550")
+    add_baud_option(live)
     live.add_argument("--duration", type=POSITIVE_SECONDS, default=60.0,
                       help="seconds to record (default 60)")
     live.add_argument("--rate", type=number_type(int, 1, 1000, what="an integer rate [Hz]"),
@@ -90,18 +94,70 @@ def build_parser() -> argparse.ArgumentParser:
     live.add_argument("--backup", default=None, help="backup file (default apmcal-backup-<time>.param)")
     add_calibration_options(live)
 
-    upload = sub.add_parser("upload", help="write a .param file to a vehicle, verified")
-    upload.add_argument("connection")
-    upload.add_argument("param_file")
-    upload.add_argument("--backup", default=None)
-
-    restore = sub.add_parser("restore", help="put back the values of a backup .param file")
-    restore.add_argument("connection")
-    restore.add_argument("backup_file")
+    add_upload_parsers(sub)
 
     add_gap_parser(sub)
     add_tcal_parser(sub)
     return parser
+
+
+def package_version() -> str:
+    """The installed distribution's version (pyproject.toml), "unknown" when not installed."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("apmcal")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
+def add_baud_option(p: argparse.ArgumentParser) -> None:
+    """--baud for serial connections (/dev/ttyACM0, /dev/ttyUSB0, COM3), as MAVProxy has."""
+    from apmcal.sources.live import DEFAULT_BAUD
+
+    p.add_argument("--baud", type=number_type(int, 1, 12_000_000, what="a baud rate"),
+                   default=DEFAULT_BAUD,
+                   help=f"serial baud rate (default {DEFAULT_BAUD}: USB; 57600 for 3DR/SiK "
+                        "telemetry radios); ignored by udp:/tcp: connections")
+
+
+ALL_PARAMS_HELP = ("also write parameters that are not calibration (counters such as STAT_* "
+                   "are never written)")
+
+
+def add_upload_parsers(sub) -> None:
+    """``apmcal upload`` and ``apmcal restore``."""
+    from apmcal.vehicle.upload import CALIBRATION_IN_WORDS
+
+    upload = sub.add_parser(
+        "upload", help="write a .param file to a vehicle: backed up, verified, rolled back on "
+                       "failure",
+        description="Write the calibration parameters of a .param file (NAME VALUE lines) to a "
+                    "vehicle. Every parameter of the vehicle is first saved to a backup file; "
+                    "each write is verified by read-back; if one cannot be confirmed, or on "
+                    "Ctrl-C, every change is put back. Only calibration parameters "
+                    f"({CALIBRATION_IN_WORDS}) unless --all-params; the file is checked "
+                    "before anything is written.")
+    upload.add_argument("connection", help="pymavlink connection string, e.g. "
+                                           "udp:127.0.0.1:14550")
+    upload.add_argument("param_file", help="the parameters to write (.param: NAME VALUE lines)")
+    upload.add_argument("--backup", default=None,
+                        help="backup file (default apmcal-backup-<time>.param)")
+    upload.add_argument("--all-params", action="store_true", help=ALL_PARAMS_HELP)
+    add_baud_option(upload)
+
+    restore = sub.add_parser(
+        "restore", help="put back the calibration parameters of a backup .param file",
+        description="Put back the values of a backup file (as written by upload or live "
+                    "--upload), each verified by read-back. Only calibration parameters that "
+                    "differ from the vehicle are written unless --all-params; counters the "
+                    "vehicle keeps (STAT_*) never are. Every name is tried, then the ones that "
+                    "could not be confirmed are listed.")
+    restore.add_argument("connection", help="pymavlink connection string, e.g. "
+                                            "udp:127.0.0.1:14550")
+    restore.add_argument("backup_file", help="the backup .param file")
+    restore.add_argument("--all-params", action="store_true", help=ALL_PARAMS_HELP)
+    add_baud_option(restore)
 
 
 def add_tcal_parser(sub) -> None:
@@ -121,6 +177,7 @@ def add_tcal_parser(sub) -> None:
                       help="write INS_TCALn_* to the vehicle (backed up, verified)")
     tcal.add_argument("--backup", default=None, help="backup file with --upload "
                                                      "(default apmcal-backup-<time>.param)")
+    add_baud_option(tcal)
     tcal.add_argument("--json", default=None, help="write the fit as JSON")
     tcal.add_argument("--quiet", action="store_true")
 
@@ -134,9 +191,12 @@ def cmd_tcal(args) -> int:
     check_writable(args.json, "JSON file")
     if args.upload:
         check_writable(args.backup or default_backup_name(), "backup file")
+    from apmcal.sources.units import require_plausible_units
+
     console = console_for(args)
-    results = calibrate_temperature(read_log(args.file), args.records, args.instance,
-                                    args.min_still)
+    contents = read_log(args.file)
+    require_plausible_units(contents)       # a sensor in impossible units is not data (issue 9)
+    results = calibrate_temperature(contents, args.records, args.instance, args.min_still)
     print_tcal(results, console)
     values = tcal_params(results)
     if args.json:
@@ -155,10 +215,11 @@ def cmd_tcal(args) -> int:
         write_param_file(args.param_file, values, f"apmcal tcal of {args.file}")
         console.print(f"wrote {args.param_file}")
     if args.upload:
-        upload_values(args.upload, values, args.backup, None, console)
+        upload_values(args.upload, values, args.backup, None, console, args.baud)
         # AP_InertialSensor_tempcal.cpp: INS_TCALn_ENABLE is @RebootRequired
         console.print("INS_TCALn_ENABLE takes effect at the vehicle's next reboot")
     return 0
+
 
 
 def add_gap_parser(sub) -> None:
@@ -217,6 +278,15 @@ def add_calibration_options(p: argparse.ArgumentParser) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line; Ctrl-C anywhere in it (imports included) ends in one line, 130."""
+    try:
+        return run(argv)
+    except KeyboardInterrupt:
+        print("apmcal: interrupted (Ctrl-C)", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+def run(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if getattr(args, "lon", None) is not None and args.lat is None:
@@ -238,9 +308,6 @@ def main(argv: list[str] | None = None) -> int:
             err.path = getattr(args, "file", None) or getattr(args, "connection", None)
         print(f"apmcal: error: {err}", file=sys.stderr)
         return EXIT_USER_ERROR
-    except KeyboardInterrupt:
-        print("apmcal: interrupted", file=sys.stderr)
-        return 130
     except Exception as exc:  # a bug of ours: still one line unless --debug
         if args.debug:
             raise
@@ -274,7 +341,10 @@ def check_writable(path, what: str) -> None:
         why = "permission denied"
     else:
         return
-    raise ApmcalError(f"cannot write {what}: {why}", str(path))
+    # refused before reading or recording anything: no other output (--json included) is
+    # written either, so the user fixes the path and loses nothing
+    raise ApmcalError(f"cannot write {what}: {why}; stopped before any work, nothing written",
+                      str(path))
 
 
 def check_outputs(args) -> None:
@@ -306,8 +376,10 @@ def summarise_and_calibrate(contents, args):
     could not be (it then says why under "param_file_error"), before that error is raised.
     """
     from apmcal import report
+    from apmcal.sources.units import require_plausible_units
 
     console = console_for(args)
+    require_plausible_units(contents)       # a sensor in impossible units is not data (issue 9)
     summary = report.summarize(contents)
     report.print_summary(summary, console)
     output = {"summary": summary}
@@ -374,7 +446,7 @@ def cmd_live(args) -> int:
     if args.upload:     # the default backup goes to the current directory: check that too
         check_writable(args.backup or default_backup_name(), "backup file")
     try:
-        link = VehicleLink(args.connection, record_to=log_path)
+        link = VehicleLink(args.connection, record_to=log_path, baud=args.baud)
     except OSError as exc:
         if exc.filename is None or Path(exc.filename) != Path(log_path):
             raise
@@ -396,12 +468,27 @@ def cmd_live(args) -> int:
     contents = read_log(log_path)
     status, proposal = summarise_and_calibrate(contents, args)
     if args.upload:
-        if proposal is None or proposal.rejected:
-            raise ApmcalError("not uploading: out of the firmware's limits: "
-                              + ", ".join(proposal.rejected if proposal else ["everything"]),
-                              args.connection)
-        upload_values(args.connection, proposal.values, args.backup, params, console)
+        values = values_to_upload(proposal, args.connection, console)
+        upload_values(args.connection, values, args.backup, params, console, args.baud)
     return status
+
+
+def values_to_upload(proposal, connection: str, console) -> dict[str, float]:
+    """The proposed values that passed the firmware's limits.
+
+    A sensor out of limits is withheld whole (ParamProposal.rejected); the others are uploaded
+    all the same, since a rejected compass (say) says nothing against the accelerometer and
+    gyro values. Nothing to upload at all is an ApmcalError.
+    """
+    if proposal is None or not proposal.values:
+        why = ", ".join(proposal.rejected) if proposal and proposal.rejected else "none proposed"
+        raise ApmcalError(f"not uploading: no parameter within the firmware's limits ({why})",
+                          connection)
+    if proposal.rejected:
+        console.print("not uploading, out of the firmware's limits: "
+                      + ", ".join(proposal.rejected) + "; uploading the other "
+                      f"{len(proposal.values)} values")
+    return dict(proposal.values)
 
 
 def record_with_progress(link, duration_s: float, console) -> int:
@@ -434,14 +521,15 @@ def default_backup_name() -> str:
     return f"apmcal-backup-{time.strftime('%Y%m%d-%H%M%S')}.param"
 
 
-def upload_values(connection, values, backup, vehicle_params, console):
+def upload_values(connection, values, backup, vehicle_params, console, baud,
+                  all_params=False):
     from apmcal.sources.live import VehicleLink
     from apmcal.vehicle.upload import upload_params
 
     backup = backup or default_backup_name()
     check_writable(backup, "backup file")
-    with VehicleLink(connection) as link:
-        result = upload_params(link, values, backup, vehicle_params)
+    with VehicleLink(connection, baud=baud) as link:
+        result = upload_params(link, values, backup, vehicle_params, all_params)
     console.print(f"wrote and verified {len(result.written)} parameters; backup in {backup} "
                   f"(undo: apmcal restore {connection} {backup})")
     print_skipped(result, console)
@@ -457,22 +545,37 @@ def print_skipped(result, console) -> None:
 
 def cmd_upload(args) -> int:
     from apmcal.vehicle.paramfile import read_param_file
+    from apmcal.vehicle.upload import check_scope
 
-    values = read_param_file(args.param_file)
-    upload_values(args.connection, values, args.backup, None, console_for(args))
+    values = read_param_file(args.param_file)      # the file is checked before connecting
+    check_scope(values, args.param_file, args.all_params)
+    upload_values(args.connection, values, args.backup, None, console_for(args), args.baud,
+                  args.all_params)
     return 0
 
 
 def cmd_restore(args) -> int:
     from apmcal.sources.live import VehicleLink
+    from apmcal.vehicle.paramfile import read_param_file
     from apmcal.vehicle.upload import restore_params
 
-    with VehicleLink(args.connection) as link:
-        result = restore_params(link, args.backup_file)
+    read_param_file(args.backup_file)       # a missing or bad file fails before connecting
+    with VehicleLink(args.connection, baud=args.baud) as link:
+        result = restore_params(link, args.backup_file, all_params=args.all_params)
     console = console_for(args)
     console.print(f"restored {len(result.written)} parameters from {args.backup_file}")
     print_skipped(result, console)
+    print_left_out(getattr(result, "left_out", []), console, args.all_params)
     return 0
+
+
+def print_left_out(names: list[str], console, all_params: bool) -> None:
+    """The backup's values restore did not write although the vehicle holds others."""
+    if names:
+        why = ("counters the vehicle keeps itself" if all_params else
+               "not calibration parameters; --all-params restores all but counters")
+        shown = ", ".join(names[:12]) + (" ..." if len(names) > 12 else "")
+        console.print(f"left {len(names)} differing parameters as they are ({why}): {shown}")
 
 
 def cmd_gap(args) -> int:

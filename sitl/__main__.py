@@ -6,14 +6,15 @@ import sys
 
 from sitl.errors import SitlError
 from sitl import motion
-from sitl.cli_common import add_truth_args, make_truth
+from sitl.cli_common import add_firmware_args, add_truth_args, apply_firmware_args, make_truth
 
 
 def parse_args(argv=None):
     ap = argparse.ArgumentParser(prog="python -m sitl",
                                  description="Simulated APM 2.8 (ArduCopter 3.2/3.3) on MAVLink.")
     ap.add_argument("connection", nargs="?", default="udpout:127.0.0.1:14550",
-                    help="pymavlink connection string (default udpout:127.0.0.1:14550)")
+                    help="pymavlink connection string (default udpout:127.0.0.1:14550), or "
+                         "'pty': a simulated serial port, its device (/dev/pts/N) printed first")
     ap.add_argument("--write-truth", metavar="FILE.json", help="write the injected errors used")
     ap.add_argument("--speedup", type=float, default=1.0, help="simulated s per wall-clock s")
     ap.add_argument("--script", default="onepos", choices=motion.SCRIPTS)
@@ -23,6 +24,7 @@ def parse_args(argv=None):
                     help="parameter persistence file (JSON), kept across restarts")
     ap.add_argument("--tlog", help="also record the session to this .tlog")
     add_truth_args(ap)
+    add_firmware_args(ap)
     return ap.parse_args(argv)
 
 
@@ -36,7 +38,10 @@ def main(argv=None) -> int:
             truth.save(args.write_truth)
         vehicle = SimVehicle(truth, args.script, args.firmware, args.param_file, seed=args.seed,
                              duration=args.duration if args.script != "operator" else None)
+        apply_firmware_args(vehicle, args)
         endpoint = MavlinkVehicle(vehicle, args.connection, args.speedup, args.tlog)
+        if hasattr(endpoint.conn, "device"):        # a pty: say where the serial port is
+            print(f"serial port: {endpoint.conn.device}", flush=True)
         try:
             endpoint.serve(args.duration)
         except KeyboardInterrupt:

@@ -35,3 +35,17 @@ def make_truth(args) -> Truth:
     # --disable first so "--disable all --enable acc_bias" isolates one effect
     truth.with_effects(disable=split(args.disable))
     return truth.with_effects(enable=split(args.enable))
+
+
+def add_firmware_args(ap) -> None:
+    """Options reproducing firmware faults (not sensor errors: the truth is unaffected)."""
+    ap.add_argument("--highres-mag-bug", action="store_true",
+                    help="send HIGHRES_IMU's magnetic field in mGauss×1000 instead of gauss, as "
+                         "ArduPilot firmware of about May 2024 - Feb 2026 did")
+
+
+def apply_firmware_args(vehicle, args) -> None:
+    from sitl.vehicle import FAULTY_HIGHRES_MAG_PER_MGAUSS
+
+    if args.highres_mag_bug:
+        vehicle.highres_mag_per_mgauss = FAULTY_HIGHRES_MAG_PER_MGAUSS

@@ -4,7 +4,7 @@
         [--truth-out logs/ferraris.truth.json] [--rate 50] [--firmware 3.2] [--set NAME=VALUE ...]
 
 .tlog: PARAM_VALUE of every parameter at the start, STATUSTEXT firmware string, HEARTBEAT 1 Hz,
-SYS_STATUS, RAW_IMU at --rate, SCALED_PRESSURE at 2 Hz.
+SYS_STATUS, RAW_IMU (and with --highres HIGHRES_IMU) at --rate, SCALED_PRESSURE at 2 Hz.
 .bin : FMT, PARM (all), MSG (firmware string), IMU and MAG (MOX..Z = COMPASS_MOT·throttle or
        current) at --rate, GPS (3D fix at the site, GWk/GMS of the start time + t) at 1 Hz,
        BAT (Volt 12.6 V, Curr = the simulated current, 20 A × throttle) at 10 Hz.
@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from sitl.errors import SitlError
-from sitl.cli_common import add_truth_args, make_truth
+from sitl.cli_common import add_firmware_args, add_truth_args, apply_firmware_args, make_truth
 from sitl.logwriter import DataflashWriter, TlogWriter
 from sitl.vehicle import SimVehicle, VERSION_TEXT
 
@@ -39,12 +39,16 @@ def make_vehicle(args) -> SimVehicle:
         if v.params.set(name.strip(), value, save=False) is None:
             raise SitlError(f"unknown parameter or bad value {item!r}", where="--set")
     v.reset_zero_compass_diagonals()    # the firmware does it at its first compass sample
+    apply_firmware_args(v, args)
     return v
 
 
-def write_tlog(v: SimVehicle, out: Path, rate: float, seconds: float) -> None:
+def write_tlog(v: SimVehicle, out: Path, rate: float, seconds: float,
+               highres: bool = False) -> None:
     from pymavlink.dialects.v20 import ardupilotmega as mavlink
     v.set_interval("RAW_IMU", rate)
+    if highres:
+        v.set_interval("HIGHRES_IMU", rate)
     v.set_interval("SCALED_PRESSURE", 2.0)
     with TlogWriter(out) as w:
         for name in v.params.names:     # parameters in force at the start
@@ -80,7 +84,9 @@ def write_bin(v: SimVehicle, out: Path, rate: float, seconds: float,
                     continue
                 us = int(round(t * 1e6))
                 w.imu(us, (m.xgyro, m.ygyro, m.zgyro), (m.xacc, m.yacc, m.zacc), m.temperature)
-                w.mag(us, (m.xmag * 1000, m.ymag * 1000, m.zmag * 1000), ofs, motor[k])
+                per_mgauss = v.highres_mag_per_mgauss    # dataflash MAG: mGauss, bug or not
+                w.mag(us, (m.xmag / per_mgauss, m.ymag / per_mgauss, m.zmag / per_mgauss), ofs,
+                      motor[k])
                 if t >= bat_due[0] / BAT_RATE_HZ - 1e-9:   # with the first IMU sample due
                     w.bat(us, BAT_VOLT, float(current[k]))
                     bat_due[0] = int(t * BAT_RATE_HZ + 1e-9) + 1
@@ -113,9 +119,12 @@ def main(argv=None) -> int:
                     help="script length [s] (onepos/warmup/tumble/motors)")
     ap.add_argument("--set", action="append", metavar="NAME=VALUE",
                     help="parameter in force (default: all neutral)")
+    ap.add_argument("--highres", action="store_true",
+                    help=".tlog: also HIGHRES_IMU at --rate (SI floats; see --highres-mag-bug)")
     ap.add_argument("--imu-instance", action="store_true",
                     help=".bin: IMU records with the 4.x instance column I")
     add_truth_args(ap)
+    add_firmware_args(ap)
     args = ap.parse_args(argv)
     try:
         v = make_vehicle(args)
@@ -124,7 +133,7 @@ def main(argv=None) -> int:
         if out.suffix.lower() == ".bin":
             write_bin(v, out, args.rate, seconds, args.imu_instance)
         elif out.suffix.lower() == ".tlog":
-            write_tlog(v, out, args.rate, seconds)
+            write_tlog(v, out, args.rate, seconds, args.highres)
         else:
             raise SitlError("output must end in .tlog or .bin", out)
         if args.truth_out:

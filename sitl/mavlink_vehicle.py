@@ -3,17 +3,63 @@ MAVLink with a ground station over any pymavlink connection string.
 """
 from __future__ import annotations
 
+import os
 import time
+import tty
 
 from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from sitl.logwriter import TlogWriter
 from sitl.vehicle import SimVehicle
 
 
+PTY = "pty"        # the connection string for a pseudo-terminal: a simulated serial cable
+
+
+class PtyLink:
+    """The vehicle's end of a new pseudo-terminal pair: to the ground station, whose end is
+    :attr:`device` (e.g. /dev/pts/5), it is a serial port, as a USB or telemetry-radio APM is.
+
+    The ground station's end is put in raw mode (no echo, no line editing: MAVLink bytes pass
+    unchanged) and kept open here, so that the link survives the station closing and reopening
+    it (``apmcal live`` then ``apmcal restore``). Bytes sent while nobody reads are dropped when
+    the pseudo-terminal's buffer is full, as a serial line drops them.
+    """
+
+    def __init__(self):
+        self.master_fd, self._slave_fd = os.openpty()
+        tty.setraw(self._slave_fd)
+        self.device = os.ttyname(self._slave_fd)
+        os.set_blocking(self.master_fd, False)
+        self._parser = mavlink.MAVLink(None)
+        self._parser.robust_parsing = True
+        self._pending: list = []
+
+    def write(self, buf: bytes) -> None:
+        try:
+            os.write(self.master_fd, buf)
+        except BlockingIOError:
+            pass
+
+    def recv_msg(self):
+        """The next complete message from the ground station, or None."""
+        if not self._pending:
+            try:
+                data = os.read(self.master_fd, 4096)
+            except (BlockingIOError, OSError):
+                data = b""
+            self._pending = list(self._parser.parse_buffer(data) or [])
+        return self._pending.pop(0) if self._pending else None
+
+    def close(self) -> None:
+        os.close(self.master_fd)
+        os.close(self._slave_fd)
+
+
 class MavlinkVehicle:
     """Serve ``vehicle`` on ``connection`` (e.g. "udpout:127.0.0.1:14550", "udpin:0.0.0.0:14550",
-    "tcpin:0.0.0.0:5760").
+    "tcpin:0.0.0.0:5760", or "pty": a new pseudo-terminal, its device in ``conn.device``).
 
     Parameters
     ----------
@@ -26,7 +72,8 @@ class MavlinkVehicle:
     def __init__(self, vehicle: SimVehicle, connection: str = "udpout:127.0.0.1:14550",
                  speedup: float = 1.0, tlog=None):
         self.vehicle, self.speedup = vehicle, float(speedup)
-        self.conn = mavutil.mavlink_connection(connection, source_system=1, source_component=1)
+        self.conn = (PtyLink() if connection == PTY else
+                     mavutil.mavlink_connection(connection, source_system=1, source_component=1))
         self.tlog = TlogWriter(tlog) if tlog else None
         self._wall0 = None
         self._sim0 = vehicle.t

@@ -12,6 +12,9 @@ import numpy as np
 from sitl.errors import SitlError
 
 ROTATION_PARAMS = ("AHRS_ORIENTATION", "COMPASS_ORIENT")
+# ArduPilot's AP_Stats (Copter 3.5 and newer, here on the "3.3" table that stands for 3.3 and
+# newer): counters the firmware keeps itself, read-only on newer firmware
+STAT_PARAMS = ("STAT_BOOTCNT", "STAT_FLTTIME", "STAT_RUNTIME", "STAT_RESET")
 
 
 def rotation_is_simulated(value: float) -> bool:
@@ -46,6 +49,7 @@ def default_params(generation: str) -> dict[str, float]:
         p.update(_xyz("INS_ACC3OFFS", 0.0)); p.update(_xyz("INS_ACC3SCAL", 1.0))
         p.update(_xyz("INS_GYR3OFFS", 0.0))
         p.update({"INS_ACCEL_FILTER": 20.0, "INS_GYRO_FILTER": 20.0, "COMPASS_OFFS_MAX": 1800})
+        p.update({name: 0 for name in STAT_PARAMS})
         p.update(tcal_defaults())
     else:
         p["INS_MPU6K_FILTER"] = 20.0
@@ -125,6 +129,21 @@ class ParamStore:
         if save:
             self.save()
         return self._values[name]
+
+    def answered_set_with(self, name: str) -> list[str]:
+        """The names whose PARAM_VALUE answers a PARAM_SET of ``name``.
+
+        ArduPilot's AP_Param::send_parameter: a set of a Vector3f's first element is answered
+        with all three elements, _X, _Y, _Z (its save cannot tell the vector from its first
+        element); a set of _Y or _Z with that element alone. Seen in issue 9 on
+        ArduCopter 4.7.0-dev SITL (INS_ACCOFFS_X set: PARAM_VALUE INS_ACCOFFS_X, _Y, _Z); not
+        in ardupilot-facts.md. Every X/Y/Z triple of this table is a Vector3f in ArduPilot.
+        """
+        if name.endswith("_X"):
+            vector = [name[:-1] + axis for axis in "XYZ"]
+            if all(n in self._values for n in vector):
+                return vector
+        return [name]
 
     def get(self, name: str, default: float | None = None) -> float | None:
         return self._values.get(name, default)

@@ -22,11 +22,16 @@ from sitl.truth import FULL_THROTTLE_CURRENT_A, Truth
 VERSION_TEXT = {"3.2": "ArduCopter V3.2.1 (sitl)", "3.3": "ArduCopter V3.3.3 (sitl)"}
 RAW_SENSORS_MSGS = {"3.2": ("RAW_IMU", "SCALED_PRESSURE"),
                     "3.3": ("RAW_IMU", "SCALED_IMU2", "SCALED_PRESSURE")}
+STATS_FLUSH_S = 30.0          # AP_Stats flush_interval_ms: STAT_RUNTIME saved every 30 s
 STREAM_MAX_HZ = 50.0          # ArduPilot caps SRn_* stream rates (ardupilot-facts.md: ≤ 50 Hz)
 INTERVAL_MAX_HZ = 400.0       # MAV_CMD_SET_MESSAGE_INTERVAL fastest rate simulated
 MSG_IDS = {"RAW_IMU": 27, "SCALED_IMU2": 116, "HIGHRES_IMU": 105, "SCALED_PRESSURE": 29,
            "HEARTBEAT": 0, "SYS_STATUS": 1}
 ACC_MG = 1000.0 / 9.80665     # RAW_IMU: get_accel()*1000/9.80665 (ardupilot-facts.md)
+# HIGHRES_IMU xmag/ymag/zmag per mGauss of field: MAVLink says gauss. ArduPilot firmware of about
+# May 2024 - Feb 2026 sent mGauss×1000 instead (issue 9), 1e6 times too much: --highres-mag-bug
+HIGHRES_GAUSS_PER_MGAUSS = 1e-3
+FAULTY_HIGHRES_MAG_PER_MGAUSS = 1e3
 
 
 def _int16(x, truncate: bool = True) -> list[int]:
@@ -59,6 +64,9 @@ class SimVehicle:
     duration : float, optional
         Script length for stretchable scripts (onepos, warmup, tumble, motors).
     """
+
+    #: HIGHRES_IMU magnetic field units per mGauss (FAULTY_HIGHRES_MAG_PER_MGAUSS: the bug)
+    highres_mag_per_mgauss = HIGHRES_GAUSS_PER_MGAUSS
 
     def __init__(self, truth: Truth | None = None, script: str = "onepos", generation: str = "3.2",
                  param_file=None, fs: float = 1000.0, seed: int = 0, record: bool = False,
@@ -96,6 +104,7 @@ class SimVehicle:
         self.record, self._hist = record, []
         self.last: dict = {}
         self._next_1hz = 0.0
+        self._count_boot()
         sr = self.params["SR0_RAW_SENS"]
         if sr > 0:
             self.request_stream(1, sr)
@@ -134,6 +143,23 @@ class SimVehicle:
             self._hist.append(s)
         self._emit(t, s)
         self.tick += n
+        self._flush_stats()
+
+    # ---- running counters -----------------------------------------------------------------
+    def _count_boot(self) -> None:
+        """AP_Stats::init: STAT_BOOTCNT + 1, saved (tables with STAT_* only)."""
+        if "STAT_BOOTCNT" in self.params:
+            self.params.set("STAT_BOOTCNT", self.params["STAT_BOOTCNT"] + 1)
+        self._runtime_at_boot = self.params.get("STAT_RUNTIME")
+        self._next_stats_flush = STATS_FLUSH_S
+
+    def _flush_stats(self) -> None:
+        """AP_Stats::update: STAT_RUNTIME saved every STATS_FLUSH_S, from the firmware's own
+        count (a value a ground station wrote is overwritten)."""
+        if self._runtime_at_boot is None or self.t < self._next_stats_flush:
+            return
+        self.params.set("STAT_RUNTIME", self._runtime_at_boot + int(self.t))
+        self._next_stats_flush += STATS_FLUSH_S
 
     # ---- physics --------------------------------------------------------------------------
     def _attitude(self, t: np.ndarray):
@@ -284,7 +310,7 @@ class SimVehicle:
                                                        int(temp * 100))
         if name == "HIGHRES_IMU":
             return mavlink.MAVLink_highres_imu_message(
-                usec, *acc, *gyr, *(mag / 1000.0), self._pressure_hpa(), 0.0,
+                usec, *acc, *gyr, *(mag * self.highres_mag_per_mgauss), self._pressure_hpa(), 0.0,
                 float(self.truth.site["alt"]), float(temp), 0x1FFF, 0)
         if name == "SCALED_PRESSURE":
             return mavlink.MAVLink_scaled_pressure_message(ms, self._pressure_hpa(), 0.0,
@@ -329,7 +355,8 @@ class SimVehicle:
                 self._param_value(name)
         elif kind == "PARAM_SET":
             if self.params.set(msg.param_id, msg.param_value) is not None:
-                self._param_value(msg.param_id)
+                for name in self.params.answered_set_with(msg.param_id):
+                    self._param_value(name)
         elif kind == "REQUEST_DATA_STREAM":
             self.request_stream(msg.req_stream_id, msg.req_message_rate, bool(msg.start_stop))
         elif kind == "COMMAND_LONG":

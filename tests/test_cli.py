@@ -253,7 +253,8 @@ def test_restore_reports_names_the_vehicle_does_not_have(tmp_path, capsys, monke
     if skipped is not None:                        # an UploadReport before/after 'skipped'
         result.skipped = skipped
     monkeypatch.setattr(apmcal.sources.live, "VehicleLink", FakeLink)
-    monkeypatch.setattr(apmcal.vehicle.upload, "restore_params", lambda link, path: result)
+    monkeypatch.setattr(apmcal.vehicle.upload, "restore_params", lambda link, path, **kw: result)
+    (tmp_path / "b.param").write_text("INS_ACCOFFS_X 0\n")    # read before connecting
     assert main(["restore", "fake:vehicle", str(tmp_path / "b.param")]) == 0
     out = capsys.readouterr().out
     assert "restored 1 parameters" in out

@@ -22,7 +22,7 @@ def test_param_set_readback_float32_and_persistence(tmp_path):
     path = tmp_path / "eeprom.json"
     v = SimVehicle(only(), generation="3.3", param_file=path)
     v.pop_messages()
-    (pv,) = _set(v, "INS_ACCOFFS_X", 0.1234567891)
+    pv = _set(v, "INS_ACCOFFS_X", 0.1234567891)[0]     # _Y and _Z follow (a vector)
     assert pv.param_id == "INS_ACCOFFS_X" and pv.param_type == mavlink.MAV_PARAM_TYPE_REAL32
     assert pv.param_value == np.float32(0.1234567891)
     assert pv.param_count == len(v.params) and v.params.names[pv.param_index] == "INS_ACCOFFS_X"
@@ -35,6 +35,32 @@ def test_param_set_readback_float32_and_persistence(tmp_path):
     v2 = SimVehicle(only(), generation="3.3", param_file=path)
     assert v2.params["INS_ACCOFFS_X"] == np.float32(0.1234567891)
     assert v2.params["INS_ACCSCAL_X"] == 1.0
+
+
+def test_set_of_a_vectors_first_element_is_answered_with_all_three():
+    """ArduPilot's AP_Param::send_parameter (issue 9, ArduCopter 4.7.0-dev SITL): _X set →
+    PARAM_VALUE _X, _Y, _Z with the values stored; _Y or _Z set → that element alone."""
+    v = SimVehicle(only(), generation="3.3")
+    v.pop_messages()
+    assert [(m.param_id, m.param_value) for m in _set(v, "COMPASS_OFS_Y", 12.5)] == [
+        ("COMPASS_OFS_Y", 12.5)]
+    assert [(m.param_id, m.param_value) for m in _set(v, "COMPASS_OFS_X", -3.0)] == [
+        ("COMPASS_OFS_X", -3.0), ("COMPASS_OFS_Y", 12.5), ("COMPASS_OFS_Z", 0.0)]
+    assert [m.param_id for m in _set(v, "AHRS_ORIENTATION", 2)] == ["AHRS_ORIENTATION"]
+
+
+def test_stat_counters_count_boots_and_runtime(tmp_path):
+    """AP_Stats: STAT_BOOTCNT + 1 at every boot (saved), STAT_RUNTIME saved every 30 s."""
+    path = tmp_path / "eeprom.json"
+    v = SimVehicle(only(), generation="3.3", param_file=path, fs=100.0)
+    assert v.params["STAT_BOOTCNT"] == 1 and v.params["STAT_RUNTIME"] == 0
+    v.run_for(29.0)
+    assert v.params["STAT_RUNTIME"] == 0
+    v.run_for(2.0)
+    assert v.params["STAT_RUNTIME"] == 30
+    v2 = SimVehicle(only(), generation="3.3", param_file=path, fs=100.0)
+    assert v2.params["STAT_BOOTCNT"] == 2 and v2.params["STAT_RUNTIME"] == 30
+    assert "STAT_BOOTCNT" not in SimVehicle(only(), generation="3.2").params   # no AP_Stats
 
 
 @pytest.mark.parametrize("name,value", [("INS_ACCOFFS_X", math.nan), ("INS_ACCOFFS_X", math.inf),

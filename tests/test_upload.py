@@ -8,6 +8,7 @@ import time
 
 import numpy as np
 import pytest
+from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from apmcal.cli import main
@@ -45,7 +46,9 @@ class FakeLink:
     def read_param(self, name):
         return self.params.get(name)
 
-    def set_param(self, name, value):
+    def set_param(self, name, value, attempts=3):
+        """As VehicleLink.set_param: the value once confirmed, else the last value reported;
+        one call is one scripted event whatever ``attempts``."""
         if not math.isfinite(value):    # as VehicleLink.set_param
             raise ApmcalError(f"refusing to send non-finite value {value!r}")
         action = self.calls.get(len(self.sent) + 1)
@@ -54,7 +57,8 @@ class FakeLink:
             raise KeyboardInterrupt
         self.sent.append((name, value))
         if action == "silent" or name in self.drop or name not in self.params:
-            return None            # ArduPilot drops unknown names silently: only a timeout
+            # ArduPilot drops unknown names silently: only a timeout, then the read-back
+            return self.read_param(name)
         error = 0.5 if name in self.distort else 0.0    # a one-off corrupted write
         self.distort.discard(name)
         stored = float(np.float32(value + error))
@@ -196,9 +200,10 @@ def test_cli_upload_refuses_out_of_range_param_file_in_one_line(tmp_path, capsys
 def test_restore_reports_names_the_vehicle_does_not_have(tmp_path):
     link = FakeLink(BEFORE)
     backup = tmp_path / "b.param"
-    write_param_file(backup, {**BEFORE, "INS_ACCOFFS_X": 0.4, "OLD_PARAM": 3.0, "GONE_TOO": 1.0})
+    write_param_file(backup, {**BEFORE, "INS_ACCOFFS_X": 0.4, "INS_ACC3OFFS_X": 3.0,
+                              "COMPASS_OFS2_Y": 1.0})
     report = restore_params(link, backup)
-    assert report.skipped == ["GONE_TOO", "OLD_PARAM"]
+    assert report.skipped == ["COMPASS_OFS2_Y", "INS_ACC3OFFS_X"]
     assert report.written == {"INS_ACCOFFS_X": float(np.float32(0.4))}
     assert [n for n, _ in link.sent] == ["INS_ACCOFFS_X"]
 
@@ -246,7 +251,7 @@ def test_non_finite_vehicle_value_backed_up_as_comment_and_not_restored(tmp_path
 
 def test_rollback_does_not_send_a_non_finite_previous_value(tmp_path):
     link = FakeLink({**BEFORE, "INS_ACCOFFS_Y": float("nan")}, drop=["INS_ACCSCAL_X"])
-    with pytest.raises(ApmcalError, match="INS_ACCOFFS_Y held a non-finite value") as err:
+    with pytest.raises(ApmcalError, match=r"INS_ACCOFFS_Y \(held a non-finite value") as err:
         upload_params(link, {"INS_ACCOFFS_Y": 0.2, "INS_ACCSCAL_X": 1.05}, tmp_path / "b.param")
     assert "apmcal restore" in str(err.value)
     assert link.params["INS_ACCSCAL_X"] == 1.0
@@ -331,6 +336,7 @@ class FakeMaster:
 def link_to(master):
     link = VehicleLink.__new__(VehicleLink)      # no socket, no HEARTBEAT
     link.master, link.connection, link._tlog = master, "fake:vehicle", None
+    link._mavutil = mavutil
     link.target_system, link.target_component = 1, 1
     return link
 
@@ -346,7 +352,7 @@ def test_fetch_params_refuses_a_partial_set():
     master = FakeMaster(50, lost=[3, 17, 49], never=[17, 49])
     with pytest.raises(ApmcalError, match=r"2 of 50 parameters never arrived \(param_index 17, "
                                           r"49\)"):
-        link_to(master).fetch_params(idle_s=0.05, retries=2)
+        link_to(master).fetch_params(idle_s=0.05, retries=2, reads_per_index=2)
     assert master.reads == [3, 17, 49, 17, 49]            # each asked for twice
 
 
@@ -401,3 +407,95 @@ def test_only_non_autopilot_heartbeats_is_one_clear_error():
     master.queue = [_heartbeat(154, mavlink.MAV_AUTOPILOT_INVALID)]
     with pytest.raises(ApmcalError, match="no autopilot HEARTBEAT within 0.3 s"):
         link_to(master).wait_heartbeat(0.3)
+
+
+# ----------------------------------------------------------------------------- set_param
+class VectorVehicle:
+    """pymavlink's side of an ArduPilot holding one Vector3f, FOO_X/Y/Z: a set of FOO_X is
+    answered with _X, _Y and _Z (ArduPilot's AP_Param::send_parameter, issue 9). ``lose``
+    lists the PARAM_SETs (1-based) that never arrive."""
+
+    def __init__(self, lose=()):
+        self.values = {f"FOO_{a}": 0.0 for a in "XYZ"}
+        self.queue, self.sets, self.reads, self.lose = [], 0, [], set(lose)
+        self.mav = self
+
+    def _value(self, name):
+        msg = mavlink.MAVLink_param_value_message(name.encode(), self.values[name],
+                                                  mavlink.MAV_PARAM_TYPE_REAL32, 3, 65535)
+        msg._header = mavlink.MAVLink_header(msg.id, srcSystem=1, srcComponent=1)
+        return msg
+
+    def param_set_send(self, target_system, target_component, name, value, kind):
+        self.sets += 1
+        if self.sets in self.lose:
+            return
+        name = name.decode()
+        self.values[name] = float(np.float32(value))
+        echoed = [f"FOO_{a}" for a in "XYZ"] if name.endswith("_X") else [name]
+        self.queue += [self._value(n) for n in echoed]
+
+    def param_request_read_send(self, target_system, target_component, name, index):
+        self.reads.append(name.decode())
+        self.queue.append(self._value(name.decode()))
+
+    def recv_match(self, blocking=True, timeout=None):
+        return self.queue.pop(0) if self.queue else time.sleep(min(timeout or 0.01, 0.01))
+
+
+def test_set_param_is_not_answered_by_the_stale_echo_of_another_element():
+    vehicle = VectorVehicle()
+    link = link_to(vehicle)
+    link.answer_timeout_s = 0.2
+    assert link.set_param("FOO_X", 0.5) == float(np.float32(0.5))
+    # FOO_Y (0.0) from the FOO_X write is still queued, before the answer to this write
+    assert link.set_param("FOO_Y", -0.25) == -0.25
+    assert vehicle.sets == 2 and vehicle.reads == []
+
+
+def test_set_param_reads_back_and_writes_again_when_the_set_is_lost():
+    vehicle = VectorVehicle(lose=[2])
+    link = link_to(vehicle)
+    link.answer_timeout_s = 0.2
+    link.set_param("FOO_X", 0.5)
+    # the FOO_Y set is lost: only the stale FOO_Y = 0 arrives; the read-back says 0 too
+    assert link.set_param("FOO_Y", -0.25) == -0.25
+    assert vehicle.sets == 3 and vehicle.reads == ["FOO_Y"]
+    assert vehicle.values["FOO_Y"] == -0.25
+
+
+def test_set_param_reports_what_the_vehicle_holds_when_never_confirmed():
+    vehicle = VectorVehicle(lose=[1, 2, 3])
+    link = link_to(vehicle)
+    link.answer_timeout_s = 0.05
+    assert link.set_param("FOO_Z", 2.0) == 0.0            # last read-back: the old value
+    assert vehicle.sets == 3 and vehicle.reads == ["FOO_Z"] * 3
+
+
+# ----------------------------------------------------------------------------- scope
+def test_restore_writes_calibration_only_and_never_counters(tmp_path):
+    vehicle = {**BEFORE, "SERIAL1_BAUD": 57.0, "STAT_RUNTIME": 600.0, "STAT_BOOTCNT": 7.0}
+    backup = tmp_path / "b.param"
+    write_param_file(backup, {**vehicle, "INS_ACCOFFS_X": 0.4, "SERIAL1_BAUD": 115.0,
+                              "STAT_RUNTIME": 30.0, "STAT_BOOTCNT": 3.0})
+    link = FakeLink(vehicle)
+    report = restore_params(link, backup)
+    assert [n for n, _ in link.sent] == ["INS_ACCOFFS_X"]
+    assert report.left_out == ["SERIAL1_BAUD", "STAT_BOOTCNT", "STAT_RUNTIME"]
+    link = FakeLink(vehicle)
+    report = restore_params(link, backup, all_params=True)
+    assert sorted(n for n, _ in link.sent) == ["INS_ACCOFFS_X", "SERIAL1_BAUD"]
+    assert report.left_out == ["STAT_BOOTCNT", "STAT_RUNTIME"]
+    with pytest.raises(ApmcalError, match="param STAT_RUNTIME: a counter"):
+        restore_params(FakeLink(vehicle), backup, names=["STAT_RUNTIME"], all_params=True)
+
+
+@pytest.mark.parametrize("name, all_params, why", [
+    ("SYSID_THISMAV", False, "not a calibration parameter"),
+    ("STAT_BOOTCNT", True, "a counter or identity the vehicle keeps itself")])
+def test_upload_out_of_scope_refused_before_anything_is_written(tmp_path, name, all_params, why):
+    link = FakeLink({**BEFORE, "STAT_BOOTCNT": 1.0})
+    backup = tmp_path / "b.param"
+    with pytest.raises(ApmcalError, match=f"param {name}: {why}"):
+        upload_params(link, {"INS_ACCOFFS_X": 0.2, name: 2.0}, backup, all_params=all_params)
+    assert link.sent == [] and not backup.exists()

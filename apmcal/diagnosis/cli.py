@@ -74,8 +74,13 @@ def diagnose_file(args, names, console):
     from apmcal.diagnosis.session import session_from_log
     from apmcal.pipeline import Options
     from apmcal.sources import read_log
+    from apmcal.sources.units import require_plausible_units
 
     contents = read_log(args.file)
+    require_plausible_units(contents)       # a sensor in impossible units is not data (issue 9)
+    for line in contents.messages:
+        if line.startswith("warning: "):
+            console.print(line, soft_wrap=True)
     opts = Options(lat_deg=args.lat, lon_deg=args.lon, min_still_s=args.min_still,
                    instance=args.instance, generation=args.firmware)
     session = session_from_log(contents, opts)

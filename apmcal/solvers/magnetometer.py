@@ -47,6 +47,9 @@ def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: floa
         origin = f"WMM at {date}"
         if note:
             report.setdefault("warnings", []).append(f"mag: {note}")
+        mismatch = field_mismatch(sphere_fit(mag)[1], radius, lat_deg, lon_deg)
+        if mismatch:
+            report.setdefault("warnings", []).append(mismatch)
     else:
         radius, origin = sphere_fit(mag)[1], "sphere fit (no --lat/--lon)"
     info: dict = {}
@@ -60,6 +63,32 @@ def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: floa
     report["lines"].append(held_out_line(mag, radius, info["parameterisation"]))
     report["mag_field_mgauss"] = radius
     return cal
+
+
+# the measured and the modelled field magnitude may differ this much (relative to the model)
+# before the user is warned: sensor gain errors are a few per cent, the WMM's own error ~1 %
+MAX_FIELD_MISMATCH = 0.20
+
+
+def field_mismatch(measured_mgauss: float, wmm_mgauss: float, lat_deg: float,
+                   lon_deg: float) -> str | None:
+    """A warning when the samples' field magnitude (their sphere fit) and the WMM's at the
+    given site differ by more than MAX_FIELD_MISMATCH, else None.
+
+    The WMM value sets the calibration's scale, so a wrong site (a sign slip: south and west are
+    negative) scales the compass wrongly; a right site with a distorted field means iron,
+    magnets or currents near the vehicle.
+    """
+    apart = abs(measured_mgauss - wmm_mgauss) / wmm_mgauss
+    if apart <= MAX_FIELD_MISMATCH:
+        return None
+    return (f"mag: the samples' field magnitude is {measured_mgauss:.0f} mGauss (sphere fit), "
+            f"the World Magnetic Model's at --lat {lat_deg:g} --lon {lon_deg:g} is "
+            f"{wmm_mgauss:.0f} mGauss: {100 * apart:.0f} % apart (more than "
+            f"{100 * MAX_FIELD_MISMATCH:.0f} %). Check --lat/--lon first (south and west are "
+            f"negative): a wrong site scales the compass wrongly. If the site is right, trust "
+            f"the WMM value (used here) and look for iron, magnets or currents near the "
+            f"vehicle, which distort the field the fit sees")
 
 
 def held_out_line(mag: np.ndarray, radius: float, parameterisation: str,

@@ -6,6 +6,8 @@ one conversion path for live and logged data, and the user keeps the raw recordi
 """
 from __future__ import annotations
 
+import contextlib
+import io
 import math
 import struct
 import time
@@ -26,14 +28,29 @@ STREAMED_MESSAGE_IDS = {**IMU_MESSAGE_IDS, "SCALED_PRESSURE": 29}
 READS_IN_FLIGHT = 20
 MAV_AUTOPILOT_INVALID = 8       # HEARTBEAT.autopilot of anything that is not a flight controller
 
+# serial links (USB: any rate works; 3DR/SiK telemetry radios: 57600 unless reconfigured)
+DEFAULT_BAUD = 115200
+# tcp: a refused connection is tried this many times, this many seconds apart (pymavlink's
+# mavtcp ``retries`` counts the attempts)
+TCP_ATTEMPTS = 3
+TCP_RETRY_DELAY_S = 1.0
+
 
 def float32(value: float) -> float:
     """``value`` as the vehicle stores it (PARAM_VALUE carries float32)."""
     return float(np.float32(value))
 
 
+def same_float32(a: float, b: float) -> bool:
+    """True if ``a`` and ``b`` are the same value once stored as float32."""
+    return np.float32(a) == np.float32(b)
+
+
 class VehicleLink:
     """One MAVLink connection to one vehicle.
+
+    ``answer_timeout_s`` is how long an answer to one request (PARAM_SET, PARAM_REQUEST_READ)
+    is waited for before asking again.
 
     Parameters
     ----------
@@ -43,18 +60,19 @@ class VehicleLink:
         How long to wait for the first HEARTBEAT before giving up.
     record_to : path, optional
         Every received message is appended there as a .tlog record.
+    baud : int
+        Serial links only (ignored by network links, as in MAVProxy).
     """
 
-    def __init__(self, connection: str, timeout_s: float = 10.0, record_to: str | Path | None = None):
+    answer_timeout_s = 1.0
+
+    def __init__(self, connection: str, timeout_s: float = 10.0,
+                 record_to: str | Path | None = None, baud: int = DEFAULT_BAUD):
         from pymavlink import mavutil
 
         self.connection = connection
         self._mavutil = mavutil
-        try:
-            self.master = mavutil.mavlink_connection(connection, source_system=255,
-                                                     source_component=190, autoreconnect=False)
-        except Exception as exc:  # pymavlink raises many types for a bad connection string
-            raise ApmcalError(f"cannot open connection ({exc})", connection) from None
+        self.master = open_connection(connection, baud)
         self._tlog = None
         try:
             heartbeat = self.wait_heartbeat(timeout_s)
@@ -104,16 +122,20 @@ class VehicleLink:
         return msg
 
     # -- parameters -------------------------------------------------------------------------
-    def fetch_params(self, timeout_s: float = 20.0, idle_s: float = 2.0,
-                     retries: int = 2) -> dict[str, float]:
+    def fetch_params(self, timeout_s: float = 20.0, idle_s: float | None = None,
+                     retries: int = 2, reads_per_index: int = 8) -> dict[str, float]:
         """All parameters: PARAM_REQUEST_LIST, then each lost index asked for by itself.
 
         PARAM_VALUE travels unacknowledged, so some may be lost: an unanswered list request is
-        sent again, and each missing index is asked for with PARAM_REQUEST_READ (by
-        param_index), each up to ``retries`` times. The result is the backup and the correction
-        to undo (ardupilot-facts.md "What the telemetry really carries"), so a set still
-        incomplete then raises :class:`ApmcalError` rather than being returned partial.
+        sent again (up to ``retries`` times), and each missing index is asked for with
+        PARAM_REQUEST_READ (by param_index), each up to ``reads_per_index`` times (a link
+        losing a quarter of its packets each way loses about half of these round trips).
+        ``idle_s`` (default twice ``answer_timeout_s``) ends the wait for the list once nothing
+        arrives for that long. The result is the backup and the correction to undo
+        (ardupilot-facts.md "What the telemetry really carries"), so a set still incomplete
+        then raises :class:`ApmcalError` rather than being returned partial.
         """
+        idle_s = idle_s or 2 * self.answer_timeout_s
         got = _ParamList()
         deadline = time.monotonic() + timeout_s
         for _ in range(1 + retries):      # the request itself may be lost, or the vehicle busy
@@ -125,10 +147,11 @@ class VehicleLink:
             raise ApmcalError("vehicle sent no parameters (PARAM_REQUEST_LIST unanswered)",
                               self.connection)
         deadline = time.monotonic() + timeout_s
-        for _ in range(retries):
+        for _ in range(reads_per_index):
             if not got.missing() or time.monotonic() >= deadline:
                 break
-            self._request_missing(got, deadline, idle_s)
+            # an answer to a read comes within one round trip: no need to wait the list's idle_s
+            self._request_missing(got, deadline, min(idle_s, self.answer_timeout_s))
         missing = got.missing()
         if missing:
             shown = ", ".join(map(str, missing[:20])) + (" ..." if len(missing) > 20 else "")
@@ -166,42 +189,75 @@ class VehicleLink:
         return (msg.get_srcSystem() == self.target_system
                 and msg.get_srcComponent() == self.target_component)
 
-    def read_param(self, name: str, timeout_s: float = 1.0, retries: int = 3) -> float | None:
-        """One parameter by name (PARAM_REQUEST_READ); None if the vehicle does not answer."""
+    def read_param(self, name: str, timeout_s: float | None = None, retries: int = 3,
+                   expect: float | None = None) -> float | None:
+        """One parameter by name (PARAM_REQUEST_READ); None if the vehicle does not answer.
+
+        With ``expect``, an answer of another value does not end the wait (it may be a stale
+        echo of an earlier write, see :meth:`set_param`): the first answer equal to ``expect``
+        at float32 is returned, else the last value the vehicle reported.
+        """
+        timeout_s = timeout_s or self.answer_timeout_s
+        reported = None
         for _ in range(retries):
             self.master.mav.param_request_read_send(self.target_system, self.target_component,
                                                     name.encode(), -1)
-            value = self._await_param(name, timeout_s)
+            value = self._await_param(name, timeout_s, expect)
             if value is not None:
-                return value
-        return None
+                reported = value
+                if expect is None or same_float32(value, expect):
+                    return value
+        return reported
 
-    def set_param(self, name: str, value: float, timeout_s: float = 1.0,
-                  retries: int = 3) -> float | None:
-        """PARAM_SET as REAL32; returns the value the vehicle echoes, None when it stays silent.
+    def set_param(self, name: str, value: float, timeout_s: float | None = None,
+                  attempts: int = 3) -> float | None:
+        """PARAM_SET as REAL32, confirmed: returns ``value`` as float32 once the vehicle reports
+        holding it; otherwise the last value it reported for ``name``, None when it stayed silent.
 
-        ardupilot-facts.md "Writing parameters": unknown names and NaN are dropped silently, so a
-        timeout is the only sign of refusal; the caller compares the echoed value itself.
+        ardupilot-facts.md "Writing parameters": the vehicle answers with PARAM_VALUE carrying
+        the stored value, drops unknown names and NaN silently, and the ground station must
+        compare the value itself. An answer is therefore matched by name AND value: a set of a
+        vector's first element (_X) is answered with PARAM_VALUE for _X, _Y and _Z
+        (ArduPilot's AP_Param::send_parameter; seen in issue 9 on ArduCopter 4.7.0-dev SITL),
+        so the echo of an earlier write can arrive first carrying this name's old value. A
+        different value keeps us listening until ``timeout_s``; a doubtful write (no matching
+        echo) is checked by PARAM_REQUEST_READ and sent again, ``attempts`` times in all.
         """
         if not math.isfinite(value):
             raise ApmcalError(f"refusing to send non-finite value {value!r}", self.connection,
                               f"param {name}")
-        for _ in range(retries):
+        timeout_s = timeout_s or self.answer_timeout_s
+        wanted = float32(value)
+        reported = None
+        for _ in range(attempts):
             self.master.mav.param_set_send(self.target_system, self.target_component,
-                                           name.encode(), float(value),
+                                           name.encode(), wanted,
                                            self._mavutil.mavlink.MAV_PARAM_TYPE_REAL32)
-            echoed = self._await_param(name, timeout_s)
-            if echoed is not None:
-                return echoed
-        return None
+            echoed = self._await_param(name, timeout_s, wanted)
+            if echoed is not None and same_float32(echoed, wanted):
+                return wanted
+            # the set or its echo may be lost: ask what the vehicle holds before sending again
+            held = self.read_param(name, timeout_s, retries=1, expect=wanted)
+            if held is not None and same_float32(held, wanted):
+                return wanted
+            reported = next((v for v in (held, echoed) if v is not None), reported)
+        return reported
 
-    def _await_param(self, name: str, timeout_s: float) -> float | None:
+    def _await_param(self, name: str, timeout_s: float,
+                     expect: float | None = None) -> float | None:
+        """The first value of a PARAM_VALUE for ``name`` from the autopilot within ``timeout_s``
+        (the first equal to ``expect`` at float32, when given; else the last one seen); None
+        when none arrives."""
+        seen = None
         deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            msg = self.recv({"PARAM_VALUE"}, deadline - time.monotonic())
-            if msg is not None and _param_name(msg) == name and self._from_target(msg):
-                return float(msg.param_value)
-        return None
+        while (remaining := deadline - time.monotonic()) > 0:
+            msg = self.recv({"PARAM_VALUE"}, remaining)
+            if msg is None or _param_name(msg) != name or not self._from_target(msg):
+                continue
+            seen = float(msg.param_value)
+            if expect is None or same_float32(seen, expect):
+                return seen
+        return seen
 
     # -- IMU streaming ----------------------------------------------------------------------
     def request_imu_stream(self, rate_hz: int) -> None:
@@ -237,6 +293,37 @@ class VehicleLink:
 
     def __exit__(self, *exc):
         self.close()
+
+
+def open_connection(connection: str, baud: int = DEFAULT_BAUD):
+    """pymavlink's connection for ``connection``, or ApmcalError saying why not.
+
+    pymavlink prints its tcp retries ("[Errno 111] Connection refused sleeping") on stdout, where
+    the report goes: they are swallowed, and a refusal after TCP_ATTEMPTS ends in one error.
+    """
+    from pymavlink import mavutil
+
+    if Path(connection).is_file():
+        # pymavlink would read a file as a log (and hang at its end) or run it as a program
+        raise ApmcalError("a file, not a connection (a serial port, udp:, tcp:): to calibrate "
+                          f"a log use `apmcal log {connection}`", connection)
+    chatter = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(chatter):
+            return mavutil.mavlink_connection(connection, baud=int(baud), source_system=255,
+                                              source_component=190, autoreconnect=False,
+                                              retries=TCP_ATTEMPTS,
+                                              reconnect_delay=TCP_RETRY_DELAY_S)
+    except ModuleNotFoundError as exc:      # pyserial is a dependency, but may be missing
+        raise ApmcalError(f"cannot open connection: serial links need the {exc.name} module "
+                          f"(pip install pyserial)", connection) from None
+    except ConnectionRefusedError:
+        raise ApmcalError(f"cannot open connection: refused {TCP_ATTEMPTS} times, "
+                          f"{TCP_RETRY_DELAY_S:g} s apart: is the vehicle (SITL, MAVProxy's "
+                          "output) listening there?", connection) from None
+    except Exception as exc:  # pymavlink raises many types for a bad connection string
+        why = " ".join(str(exc).split()) or type(exc).__name__
+        raise ApmcalError(f"cannot open connection ({why})", connection) from None
 
 
 class _ParamList:

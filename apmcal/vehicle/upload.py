@@ -2,7 +2,12 @@
 
 ardupilot-facts.md "Writing parameters": PARAM_SET (REAL32) is answered with PARAM_VALUE
 carrying the stored value; unknown names and NaN are dropped silently; the value must be
-compared at float32 tolerance by the ground station itself.
+compared at float32 tolerance by the ground station itself (done by
+:meth:`apmcal.sources.live.VehicleLink.set_param`, which returns the value only once confirmed).
+
+Only calibration parameters (:data:`CALIBRATION_PREFIXES`) are written unless the caller asks
+for all (``all_params``); counters the vehicle keeps itself (:data:`NEVER_WRITTEN_PREFIXES`)
+are never written. The backup still holds every parameter.
 """
 from __future__ import annotations
 
@@ -10,15 +15,60 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from apmcal.errors import ApmcalError
 from apmcal.preprocessing.firmware import acc_param_names, firmware_generation, mag_param_names
-from apmcal.sources.live import VehicleLink
+from apmcal.recording import CALIBRATION_PARAM_PREFIXES
+from apmcal.sources.live import VehicleLink, same_float32
 from apmcal.vehicle.params import acc_violations, offset_violations, soft_iron_violations
 from apmcal.vehicle.paramfile import read_param_file, read_unrestorable, write_param_file
 
 INSTANCES = range(3)        # IMU / compass instances 1..3 (suffix "", "2", "3")
+ROLLBACK_ATTEMPTS = 5       # a put-back matters more than a write: more tries before giving up
+
+# ----------------------------------------------------------------------------- scope
+#: What upload and restore write unless told otherwise: the parameters of the sensor
+#: corrections (INS_ACC*/INS_GYR* offsets and scales of each IMU, COMPASS_OFS/DIA/ODI/MOT/
+#: ORIENT/EXTERN of each compass, AHRS_ORIENTATION: apmcal.recording's list, ardupilot-facts.md
+#: "How the firmware applies the parameters") and the other results of a calibration:
+#: temperature calibration (INS_TCAL*), compass scale (COMPASS_SCALE*), level trim (AHRS_TRIM_*).
+CALIBRATION_PREFIXES = CALIBRATION_PARAM_PREFIXES + ("INS_TCAL", "COMPASS_SCALE", "AHRS_TRIM")
+#: The same, in words, for messages and help texts
+CALIBRATION_IN_WORDS = ("INS_ACC*/INS_GYR* offsets and scales, INS_TCAL*, COMPASS_OFS/DIA/ODI/"
+                        "MOT/SCALE/ORIENT/EXTERN*, AHRS_ORIENTATION, AHRS_TRIM_*")
+#: Never written, even with all_params: counters and statistics the vehicle keeps itself
+#: (ArduPilot's AP_Stats STAT_BOOTCNT/FLTTIME/RUNTIME, saved every 30 s and overwritten from its
+#: own count; writing STAT_RESET resets them all; SYS_NUM_RESETS of older firmware) and the
+#: firmware's identity (a FORMAT_VERSION it does not expect makes it erase every parameter at
+#: the next boot).
+NEVER_WRITTEN_PREFIXES = ("STAT_", "SYS_NUM_RESETS", "FORMAT_VERSION", "SYSID_SW_MREV",
+                          "SYSID_SW_TYPE")
+
+
+def is_calibration_param(name: str) -> bool:
+    """True for a name upload and restore write by default (:data:`CALIBRATION_PREFIXES`)."""
+    return name.startswith(CALIBRATION_PREFIXES)
+
+
+def is_never_written(name: str) -> bool:
+    """True for a counter or identity parameter (:data:`NEVER_WRITTEN_PREFIXES`)."""
+    return name.startswith(NEVER_WRITTEN_PREFIXES)
+
+
+def may_write(name: str, all_params: bool = False) -> bool:
+    """True if upload / restore may write ``name`` (all but counters with ``all_params``)."""
+    return not is_never_written(name) and (all_params or is_calibration_param(name))
+
+
+def check_scope(names, where: str, all_params: bool = False) -> None:
+    """Refuse (nothing written) a name upload may not write; ``where`` is the file or link."""
+    for name in names:
+        if is_never_written(name):
+            raise ApmcalError("a counter or identity the vehicle keeps itself, never written; "
+                              "nothing was written", where, f"param {name}")
+        if not may_write(name, all_params):
+            raise ApmcalError(f"not a calibration parameter (apmcal writes only "
+                              f"{CALIBRATION_IN_WORDS} unless --all-params); nothing was "
+                              f"written", where, f"param {name}")
 
 
 @dataclass
@@ -28,18 +78,15 @@ class UploadReport:
     backup_path: str = ""
     skipped: list[str] = field(default_factory=list)       # restore: names the vehicle lacks
     unrestorable: list[str] = field(default_factory=list)  # restore: NaN/inf in the backup
-
-
-def same_float32(a: float, b: float) -> bool:
-    """True if ``a`` and ``b`` are the same value once stored as float32."""
-    return np.float32(a) == np.float32(b)
+    left_out: list[str] = field(default_factory=list)      # restore: differ, but not written
 
 
 # ----------------------------------------------------------------------------- checks
 def check_before_writing(values: dict[str, float], vehicle_params: dict[str, float],
-                         where: str) -> None:
-    """Refuse the whole upload (nothing written) for unknown names, non-finite values, or
-    values outside the firmware's limits."""
+                         where: str, all_params: bool = False) -> None:
+    """Refuse the whole upload (nothing written) for names out of scope (:func:`check_scope`),
+    unknown names, non-finite values, or values outside the firmware's limits."""
+    check_scope(values, where, all_params)
     for name, value in values.items():
         if not math.isfinite(value):
             raise ApmcalError(f"value {value!r} is not finite; nothing was written", where,
@@ -89,16 +136,19 @@ def _compass_violations(values, merged, instance: int, generation: str) -> dict[
 
 # ----------------------------------------------------------------------------- upload
 def upload_params(link: VehicleLink, values: dict[str, float], backup_path: str | Path,
-                  vehicle_params: dict[str, float] | None = None) -> UploadReport:
+                  vehicle_params: dict[str, float] | None = None,
+                  all_params: bool = False) -> UploadReport:
     """Back up every parameter, then set ``values`` one by one, verifying each read-back.
 
-    If any write is not confirmed, or the user presses Ctrl-C, every parameter already changed
-    is put back to its backed-up value (and that is verified too) before :class:`ApmcalError`
-    is raised: the vehicle is never left half-calibrated.
+    Only calibration parameters unless ``all_params`` (:func:`check_scope`). If any write is
+    not confirmed, or the user presses Ctrl-C, every parameter already changed is put back to
+    its backed-up value (and that is verified too) before :class:`ApmcalError` is raised: the
+    vehicle is never left half-calibrated.
     """
+    check_scope(values, link.connection, all_params)     # before the (slow) parameter list
     if vehicle_params is None:
         vehicle_params = link.fetch_params()
-    check_before_writing(values, vehicle_params, link.connection)
+    check_before_writing(values, vehicle_params, link.connection, all_params)
     # NaN/inf on the vehicle become comment lines: the backup holds nothing restore cannot write
     write_param_file(backup_path, vehicle_params,
                      f"apmcal backup of all parameters of {link.connection} before upload",
@@ -114,24 +164,29 @@ def upload_params(link: VehicleLink, values: dict[str, float], backup_path: str 
         raise ApmcalError(f"interrupted; all changes rolled back from {backup_path}",
                           link.connection) from None
     if failure is not None:
-        name, value, echoed = failure
+        name, value, reported = failure
         # The vehicle may have stored something else (or stored it and lost the answer):
         # the failing name is put back too.
         _roll_back(link, report, also=name, cause=f"write of {name} not confirmed")
-        got = "no answer" if echoed is None else f"read back {echoed!r}"
-        raise ApmcalError(f"write of {value!r} not confirmed ({got}); all changes rolled "
-                          f"back from {backup_path}", link.connection, f"param {name}")
+        raise ApmcalError(f"write of {value!r} not confirmed ({_reported(reported)}); all "
+                          f"changes rolled back from {backup_path}", link.connection,
+                          f"param {name}")
     return report
 
 
+def _reported(value: float | None) -> str:
+    """What the vehicle last said about a parameter, for a message."""
+    return "no answer" if value is None else f"vehicle reports {value!r}"
+
+
 def _write_all(link: VehicleLink, values: dict[str, float], report: UploadReport):
-    """Set ``values`` in order into ``report.written``; (name, value, echoed) of the first write
-    not confirmed, None when all are."""
+    """Set ``values`` in order into ``report.written``; (name, value, last reported value) of
+    the first write not confirmed, None when all are."""
     for name, value in values.items():
-        echoed = link.set_param(name, value)
-        if echoed is None or not same_float32(echoed, value):
-            return name, value, echoed
-        report.written[name] = echoed
+        confirmed = link.set_param(name, value)
+        if not _is_held(confirmed, value):
+            return name, value, confirmed
+        report.written[name] = confirmed
     return None
 
 
@@ -142,61 +197,76 @@ def _roll_back(link: VehicleLink, report: UploadReport, also: str | None, cause:
     """
     names = [*report.written, *([also] if also is not None else [])]
     restore = f"restore with 'apmcal restore {link.connection} {report.backup_path}'"
+    failed = {}
     try:
-        failed = [name for name in names if _put_back(link, name, report.previous[name]) is None]
+        for name in names:
+            previous = report.previous[name]
+            if not math.isfinite(previous):   # ardupilot-facts.md: NaN is dropped, never stored
+                failed[name] = "held a non-finite value before, which cannot be written back"
+            elif not _is_held(reported := _put_back(link, name, previous), previous):
+                failed[name] = _reported(reported)
     except KeyboardInterrupt:
         raise ApmcalError(f"{cause}; rollback interrupted: {restore}", link.connection) from None
     if failed:
-        lost = [n for n in failed if not math.isfinite(report.previous[n])]
-        note = (f" ({', '.join(lost)} held a non-finite value before, which cannot be written "
-                f"back)" if lost else "")
-        raise ApmcalError(f"{cause}; rollback failed for {', '.join(failed)}{note}: {restore}",
+        raise ApmcalError(f"{cause}; rollback not confirmed for {_listed(failed)}: {restore}",
                           link.connection)
 
 
+def _listed(said: dict[str, str]) -> str:
+    """'A (vehicle reports 0.3), B (no answer)'."""
+    return ", ".join(f"{name} ({why})" for name, why in said.items())
+
+
+def _is_held(reported: float | None, value: float) -> bool:
+    """True when the vehicle confirmed holding ``value``."""
+    return reported is not None and same_float32(reported, value)
+
+
 def _put_back(link: VehicleLink, name: str, value: float) -> float | None:
-    """The value read back once the vehicle holds ``value`` for ``name`` (set, or found
-    unchanged); None when that cannot be confirmed."""
-    if not math.isfinite(value):    # ardupilot-facts.md: NaN is dropped, never stored
-        return None
-    echoed = link.set_param(name, value)
-    if echoed is None:      # a write the vehicle ignores may still have left the value as it was
-        echoed = link.read_param(name)
-    return echoed if echoed is not None and same_float32(echoed, value) else None
+    """What the vehicle last reported for ``name`` after being set back to ``value`` (that
+    value once confirmed); None when it never answered."""
+    return link.set_param(name, value, attempts=ROLLBACK_ATTEMPTS)
 
 
 # ----------------------------------------------------------------------------- restore
 def restore_params(link: VehicleLink, backup_path: str | Path,
-                   names: list[str] | None = None) -> UploadReport:
+                   names: list[str] | None = None, all_params: bool = False) -> UploadReport:
     """Put back the values of a backup file (all, or only ``names``), verified by read-back.
 
-    Names the vehicle does not have go to ``skipped``, and names the backup holds only as
-    "not restorable" comments to ``unrestorable``. Every other name is tried, even after a
-    failure, so the vehicle ends as close to the backup as possible; then one
-    :class:`ApmcalError` lists every name that could not be confirmed.
+    Only calibration parameters are written unless ``all_params``, and never counters
+    (:func:`may_write`): the others that differ from the vehicle go to ``left_out``. Names the
+    vehicle does not have go to ``skipped``, and names the backup holds only as "not
+    restorable" comments to ``unrestorable``. Every other name is tried, even after a failure,
+    so the vehicle ends as close to the backup as possible; then one :class:`ApmcalError` lists
+    every name that could not be confirmed.
     """
     backup = read_param_file(backup_path)
     unrestorable = [n for n in read_unrestorable(backup_path) if n not in backup]
     wanted = _wanted(backup, unrestorable, names, backup_path)
+    if names is not None:       # asked for by name: out of scope is an error, not a silent skip
+        check_scope(wanted, str(backup_path), all_params)
+    in_scope = {n: v for n, v in wanted.items() if may_write(n, all_params)}
     current = link.fetch_params()
-    changed = {n: v for n, v in wanted.items()
+    changed = {n: v for n, v in in_scope.items()
                if n in current and not same_float32(current[n], v)}
     report = UploadReport(backup_path=str(backup_path),
                           previous={n: current[n] for n in changed},
-                          skipped=[n for n in wanted if n not in current],
-                          unrestorable=[n for n in unrestorable if names is None or n in names])
-    failed = []
-    for name, value in changed.items():
-        echoed = _put_back(link, name, value)
-        if echoed is None:
-            failed.append(name)
+                          skipped=[n for n in in_scope if n not in current],
+                          unrestorable=[n for n in unrestorable if names is None or n in names],
+                          left_out=[n for n, v in wanted.items() if n not in in_scope
+                                    and n in current and not same_float32(current[n], v)])
+    failed = {}
+    for name, value in changed.items():     # read_param_file refuses NaN: all are finite
+        reported = _put_back(link, name, value)
+        if _is_held(reported, value):
+            report.written[name] = reported
         else:
-            report.written[name] = echoed
+            failed[name] = _reported(reported)
     if failed:
         skipped = (f"; {len(report.skipped)} names the vehicle does not have skipped"
                    if report.skipped else "")
         raise ApmcalError(f"restore not confirmed for {len(failed)} of {len(changed)} changed "
-                          f"parameters: {', '.join(failed)} (all others restored{skipped})",
+                          f"parameters: {_listed(failed)} (all others restored{skipped})",
                           link.connection)
     return report
 

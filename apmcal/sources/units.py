@@ -1,0 +1,121 @@
+"""Physical sanity check of a log's units: is each sensor's magnitude one the Earth allows?
+
+A message that carries a sensor in the wrong units is not noise to be fitted: fitted, it gives
+offsets millions of times too large. Issue 9: ArduPilot firmware of about May 2024 - Feb 2026
+sent HIGHRES_IMU xmag/ymag/zmag in mGauss×1000 instead of gauss (1e6 times too much), and apmcal,
+which prefers HIGHRES_IMU, proposed a compass offset of 1e8 mGauss. So every sensor of every
+recording of an ArduPilot log (tlog, dataflash; live links are read back as tlogs) is checked
+against physics, and one that fails is dropped from that recording with a warning naming the
+message, the magnitude seen and the range expected. The pipeline then takes that sensor from
+another message of the same IMU (RAW_IMU / SCALED_IMU*), when the log has one, and the sensors
+that passed are calibrated (and can be uploaded) as usual.
+
+The check runs on what a reader returns, before the summary and the calibration (the readers
+themselves decode faithfully, whatever the values). CSV files are not checked: their units are
+the user's to declare (``--layout``, unit options, raw counts allowed).
+
+The ranges are wide on purpose: they must pass any real board, however badly calibrated. They
+catch the gross mix-ups (gauss or the firmware's mGauss×1000 for mGauss, g or mG for m/s², mrad/s
+for rad/s); smaller ones (µT for mGauss ×0.1, deg/s for rad/s ×57 on a small bias) can pass.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from apmcal.constants import STANDARD_GRAVITY
+from apmcal.errors import ApmcalError
+from apmcal.recording import SENSOR_COLUMNS, LogContents, Recording
+
+# The Earth's field is 150..1000 mGauss at the surface (issue 9; ArduPilot's compass calibrator
+# accepts radii 150..950, ardupilot-facts.md "ArduPilot's own calibrators"). An uncalibrated
+# compass adds its hard iron: offsets up to COMPASS_OFFS_MAX (default 1800 mGauss on newer
+# firmware, ardupilot-facts.md) are still calibratable, so 1000 + 1800 ≈ 3000 mGauss is the top;
+# a third of 150 the bottom. The median magnitude is compared.
+PLAUSIBLE_MAG_MGAUSS = (50.0, 3000.0)
+EARTH_FIELD_MGAUSS = (150.0, 1000.0)
+# A still accelerometer reads g (ardupilot-facts.md "Frames and signs"); scale errors of a few
+# per cent (INS_ACCSCAL allows 0.8..1.2) and moves by hand keep the median within half to twice g.
+PLAUSIBLE_ACC_M_S2 = (0.5 * STANDARD_GRAVITY, 2.0 * STANDARD_GRAVITY)
+# Still, a gyro reads its bias plus the Earth rate: an MPU-6000's zero-rate offset is at most
+# ±20 °/s (0.35 rad/s, datasheet), yet a real PXF board logged 0.56 rad/s at rest
+# (../shared/data/ardupilot/pxf_copter_static_51.BIN). The stillest tenth of the samples must
+# stay below 5 rad/s: mrad/s read as rad/s gives 1000 times the bias, tens of rad/s and more.
+PLAUSIBLE_STILL_GYRO_RAD_S = 5.0
+STILLEST_FRACTION_PERCENT = 10.0
+
+# The known firmware fault: HIGHRES_IMU mag 1e6 times too large (mGauss×1000 instead of gauss)
+HIGHRES_MAG_FAULT_FACTOR = 1e6
+
+
+def sensor_magnitude(recording: Recording, sensor: str) -> float:
+    """The statistic checked for ``sensor``: median |vector| (acc [m/s²], mag [mGauss]) or the
+    10th percentile of |vector| (gyr [rad/s], its stillest samples). NaN without finite rows."""
+    xyz = recording.xyz(sensor)
+    norm = np.linalg.norm(xyz[np.isfinite(xyz).all(axis=1)], axis=1)
+    if len(norm) == 0:
+        return float("nan")
+    if sensor == "gyr":
+        return float(np.percentile(norm, STILLEST_FRACTION_PERCENT))
+    return float(np.median(norm))
+
+
+def implausibility(recording: Recording, sensor: str) -> str | None:
+    """Why ``sensor``'s units are implausible in ``recording``, or None when they are fine."""
+    value = sensor_magnitude(recording, sensor)
+    if not np.isfinite(value):
+        return None
+    label = f"{recording.message}[{recording.instance}] {sensor}"
+    if sensor == "mag":
+        low, high = PLAUSIBLE_MAG_MGAUSS
+        if low <= value <= high:
+            return None
+        why = (f"{label}: median field magnitude {value:.4g} mGauss, where the Earth's is "
+               f"{EARTH_FIELD_MGAUSS[0]:g}-{EARTH_FIELD_MGAUSS[1]:g} mGauss ({low:g}-{high:g} "
+               f"accepted with hard iron): wrong units")
+        if recording.message == "HIGHRES_IMU" and low <= value / HIGHRES_MAG_FAULT_FACTOR <= high:
+            why += (" (ArduPilot firmware of about May 2024 - Feb 2026 sends HIGHRES_IMU "
+                    "xmag/ymag/zmag in mGauss×1000 instead of gauss)")
+        return why
+    if sensor == "acc":
+        low, high = PLAUSIBLE_ACC_M_S2
+        if low <= value <= high:
+            return None
+        return (f"{label}: median magnitude {value:.4g} m/s², where gravity is "
+                f"{STANDARD_GRAVITY:.2f} ({low:.2f}-{high:.2f} accepted): wrong units")
+    if value <= PLAUSIBLE_STILL_GYRO_RAD_S:
+        return None
+    return (f"{label}: even its stillest tenth turns at {value:.4g} rad/s or more, where a gyro "
+            f"at rest reads below {PLAUSIBLE_STILL_GYRO_RAD_S:g} rad/s: wrong units")
+
+
+def drop_implausible_sensors(out: LogContents) -> list[str]:
+    """Remove from ``out``'s recordings every sensor whose units fail :func:`implausibility`.
+
+    Each removal adds a "warning: " line to ``out.messages``; a recording left without sensors
+    is removed. Returns the reasons (for an error when nothing usable is left).
+    """
+    reasons = []
+    kept = []
+    for rec in out.recordings:
+        for sensor in rec.sensors:
+            why = implausibility(rec, sensor)
+            if why is None:
+                continue
+            reasons.append(why)
+            rec.data = rec.data.drop(columns=SENSOR_COLUMNS[sensor])
+            out.messages.append(f"warning: {why}; not used (taken from another message of this "
+                                f"IMU when the log has one)")
+        if rec.sensors:
+            kept.append(rec)
+    out.recordings = kept
+    return reasons
+
+
+def require_plausible_units(contents: LogContents) -> None:
+    """:func:`drop_implausible_sensors` on an ArduPilot log (not a CSV file); ApmcalError naming
+    every reason when no recording is left."""
+    if contents.format == "csv" or not contents.recordings:
+        return
+    reasons = drop_implausible_sensors(contents)
+    if not contents.recordings:
+        raise ApmcalError("no IMU data in plausible units: " + "; ".join(reasons), contents.path)
