@@ -4,6 +4,7 @@
     apmcal live CONNECTION [--duration S] [--rate HZ] [--method M] [--upload] ...
     apmcal upload CONNECTION FILE.param [--backup FILE] [--all-params]
     apmcal restore CONNECTION BACKUP.param [--all-params]
+    apmcal tcal LOG [--param-file OUT] [--upload CONNECTION]
 
 Every failure the user can cause ends in one line on stderr and a non-zero exit status; Ctrl-C
 ends with one line and status 130 (128 + SIGINT, the shell's convention).
@@ -100,6 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_upload_parsers(sub)
 
     add_gap_parser(sub)
+    add_tcal_parser(sub)
     return parser
 
 
@@ -160,6 +162,68 @@ def add_upload_parsers(sub) -> None:
     restore.add_argument("backup_file", help="the backup .param file")
     restore.add_argument("--all-params", action="store_true", help=ALL_PARAMS_HELP)
     add_baud_option(restore)
+
+
+def add_tcal_parser(sub) -> None:
+    """``apmcal tcal LOG``: ArduPilot's IMU temperature calibration (issue 11)."""
+    tcal = sub.add_parser("tcal", help="fit ArduPilot's IMU temperature calibration "
+                                       "(INS_TCALn_*) from a still warm-up log")
+    tcal.add_argument("file", help="dataflash .bin/.log (IMU with temperature, or TCLR) or "
+                                   ".tlog (RAW_IMU/SCALED_IMU with temperature)")
+    tcal.add_argument("--records", choices=["auto", "imu", "tclr"], default="auto",
+                      help="TCLR (the firmware learner's records), IMU samples, or auto: "
+                           "TCLR when present (default)")
+    tcal.add_argument("--instance", type=int, default=None, help="IMU instance (default: all)")
+    tcal.add_argument("--min-still", type=POSITIVE_SECONDS, default=2.0, metavar="S",
+                      help="shortest still period used [s] (default 2)")
+    tcal.add_argument("--param-file", default=None, help="write INS_TCALn_* (.param)")
+    tcal.add_argument("--upload", default=None, metavar="CONNECTION",
+                      help="write INS_TCALn_* to the vehicle (backed up, verified)")
+    tcal.add_argument("--backup", default=None, help="backup file with --upload "
+                                                     "(default apmcal-backup-<time>.param)")
+    add_baud_option(tcal)
+    tcal.add_argument("--json", default=None, help="write the fit as JSON")
+    tcal.add_argument("--quiet", action="store_true")
+
+
+def cmd_tcal(args) -> int:
+    from apmcal.sources import read_log
+    from apmcal.tcal_pipeline import calibrate_temperature, tcal_params
+    from apmcal.tcal_report import print_tcal
+
+    check_writable(args.param_file, "parameter file")
+    check_writable(args.json, "JSON file")
+    if args.upload:
+        check_writable(args.backup or default_backup_name(), "backup file")
+    from apmcal.sources.units import require_plausible_units
+
+    console = console_for(args)
+    contents = read_log(args.file)
+    require_plausible_units(contents)       # a sensor in impossible units is not data (issue 9)
+    results = calibrate_temperature(contents, args.records, args.instance, args.min_still)
+    print_tcal(results, console)
+    values = tcal_params(results)
+    if args.json:
+        from apmcal.solvers.result import jsonable
+
+        text = json.dumps(jsonable({"tcal": [r.to_dict() for r in results], "params": values}),
+                          indent=2) + "\n"
+        try:
+            Path(args.json).write_text(text)
+        except OSError as exc:
+            raise ApmcalError(f"cannot write JSON file ({exc.strerror or exc})",
+                              args.json) from None
+    if args.param_file:
+        from apmcal.vehicle.paramfile import write_param_file
+
+        write_param_file(args.param_file, values, f"apmcal tcal of {args.file}")
+        console.print(f"wrote {args.param_file}")
+    if args.upload:
+        upload_values(args.upload, values, args.backup, None, console, args.baud)
+        # AP_InertialSensor_tempcal.cpp: INS_TCALn_ENABLE is @RebootRequired
+        console.print("INS_TCALn_ENABLE takes effect at the vehicle's next reboot")
+    return 0
+
 
 
 def add_gap_parser(sub) -> None:
@@ -243,7 +307,7 @@ def run(argv: list[str] | None, operator=None) -> int:
         parser.error(f"--hold {args.hold:g} is shorter than --min-still {args.min_still:g}: "
                      "the calibration would not find the poses as still periods")
     command = {"log": cmd_log, "live": cmd_live, "upload": cmd_upload,
-               "restore": cmd_restore, "gap": cmd_gap}[args.command]
+               "restore": cmd_restore, "gap": cmd_gap, "tcal": cmd_tcal}[args.command]
     try:
         with warnings.catch_warnings():
             if not args.debug:

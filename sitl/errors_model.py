@@ -71,11 +71,23 @@ class ImuErrorModel:
 
     # ---- helpers ---------------------------------------------------------------------------
     def temperature(self, t: np.ndarray) -> np.ndarray:
-        """Board temperature [°C]: warm-up curve T_amb + ΔT(1 − e^(−t/τ)) (constant when off)."""
+        """Board temperature [°C]: warm-up curve T_amb + ΔT(1 − e^(−t/τ)) (constant when off).
+
+        With the optional ``temperature["cool_start_s"]`` = t_c the heating stops at t_c and
+        the board cools back towards ambient with the same τ: T(t) = T_amb + (T(t_c) −
+        T_amb)·e^(−(t − t_c)/τ) after t_c (a warm-up and cool-down, for held-out checks).
+        """
         p = self.truth.temperature
         if not self.truth.on("temperature_drift"):
             return np.full(np.shape(t), p["ambient_c"], dtype=float)
-        return p["ambient_c"] + p["rise_k"] * (1 - np.exp(-np.asarray(t) / p["tau_s"]))
+        t = np.asarray(t, dtype=float)
+        rise = p["rise_k"] * (1 - np.exp(-t / p["tau_s"]))
+        t_cool = p.get("cool_start_s")
+        if t_cool is not None:
+            peak = p["rise_k"] * (1 - np.exp(-float(t_cool) / p["tau_s"]))
+            cooling = peak * np.exp(-np.maximum(t - float(t_cool), 0.0) / p["tau_s"])
+            rise = np.where(t > float(t_cool), cooling, rise)
+        return p["ambient_c"] + rise
 
     def _delta_t(self, t: np.ndarray, temperature) -> np.ndarray:
         """ΔT [K] from ambient: of the explicit ``temperature`` series, else of the curve."""

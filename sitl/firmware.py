@@ -65,25 +65,55 @@ def _vec(params: dict, fmt: str, default: float) -> np.ndarray:
     return np.array([float(params.get(fmt.format(a), default)) for a in "XYZ"])
 
 
-def apply_accel(raw: np.ndarray, params: dict, generation: str) -> np.ndarray:
-    """Reported accelerometer [m/s², body frame] from raw (n, 3) samples [m/s², board frame]."""
+def temperature_correction(temp_c, params: dict, kind: str) -> np.ndarray | float:
+    """The temperature correction [m/s² or rad/s] (n, 3) the firmware subtracts from the raw
+    sensor-frame samples of IMU 1 (``kind`` "ACC" or "GYR"); 0 unless INS_TCAL1_ENABLE = 1.
+
+    Issue 11, as ArduPilot 4.1+ does it (AP_InertialSensor_tempcal.cpp ``correct_sensor`` and
+    ``polynomial_eval``; AP_InertialSensor_Backend.cpp ``_rotate_and_correct_accel/gyro`` apply
+    it in the sensor frame before the offsets and scales): with T and the calibration
+    temperature INS_ACC1_CALTEMP / INS_GYR1_CALTEMP each clamped to [TMIN, TMAX],
+    P(d) = (c1 + (c2 + c3·d)·d)·d·1e-6 per axis, c_k = INS_TCAL1_{kind}k_X..Z, and the
+    correction is P(T − 35) − P(T_cal − 35).
+    """
+    if temp_c is None or float(params.get("INS_TCAL1_ENABLE", 0)) != 1.0:
+        return 0.0
+    lo, hi = float(params["INS_TCAL1_TMIN"]), float(params["INS_TCAL1_TMAX"])
+    c = [_vec(params, f"INS_TCAL1_{kind}{k}_{{}}", 0.0) for k in (1, 2, 3)]
+
+    def poly(t):
+        d = np.clip(np.asarray(t, float), lo, hi)[..., None] - 35.0
+        return (c[0] + (c[1] + c[2] * d) * d) * d * 1e-6
+
+    return poly(np.atleast_1d(temp_c)) - poly(float(params[f"INS_{kind}1_CALTEMP"]))
+
+
+def apply_accel(raw: np.ndarray, params: dict, generation: str, temp_c=None) -> np.ndarray:
+    """Reported accelerometer [m/s², body frame] from raw (n, 3) samples [m/s², board frame].
+
+    ``temp_c`` (n,) [°C]: the board temperature, for the 3.3 generation's stand-in of 4.1+'s
+    temperature calibration (:func:`temperature_correction`, applied first, in sensor frame).
+    """
     rot = rotation_matrix(params.get("AHRS_ORIENTATION", 0))
     offs, scal = _vec(params, "INS_ACCOFFS_{}", 0.0), _vec(params, "INS_ACCSCAL_{}", 1.0)
     raw = np.atleast_2d(raw)
     if generation == "3.2":
         # ardupilot-facts.md: 3.2 rotates to body, scales FIRST, then subtracts the offset
         return (raw @ rot.T) * scal - offs
+    raw = raw - temperature_correction(temp_c, params, "ACC")
     # ardupilot-facts.md: 3.3+ applies offset then scale in the sensor frame, then rotates
     return ((raw - offs) * scal) @ rot.T
 
 
-def apply_gyro(raw: np.ndarray, params: dict, generation: str) -> np.ndarray:
-    """Reported gyroscope [rad/s, body frame] from raw (n, 3) samples [rad/s, board frame]."""
+def apply_gyro(raw: np.ndarray, params: dict, generation: str, temp_c=None) -> np.ndarray:
+    """Reported gyroscope [rad/s, body frame] from raw (n, 3) samples [rad/s, board frame]
+    (``temp_c`` as for :func:`apply_accel`)."""
     rot = rotation_matrix(params.get("AHRS_ORIENTATION", 0))
     offs = _vec(params, "INS_GYROFFS_{}", 0.0)
     raw = np.atleast_2d(raw)
     if generation == "3.2":
         return raw @ rot.T - offs          # ardupilot-facts.md: 3.2 offset in body frame
+    raw = raw - temperature_correction(temp_c, params, "GYR")
     return (raw - offs) @ rot.T            # ardupilot-facts.md: 3.3+ offset in sensor frame
 
 

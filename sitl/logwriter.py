@@ -57,18 +57,29 @@ class TlogWriter:
         self.close()
 
 
-class DataflashWriter:
-    """Write a binary dataflash log with FMT, PARM, MSG, IMU, MAG, GPS and BAT records."""
+# ArduPilot 4.x's IMU record carries the instance in an "I" column (e.g. IMU "QBffffffIIfBBHH"
+# on 4.1); only the columns sitl writes are kept
+IMU_WITH_INSTANCE = (131, "QBffffffIIf", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,ErrG,ErrA,T")
 
-    def __init__(self, path):
+
+class DataflashWriter:
+    """Write a binary dataflash log with FMT, PARM, MSG, IMU, MAG, GPS and BAT records.
+
+    ``imu_instance``: IMU records in the 4.x layout with an instance column ``I`` (always 0),
+    as tools written for 4.x logs (ArduPilot's tempcal_imu.py) expect.
+    """
+
+    def __init__(self, path, imu_instance: bool = False):
         self.f = open(Path(path), "wb")
-        self._structs = {name: _struct(fmt) for name, (_, fmt, _) in DF_MESSAGES.items()}
-        for name, (mid, fmt, cols) in DF_MESSAGES.items():
+        self.imu_instance = imu_instance
+        self._messages = dict(DF_MESSAGES, **({"IMU": IMU_WITH_INSTANCE} if imu_instance else {}))
+        self._structs = {name: _struct(fmt) for name, (_, fmt, _) in self._messages.items()}
+        for name, (mid, fmt, cols) in self._messages.items():
             length = 3 + self._structs[name].size
             self._record("FMT", mid, length, name.encode(), fmt.encode(), cols.encode())
 
     def _record(self, name: str, *values) -> None:
-        self.f.write(HEAD + bytes([DF_MESSAGES[name][0]]) + self._structs[name].pack(*values))
+        self.f.write(HEAD + bytes([self._messages[name][0]]) + self._structs[name].pack(*values))
 
     def parm(self, time_us: int, name: str, value: float) -> None:
         self._record("PARM", time_us, name.encode(), float(value))
@@ -78,7 +89,9 @@ class DataflashWriter:
 
     def imu(self, time_us: int, gyr, acc, temp_c: float) -> None:
         """One IMU record: gyro [rad/s] and accel [m/s²] body frame, temperature [degC]."""
-        self._record("IMU", time_us, *map(float, gyr), *map(float, acc), 0, 0, float(temp_c))
+        instance = (0,) if self.imu_instance else ()
+        self._record("IMU", time_us, *instance, *map(float, gyr), *map(float, acc), 0, 0,
+                     float(temp_c))
 
     def mag(self, time_us: int, field_mgauss, ofs, motor=(0, 0, 0)) -> None:
         """One MAG record: corrected field, COMPASS_OFS and motor compensation [mGauss]."""

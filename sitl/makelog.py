@@ -59,9 +59,10 @@ def write_tlog(v: SimVehicle, out: Path, rate: float, seconds: float,
         _drain(v, seconds, lambda t, m: w.write(START_UNIX + t, v.encode(m)))
 
 
-def write_bin(v: SimVehicle, out: Path, rate: float, seconds: float) -> None:
+def write_bin(v: SimVehicle, out: Path, rate: float, seconds: float,
+              imu_instance: bool = False) -> None:
     v.set_interval("HIGHRES_IMU", rate)
-    with DataflashWriter(out) as w:
+    with DataflashWriter(out, imu_instance=imu_instance) as w:
         for name in v.params.names:
             w.parm(0, name, v.params[name])
         w.msg(0, VERSION_TEXT[v.generation])
@@ -120,6 +121,8 @@ def main(argv=None) -> int:
                     help="parameter in force (default: all neutral)")
     ap.add_argument("--highres", action="store_true",
                     help=".tlog: also HIGHRES_IMU at --rate (SI floats; see --highres-mag-bug)")
+    ap.add_argument("--imu-instance", action="store_true",
+                    help=".bin: IMU records with the 4.x instance column I")
     add_truth_args(ap)
     add_firmware_args(ap)
     args = ap.parse_args(argv)
@@ -128,7 +131,7 @@ def main(argv=None) -> int:
         seconds = v.motion.duration + 1.0
         out = Path(args.out)
         if out.suffix.lower() == ".bin":
-            write_bin(v, out, args.rate, seconds)
+            write_bin(v, out, args.rate, seconds, args.imu_instance)
         elif out.suffix.lower() == ".tlog":
             write_tlog(v, out, args.rate, seconds, args.highres)
         else:

@@ -50,9 +50,23 @@ def default_params(generation: str) -> dict[str, float]:
         p.update(_xyz("INS_GYR3OFFS", 0.0))
         p.update({"INS_ACCEL_FILTER": 20.0, "INS_GYRO_FILTER": 20.0, "COMPASS_OFFS_MAX": 1800})
         p.update({name: 0 for name in STAT_PARAMS})
+        p.update(tcal_defaults())
     else:
         p["INS_MPU6K_FILTER"] = 20.0
     return {k: float(np.float32(v)) for k, v in p.items()}
+
+
+def tcal_defaults() -> dict[str, float]:
+    """IMU 1's temperature calibration parameters (ArduPilot 4.1+, stood in for by the "3.3"
+    generation) with the firmware's defaults: INS_TCAL1_ENABLE 0, TMIN 0, TMAX 70 [degC],
+    ACC1..3 / GYR1..3 _X.._Z 0, INS_ACC1_CALTEMP / INS_GYR1_CALTEMP −300 [degC]
+    (AP_InertialSensor_tempcal.cpp and AP_InertialSensor.cpp var_info)."""
+    p = {"INS_TCAL1_ENABLE": 0.0, "INS_TCAL1_TMIN": 0.0, "INS_TCAL1_TMAX": 70.0,
+         "INS_ACC1_CALTEMP": -300.0, "INS_GYR1_CALTEMP": -300.0}
+    for kind in ("ACC", "GYR"):
+        for order in (1, 2, 3):
+            p.update(_xyz(f"INS_TCAL1_{kind}{order}", 0.0))
+    return p
 
 
 class ParamStore:

@@ -236,8 +236,8 @@ class SimVehicle:
         gen = self.generation
         self.reset_zero_compass_diagonals()
         p = self.params.as_dict()
-        s["acc"] = firmware.apply_accel(s["raw_acc"], p, gen)
-        s["gyr"] = firmware.apply_gyro(s["raw_gyr"], p, gen)
+        s["acc"] = firmware.apply_accel(s["raw_acc"], p, gen, s["temp"])
+        s["gyr"] = firmware.apply_gyro(s["raw_gyr"], p, gen, s["temp"])
         # battery current modelled as FULL_THROTTLE_CURRENT_A × throttle (also in SYS_STATUS)
         s["mag"] = firmware.apply_compass(s["raw_mag"], p, gen, s["throttle"],
                                           s["throttle"] * FULL_THROTTLE_CURRENT_A)
