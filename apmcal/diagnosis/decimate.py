@@ -25,8 +25,8 @@ SHAPES_BLOCK_MEANS = ("lowpass_filter",)
 
 
 def block_factor(fs: float, target_hz: float = SLOW_RATE_HZ) -> int:
-    """Samples per block that bring ``fs`` [Hz] down to at most about ``target_hz`` (a power of
-    two, so the blocks are whole Haar levels; 1: already slow enough)."""
+    """Samples per block that bring ``fs`` [Hz] down to between ``target_hz`` and twice it (a
+    power of two, so that the blocks are whole Haar levels; 1: below twice ``target_hz``)."""
     k = 1
     while fs / (2 * k) >= target_hz * 0.99:
         k *= 2

@@ -18,7 +18,8 @@ not, :mod:`apmcal.diagnosis.plausible`); "significant" means selected, or still 
 on top of the selected combination (see :mod:`apmcal.diagnosis.select`). "scored_at_hz" is
 the sample rate the effect was scored at: the recording's, or for a slow effect in a recording
 faster than 200 Hz the block means' (:mod:`apmcal.diagnosis.decimate`), whose gaps are per
-averaged sample.
+averaged sample; there a slow effect is scored "alone" on top of the low-pass filter when the
+recorded rate showed one.
 """
 from __future__ import annotations
 
