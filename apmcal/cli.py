@@ -117,7 +117,7 @@ def package_version() -> str:
 
 def add_baud_option(p: argparse.ArgumentParser) -> None:
     """--baud for serial connections (/dev/ttyACM0, /dev/ttyUSB0, COM3), as MAVProxy has."""
-    from apmcal.sources.live import DEFAULT_BAUD
+    from apmcal.constants import DEFAULT_BAUD
 
     p.add_argument("--baud", type=number_type(int, 1, 12_000_000, what="a baud rate"),
                    default=DEFAULT_BAUD,
@@ -131,7 +131,7 @@ ALL_PARAMS_HELP = ("also write parameters that are not calibration (counters suc
 
 def add_upload_parsers(sub) -> None:
     """``apmcal upload`` and ``apmcal restore``."""
-    from apmcal.vehicle.upload import CALIBRATION_IN_WORDS
+    from apmcal.vehicle.scope import CALIBRATION_IN_WORDS
 
     upload = sub.add_parser(
         "upload", help="write a .param file to a vehicle: backed up, verified, rolled back on "
@@ -571,7 +571,7 @@ def print_skipped(result, console) -> None:
 
 def cmd_upload(args) -> int:
     from apmcal.vehicle.paramfile import read_param_file
-    from apmcal.vehicle.upload import check_scope
+    from apmcal.vehicle.scope import check_scope
 
     values = read_param_file(args.param_file)      # the file is checked before connecting
     check_scope(values, args.param_file, args.all_params)

@@ -13,6 +13,9 @@ MG_TO_MS2 = STANDARD_GRAVITY / 1000.0   # RAW_IMU acc is in milli-g
 MRAD_TO_RAD = 1e-3                  # RAW_IMU gyro is in mrad/s
 GAUSS_TO_MGAUSS = 1000.0
 UT_TO_MGAUSS = 10.0                 # 1 mGauss = 0.1 µT
+# serial links (USB: any rate works; 3DR/SiK telemetry radios: 57600 unless reconfigured;
+# MAVProxy's default is 115200 as well)
+DEFAULT_BAUD = 115200
 
 
 def normal_gravity(lat_deg: float, height_m: float = 0.0) -> float:

@@ -26,20 +26,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from apmcal.param_names import CALIBRATION_PARAM_PREFIXES  # noqa: F401 (re-exported)
+
 ACC = ["acc_x", "acc_y", "acc_z"]
 GYR = ["gyr_x", "gyr_y", "gyr_z"]
 MAG = ["mag_x", "mag_y", "mag_z"]
 SENSOR_COLUMNS = {"acc": ACC, "gyr": GYR, "mag": MAG}
-
-#: Parameters the firmware uses to correct (or rotate) the IMU and compass samples it reports
-#: (ardupilot-facts.md, "How the firmware applies the parameters"): a name starting with one of
-#: these is a calibration parameter.
-CALIBRATION_PARAM_PREFIXES = ("INS_ACCOFFS", "INS_ACCSCAL", "INS_ACC2OFFS", "INS_ACC2SCAL",
-                              "INS_ACC3OFFS", "INS_ACC3SCAL", "INS_GYROFFS", "INS_GYR2OFFS",
-                              "INS_GYR3OFFS", "COMPASS_OFS", "COMPASS_DIA", "COMPASS_ODI",
-                              "COMPASS_MOT", "COMPASS_ORIENT", "COMPASS_EXTERN",
-                              "AHRS_ORIENTATION")
-
 
 def is_calibration_param(name: str) -> bool:
     """True if ``name`` starts with one of :data:`CALIBRATION_PARAM_PREFIXES`."""

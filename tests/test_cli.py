@@ -301,3 +301,17 @@ def test_recording_open_failure_at_the_write_point_is_one_line(tmp_path, capsys,
     assert main(["live", "udp:127.0.0.1:9", "--save-log", str(target)]) == 2
     line = one_line_err(capsys)
     assert str(target) in line and "cannot write recording" in line
+
+
+def test_the_command_line_builds_without_the_scientific_stack():
+    """``apmcal --help`` (and every usage error) answers before numpy's dependants load: the
+    parser's help texts read only light modules (issue 10: lazy imports)."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from apmcal.cli import build_parser; build_parser(); "
+            "print(sorted(m for m in ('pandas', 'scipy', 'pymavlink', 'matplotlib') "
+            "if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.strip()
+    assert out == "[]", out

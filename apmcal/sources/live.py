@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from apmcal.constants import DEFAULT_BAUD
 from apmcal.errors import ApmcalError
 
 # ardupilot-facts.md "What the telemetry really carries": stream 1 = RAW_SENSORS carries RAW_IMU,
@@ -28,8 +29,6 @@ STREAMED_MESSAGE_IDS = {**IMU_MESSAGE_IDS, "SCALED_PRESSURE": 29}
 READS_IN_FLIGHT = 20
 MAV_AUTOPILOT_INVALID = 8       # HEARTBEAT.autopilot of anything that is not a flight controller
 
-# serial links (USB: any rate works; 3DR/SiK telemetry radios: 57600 unless reconfigured)
-DEFAULT_BAUD = 115200
 # tcp: a refused connection is tried this many times, this many seconds apart (pymavlink's
 # mavtcp ``retries`` counts the attempts)
 TCP_ATTEMPTS = 3
