@@ -191,11 +191,12 @@ def cmd_tcal(args) -> int:
     from apmcal.tcal_pipeline import calibrate_temperature, tcal_params
     from apmcal.tcal_report import print_tcal
 
+    from apmcal.sources.units import require_plausible_units
+
     check_writable(args.param_file, "parameter file")
     check_writable(args.json, "JSON file")
     if args.upload:
         check_writable(args.backup or default_backup_name(), "backup file")
-    from apmcal.sources.units import require_plausible_units
 
     console = console_for(args)
     contents = read_log(args.file)
@@ -204,15 +205,7 @@ def cmd_tcal(args) -> int:
     print_tcal(results, console)
     values = tcal_params(results)
     if args.json:
-        from apmcal.solvers.result import jsonable
-
-        text = json.dumps(jsonable({"tcal": [r.to_dict() for r in results], "params": values}),
-                          indent=2) + "\n"
-        try:
-            Path(args.json).write_text(text)
-        except OSError as exc:
-            raise ApmcalError(f"cannot write JSON file ({exc.strerror or exc})",
-                              args.json) from None
+        write_json(args.json, {"tcal": [r.to_dict() for r in results], "params": values})
     if args.param_file:
         from apmcal.vehicle.paramfile import write_param_file
 
@@ -223,7 +216,6 @@ def cmd_tcal(args) -> int:
         # AP_InertialSensor_tempcal.cpp: INS_TCALn_ENABLE is @RebootRequired
         console.print("INS_TCALn_ENABLE takes effect at the vehicle's next reboot")
     return 0
-
 
 
 def add_gap_parser(sub) -> None:
@@ -359,6 +351,17 @@ def check_writable(path, what: str) -> None:
                       str(path))
 
 
+def write_json(path, obj) -> None:
+    """``obj`` as indented JSON (numpy values made plain), or one line saying why not."""
+    from apmcal.solvers.result import jsonable
+
+    text = json.dumps(jsonable(obj), indent=2) + "\n"
+    try:
+        Path(path).write_text(text)
+    except OSError as exc:
+        raise ApmcalError(f"cannot write JSON file ({exc.strerror or exc})", str(path)) from None
+
+
 def check_outputs(args) -> None:
     """Every output path of a calibration command checked before reading or recording."""
     if not getattr(args, "summary_only", False):
@@ -417,14 +420,7 @@ def summarise_and_calibrate(contents, args):
                 output["param_file"] = args.param_file
                 console.print(f"wrote {args.param_file}")
     if args.json:
-        from apmcal.solvers.result import jsonable
-
-        text = json.dumps(jsonable(output), indent=2) + "\n"
-        try:
-            Path(args.json).write_text(text)
-        except OSError as exc:
-            raise ApmcalError(f"cannot write JSON file ({exc.strerror or exc})",
-                              args.json) from None
+        write_json(args.json, output)
         console.print(f"wrote {args.json}")
     if param_error is not None:
         raise param_error

@@ -34,10 +34,10 @@ from typing import Protocol, TextIO
 
 import numpy as np
 
+from apmcal.constants import MG_TO_MS2, MRAD_TO_RAD
 from apmcal.errors import ApmcalError
 from apmcal.preprocessing.static import ARDUPILOT_FACE, MAX_TILT_DEG, pose_of
 
-G0 = 9.80665
 STILL_WINDOW_S = 1.0        # vehicle seconds of stillness before a pose is judged
 STILL_MIN_SAMPLES = 3       # ... and at least this many samples in them
 # a hand-held vehicle trembles (a few °/s at 4-9 Hz) but does not turn: the window's mean rate
@@ -136,7 +136,7 @@ def imu_sample(msg) -> ImuSample | None:
     acc = np.array([msg.xacc, msg.yacc, msg.zacc], float)
     gyr = np.array([msg.xgyro, msg.ygyro, msg.zgyro], float)
     if kind == "RAW_IMU":
-        return ImuSample(msg.time_usec * 1e-6, acc * G0 / 1000.0, gyr / 1000.0)
+        return ImuSample(msg.time_usec * 1e-6, acc * MG_TO_MS2, gyr * MRAD_TO_RAD)
     if kind == "HIGHRES_IMU":
         return ImuSample(msg.time_usec * 1e-6, acc, gyr)
     return None
