@@ -104,22 +104,26 @@ class Moves:
 
 
 def relative_attitudes(rate: np.ndarray, t: np.ndarray, moves: Moves, step: int = 1
-                       ) -> np.ndarray:
-    """R(t) relative to the hold before (n_samples, 3, 3) at every ``step``-th move sample: the
-    integral of ``rate`` [rad/s] from the last hold sample on. Each sample interval turns by the
-    mean of its two end rates (trapezoid: the rectangle rule's O(Δt) error would be a gap of the
-    real data only); ``step`` > 1 joins ``step`` intervals into one rotation (their summed
-    rotation vectors, second-order error), for the fits' cheaper passes."""
-    out = []
-    for a, b in zip(moves.i0, moves.i1):
+                       ) -> Rotation:
+    """R(t) relative to the hold before, at every ``step``-th move sample (one Rotation of
+    them all, moves one after the other): the integral of ``rate`` [rad/s] from the last hold
+    sample on. Each sample interval turns by the mean of its two end rates (trapezoid: the
+    rectangle rule's O(Δt) error would be a gap of the real data only); ``step`` > 1 joins
+    ``step`` intervals into one rotation (their summed rotation vectors, second-order error),
+    for the fits' cheaper passes."""
+    turns, segment = [], []
+    for m, (a, b) in enumerate(zip(moves.i0, moves.i1)):
         dt = t[a:b] - t[a - 1:b - 1]
         turn = 0.5 * (rate[a - 1:b - 1] + rate[a:b]) * dt[:, None]
         if step > 1:
             ends = np.arange(step - 1, b - a, step)
             turn = np.diff(np.vstack([np.zeros(3), np.cumsum(turn, axis=0)[ends]]), axis=0)
-        q = Rotation.from_rotvec(turn).as_quat()
-        out.append(Rotation.from_quat(prefix_products(q)).as_matrix())
-    return np.concatenate(out) if out else np.zeros((0, 3, 3))
+        turns.append(turn)
+        segment.append(np.full(len(turn), m))
+    if not turns:
+        return Rotation.identity(0)
+    q = Rotation.from_rotvec(np.concatenate(turns)).as_quat()
+    return Rotation.from_quat(prefix_products(q, np.concatenate(segment)))
 
 
 def move_index(moves: Moves, step: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -145,7 +149,7 @@ def predicted(session, fit, dyn: Dynamics, moves: Moves, rate_cal: np.ndarray,
     rate = rate_cal @ np.linalg.inv(dyn.forward).T
     rel = relative_attitudes(rate, session.t, moves, step)
     idx, hold = move_index(moves, step)
-    f = np.einsum("nji,nj->ni", rel, hold_f[hold])
+    f = rel.apply(hold_f[hold], inverse=True)           # R(t)ᵀ·f_k
     if dyn.time_offset_s:          # the accelerometer samples the past: f(t − τ) = Exp(ωτ)·f(t)
         f = Rotation.from_rotvec(rate[idx] * dyn.time_offset_s).apply(f)
     temp = session.temp[idx] if session.temp is not None else None
@@ -153,7 +157,7 @@ def predicted(session, fit, dyn: Dynamics, moves: Moves, rate_cal: np.ndarray,
     acc = geo.predict(f / _radius(geo), fit.acc_columns(session.t[idx], temp))
     mag = None
     if hold_b is not None and fit.mag is not None:
-        b = np.einsum("nji,nj->ni", rel, hold_b[hold])
+        b = rel.apply(hold_b[hold], inverse=True)
         cur = session.current[idx] if session.current is not None else None
         mag = fit.mag.predict(b / _radius(fit.mag), fit.mag_columns(session.t[idx], cur))
     return idx, acc, mag

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -91,6 +91,23 @@ class Context:
 
 
 @dataclass(frozen=True)
+class FoldSummary:
+    """What ranking needs of one fold's result: its gaps [nats] over so many samples, and the
+    effects' fitted parameters (small enough to send back from a worker)."""
+
+    nats_in: float
+    n_in: int
+    nats_out: float
+    n_out: int
+    params: dict
+
+    @classmethod
+    def of(cls, fold: FoldResult) -> "FoldSummary":
+        return cls(fold.gap_in.nats, fold.gap_in.n_samples, fold.gap_out.nats,
+                   fold.gap_out.n_samples, fold.params)
+
+
+@dataclass(frozen=True)
 class Summary:
     """The numbers of an evaluation that ranking and selection need [nats per sample; nats],
     and the effects' parameters, averaged over the two folds' fits."""
@@ -102,17 +119,32 @@ class Summary:
 
     @classmethod
     def of(cls, evaluation: Evaluation) -> "Summary":
-        params = {name: mean_of_folds([f.params[name] for f in evaluation.folds])
-                  for name in evaluation.effects}
-        return cls(evaluation.gap_in, evaluation.gap_out, evaluation.nats_out, params)
+        return cls.of_folds(evaluation.effects, [FoldSummary.of(f) for f in evaluation.folds])
+
+    @classmethod
+    def of_folds(cls, effects, folds: list[FoldSummary]) -> "Summary":
+        """Pooled over the folds, as :class:`Evaluation` pools them."""
+        n_in, n_out = sum(f.n_in for f in folds), sum(f.n_out for f in folds)
+        nats_in, nats_out = sum(f.nats_in for f in folds), sum(f.nats_out for f in folds)
+        params = {name: mean_of_folds([f.params[name] for f in folds]) for name in effects}
+        return cls(nats_in / n_in if n_in else 0.0, nats_out / n_out if n_out else 0.0,
+                   float(nats_out), params)
 
 
 _WORKER: "Evaluator | None" = None      # the evaluator a forked worker inherits
+_IN_WORKER = False                      # True in a forked worker: it must not fork again
 
 
 def _call(job) -> object:
+    global _IN_WORKER
+    _IN_WORKER = True
     method, args = job
     return getattr(_WORKER, method)(*args)
+
+
+def _parallel() -> bool:
+    """Whether work may be spread over forked workers (more than one core, not in a worker)."""
+    return not _IN_WORKER and (os.cpu_count() or 1) >= 2
 
 
 class Evaluator:
@@ -139,10 +171,12 @@ class Evaluator:
         return {s: step for s, step in self.steps.items()
                 if s in self.session.integer_sensors or "quantization" in effects}
 
-    def fit(self, session, reduced, effects, train_fold, start=None, with_sigma=None):
+    def fit(self, session, reduced, effects, train_fold, start=None, with_sigma=None,
+            with_noise=True):
         """Model and noise fitted on ``train_fold`` (None: every piece), and the Haar
         coefficients of all residuals (``with_sigma``: the fits' uncertainties too; by
-        default when fitting every piece)."""
+        default when fitting every piece; ``with_noise`` False: no noise model, None in its
+        place — a twin's, which nothing reads)."""
         fit = fit_model(session, reduced, effects, train_fold, field_mgauss=self.field_mgauss,
                         declination_rad=self.declination_rad, start=start,
                         with_sigma=train_fold is None if with_sigma is None else with_sigma)
@@ -170,8 +204,9 @@ class Evaluator:
             motion, turn, kappa = self._hold_motion(train_fold if train_fold is not None else 0)
             fit.hold_motion = (motion, turn)
         holds = coefficients(hold_residuals(session, fit))
-        noise = fit_noise(holds, train, effects, self.fs_of, self.steps_for(effects))
-        if fit.hold_motion is not None:
+        noise = fit_noise(holds, train, effects, self.fs_of, self.steps_for(effects)) \
+            if with_noise else None
+        if fit.hold_motion is not None and noise is not None:
             noise["gyr"].tremor_deg, noise["gyr"].sway_deg = amplitudes(fit.hold_motion[0],
                                                                         self.session)
             noise["gyr"].motion_confirmed = tuple(kappa)
@@ -216,17 +251,41 @@ class Evaluator:
         return key in self._summaries or key in self._cache
 
     def prefetch(self, models) -> None:
-        """Summaries of several models at once, on every core (each model is independent of
-        the others)."""
+        """Summaries of several models at once, on every core. The jobs are single folds (each
+        fold of each model is independent of the others), so that an odd number of models
+        still keeps both cores busy to the end."""
         todo = list(dict.fromkeys(frozenset(m) for m in models if not self._known(frozenset(m))))
-        for key, summary in zip(todo, self.map([("summary", (k,)) for k in todo])):
-            self._summaries[key] = summary
+        if not todo:
+            return
+        self.warm()
+        parts = self.map([("fold_summary", (key, fold)) for key in todo for fold in FOLDS])
+        for i, key in enumerate(todo):
+            self._summaries[key] = Summary.of_folds(key, parts[i * len(FOLDS):
+                                                               (i + 1) * len(FOLDS)])
+
+    def fold_summary(self, key: frozenset, fold: int) -> FoldSummary:
+        """One fold of one model, summarised (a :meth:`map` job)."""
+        if key in self._cache:
+            return FoldSummary.of(self._cache[key].folds[fold])
+        return FoldSummary.of(self._fold(key, fold))
+
+    def warm(self) -> None:
+        """Each fold's nominal fit and real motion path, which every model of that fold
+        starts from, computed once (both folds at once) before models are spread over
+        workers — a worker's own cache dies with it."""
+        missing = [fold for fold in FOLDS if fold not in self._motion]
+        for entries in self.map([("_warm_fold", (fold,)) for fold in missing]):
+            self._motion.update(entries)
+
+    def _warm_fold(self, fold: int) -> dict:
+        self._motion_path(fold)
+        return {key: self._motion[key] for key in (fold, ("nominal", fold))}
 
     def map(self, jobs: list[tuple[str, tuple]]) -> list:
         """``[self.method(*args) for method, args in jobs]``, spread over every core: forked
         workers inherit the session and what is cached so far; results come back pickled."""
         workers = min(len(jobs), os.cpu_count() or 1)
-        if workers < 2:
+        if workers < 2 or not _parallel():
             return [getattr(self, method)(*args) for method, args in jobs]
         from threadpoolctl import threadpool_limits
 
@@ -247,7 +306,7 @@ class Evaluator:
         returns (work's result, the jobs' results)."""
         from threadpoolctl import threadpool_limits
 
-        if (os.cpu_count() or 1) < 2:
+        if not _parallel():
             return work(), [getattr(self, method)(*args) for method, args in jobs]
         global _WORKER
         _WORKER = self
@@ -267,11 +326,20 @@ class Evaluator:
         return noise_structure(self.evaluate(()), self.fs_of)
 
     def evaluate(self, effects) -> Evaluation:
-        """The model nominal + ``effects`` scored both ways round (cached)."""
+        """The model nominal + ``effects`` scored both ways round (cached): fold 0 here, fold 1
+        beside it in a worker, which sends back all of it but the residual coefficients (the
+        plots and the noise structure read fold 0's only)."""
         key = frozenset(effects)
         if key not in self._cache:
-            self._cache[key] = Evaluation(key, [self._fold(key, f) for f in FOLDS])
+            self.warm()
+            first, (second,) = self.beside([("_fold_without_coefficients", (key, 1))],
+                                           lambda: self._fold(key, 0))
+            self._cache[key] = Evaluation(key, [first, second])
         return self._cache[key]
+
+    def _fold_without_coefficients(self, key: frozenset, fold: int) -> FoldResult:
+        result = self._fold(key, fold)
+        return replace(result, real=None, twin=None)
 
     def _fold(self, effects, fold: int) -> FoldResult:
         s = self.session
@@ -280,7 +348,8 @@ class Evaluator:
         # models are not drowned in differences between noise draws
         twin, _ = simulate(s, fit, noise, seed=self.seed + fold,
                            motion_path=self._motion_path(fold))
-        _, _, tw = self.fit(twin, reduce_session(twin), effects, fold, start=fit)
+        _, _, tw = self.fit(twin, reduce_session(twin), effects, fold, start=fit,
+                            with_noise=False)
         train, test = s.pieces.select(fold=fold), s.pieces.select(fold=1 - fold)
         return FoldResult(fold, fit, noise, real, tw, compare(real, tw, train, in_sample=True),
                           compare(real, tw, test, in_sample=False),

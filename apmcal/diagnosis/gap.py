@@ -229,35 +229,45 @@ def _dof_loss(block: ResidualBlock, in_sample: bool) -> int:
     return block.mean_dof if in_sample else block.mean_nuisance
 
 
-def _channel_cells(rc: BlockCoefficients, tc: BlockCoefficients, col: int, keep, in_sample):
-    """The cells of channel ``col`` of one block over the kept pieces."""
+def _block_cells(rc: BlockCoefficients, tc: BlockCoefficients, keep, in_sample):
+    """The cells of every channel of one block over the kept pieces, channel by channel.
+
+    What the channels share (which coefficients are kept, their pieces and centres, how the
+    levels pool into cells) is worked out once per block, not once per channel."""
     level_masks, mean_mask, _ = rc.masks(keep)
-    name, block = rc.block.names[col], rc.block
-    real_lv = [(c.values[m, col], block.piece[c.piece[m]], c.center[m])
-               for c, m in zip(rc.levels, level_masks)]
-    twin_lv = [c.values[m, col] for c, m in zip(tc.levels, level_masks)]
-    histogram = block.shape and real_lv and len(real_lv[0][0]) >= MIN_SHAPE
-    if histogram:      # level 1 scored by its whole distribution: width and shape
-        real, piece, center = real_lv[0]
-        yield CellShare(name, 1, (1,), len(real), float(np.mean(real ** 2)),
-                        float(np.mean(twin_lv[0] ** 2)), shape_shares(real, twin_lv[0]),
-                        piece, center, block, kind="histogram")
+    block = rc.block
+    real_lv = [c.values[m] for c, m in zip(rc.levels, level_masks)]
+    twin_lv = [c.values[m] for c, m in zip(tc.levels, level_masks)]
+    piece_lv = [block.piece[c.piece[m]] for c, m in zip(rc.levels, level_masks)]
+    center_lv = [c.center[m] for c, m in zip(rc.levels, level_masks)]
+    histogram = bool(block.shape and real_lv and len(real_lv[0]) >= MIN_SHAPE)
+    groups = []
     for group in level_groups([len(v) for v in twin_lv]):
-        if histogram and group == [1]:
-            continue
-        if histogram and 1 in group:
+        if histogram and 1 in group:    # level 1 is scored by its histogram
             group = [j for j in group if j != 1]
-        real = np.concatenate([real_lv[j - 1][0] for j in group])
-        share, v_r, v_t = variance_shares(real, np.concatenate([twin_lv[j - 1] for j in group]))
-        yield CellShare(name, group[0], tuple(group), len(real), v_r, v_t, share,
-                        np.concatenate([real_lv[j - 1][1] for j in group]),
-                        np.concatenate([real_lv[j - 1][2] for j in group]), block)
+        if group:
+            groups.append((group, np.concatenate([piece_lv[j - 1] for j in group]),
+                           np.concatenate([center_lv[j - 1] for j in group])))
     loss = _dof_loss(block, in_sample)
-    if block.shape and block.radial is None and mean_mask.sum() - loss > 2:
-        real = rc.means.values[mean_mask, col]
-        share, v_r, v_t = variance_shares(real, tc.means.values[mean_mask, col], loss)
-        yield CellShare(name, LEVEL_MEANS, (LEVEL_MEANS,), len(real), v_r, v_t, share,
-                        block.piece[rc.means.piece[mean_mask]], rc.means.center[mean_mask], block)
+    score_means = block.shape and block.radial is None and mean_mask.sum() - loss > 2
+    for col, name in enumerate(block.names):
+        if histogram:      # level 1 scored by its whole distribution: width and shape
+            real, twin = real_lv[0][:, col], twin_lv[0][:, col]
+            yield CellShare(name, 1, (1,), len(real), float(np.mean(real ** 2)),
+                            float(np.mean(twin ** 2)), shape_shares(real, twin),
+                            piece_lv[0], center_lv[0], block, kind="histogram")
+        for group, piece, center in groups:
+            real = np.concatenate([real_lv[j - 1][:, col] for j in group])
+            share, v_r, v_t = variance_shares(
+                real, np.concatenate([twin_lv[j - 1][:, col] for j in group]))
+            yield CellShare(name, group[0], tuple(group), len(real), v_r, v_t, share, piece,
+                            center, block)
+        if score_means:
+            real = rc.means.values[mean_mask, col]
+            share, v_r, v_t = variance_shares(real, tc.means.values[mean_mask, col], loss)
+            yield CellShare(name, LEVEL_MEANS, (LEVEL_MEANS,), len(real), v_r, v_t, share,
+                            block.piece[rc.means.piece[mean_mask]], rc.means.center[mean_mask],
+                            block)
 
 
 def _radial_cell(rc: BlockCoefficients, tc: BlockCoefficients, keep, in_sample):
@@ -287,8 +297,7 @@ def compare(real: list[BlockCoefficients], twin: list[BlockCoefficients],
     cells, n_samples = [], 0
     for rc, tc in zip(real, twin):
         n_samples += rc.block.n_samples(keep)
-        for col in range(len(rc.block.names)):
-            cells.extend(_channel_cells(rc, tc, col, keep, in_sample))
+        cells.extend(_block_cells(rc, tc, keep, in_sample))
         if rc.block.radial is not None:
             cells.extend(_radial_cell(rc, tc, keep, in_sample))
     return GapEstimate(cells, n_samples)

@@ -62,16 +62,13 @@ def details(x: np.ndarray, i0: np.ndarray, i1: np.ndarray) -> list[Coefficients]
     sums = np.concatenate([x2[a:b] for a, b in zip(i0, i1)]) if len(i0) else x2[:0]
     out, m = [], 1
     while np.any(counts >= 2):
-        # a piece with an odd number of blocks leaves its last block out of this level
-        ends = np.cumsum(counts)
-        odd = counts % 2 == 1
-        if odd.any():
-            sums = np.delete(sums, ends[odd] - 1, axis=0)
-            counts = counts - odd
+        # blocks pair up from each piece's start; an odd last block is left out of this level
         pairs = counts // 2
-        even, odd_blocks = sums[0::2], sums[1::2]
+        first = np.cumsum(counts) - counts          # each piece's first block in ``sums``
         piece = np.repeat(np.arange(len(i0)), pairs)
         k = np.arange(len(piece)) - np.repeat(np.cumsum(pairs) - pairs, pairs)
+        even_index = first[piece] + 2 * k
+        even, odd_blocks = sums[even_index], sums[even_index + 1]
         out.append(Coefficients((odd_blocks - even) / np.sqrt(2.0 * m), piece,
                                 i0[piece] + 2 * m * k + m))
         sums, counts, m = even + odd_blocks, pairs, 2 * m

@@ -339,8 +339,8 @@ def hold_residuals(session, fit: ModelFit) -> list[ResidualBlock]:
     hs = hold_samples(pc.i0[ids], pc.i1[ids], ids, groups)
     t = session.t[hs.index]
     temp = session.temp[hs.index] if session.temp is not None else None
-    acc_pred = fit.acc.predict(_turned(fit.acc_dirs[hs.group], fit, hs.index),
-                               fit.acc_columns(t, temp))
+    acc_pred = _hold_prediction(fit.acc, fit.acc_dirs, hs.group, fit, lambda: hs.index,
+                                fit.acc_columns(t, temp))
     cols, vec, _, _ = gyro_regressors(fit, t, temp, hs.group)
     gyr_pred = fit.gyr.predict(cols, vec)
     if fit.hold_motion is not None:
@@ -354,6 +354,16 @@ def hold_residuals(session, fit: ModelFit) -> list[ResidualBlock]:
     if session.mag is not None and fit.mag is not None:
         blocks.append(_mag_block(session, fit, ids, groups))
     return blocks
+
+
+def _hold_prediction(geo: GeometryFit, dirs: np.ndarray, group: np.ndarray, fit: ModelFit,
+                     imu_index, columns: np.ndarray) -> np.ndarray:
+    """A geometric sensor's predicted hold samples: one direction per (hold, fold) group, or
+    per sample when the measured hold motion turns it (``imu_index()``: each sample's index on
+    the IMU axis, computed only then)."""
+    if fit.hold_motion is None:
+        return geo.predict(dirs, columns, group)
+    return geo.predict(_turned(dirs[group], fit, imu_index()), columns)
 
 
 def _turned(vectors: np.ndarray, fit: ModelFit, index: np.ndarray) -> np.ndarray:
@@ -382,9 +392,9 @@ def _mag_block(session, fit: ModelFit, ids, groups) -> ResidualBlock:
     hs = hold_samples(m.i0[ids], m.i1[ids], ids, groups)
     t = m.t[hs.index]
     cur = m.current[hs.index] if m.current is not None else None
-    imu_index = np.clip(np.searchsorted(session.t, t), 0, len(session.t) - 1)
-    pred = fit.mag.predict(_turned(fit.mag_dirs[hs.group], fit, imu_index),
-                           fit.mag_columns(t, cur))
+    pred = _hold_prediction(fit.mag, fit.mag_dirs, hs.group, fit,
+                            lambda: np.clip(np.searchsorted(session.t, t), 0, len(session.t) - 1),
+                            fit.mag_columns(t, cur))
     block = ResidualBlock([f"mag_{a}" for a in AXES], m.values[hs.index] - pred, hs.i0, hs.i1,
                           hs.piece, t, None)
     n_params = sum(len(v) for v in fit.mag.params.values())

@@ -116,9 +116,15 @@ class GeometryFit:
         s = (self.radius * u) @ self.forward.T
         return s + self.k2 * s ** 2
 
-    def predict(self, u_rows: np.ndarray, columns: np.ndarray) -> np.ndarray:
-        """Predicted samples given each sample's orientation row and regressor columns."""
-        return self.truth_of(u_rows) + self.offset + columns @ self.theta
+    def predict(self, u_rows: np.ndarray, columns: np.ndarray, group: np.ndarray | None = None
+                ) -> np.ndarray:
+        """Predicted samples given each sample's orientation row and regressor columns; with
+        ``group`` (one index per sample) ``u_rows`` holds one orientation per group, mapped
+        through the sensor model once per group rather than once per sample."""
+        truth = self.truth_of(u_rows)
+        if group is not None:
+            truth = truth[group]
+        return truth + self.offset + columns @ self.theta
 
 
 class _Layout:
