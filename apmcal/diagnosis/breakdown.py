@@ -106,3 +106,14 @@ def _temp_parts(cells, session, scale) -> dict:
                             "{:.1f}-{:.1f} °C").items():
             out[k] += v
     return dict(out)
+
+
+def gap_summary(evaluation, session) -> dict:
+    """In-sample and held-out gap of an evaluation (:class:`apmcal.diagnosis.evaluate.
+    Evaluation`), each with its breakdown."""
+    n_in = sum(f.gap_in.n_samples for f in evaluation.folds)
+    n_out = sum(f.gap_out.n_samples for f in evaluation.folds)
+    cells_in = [c for f in evaluation.folds for c in f.gap_in.cells]
+    return {"total": evaluation.gap_in, "heldout": evaluation.gap_out,
+            "breakdown": breakdown(cells_in, n_in, session),
+            "breakdown_heldout": breakdown(evaluation.held_out_cells(), n_out, session)}

@@ -25,6 +25,9 @@ from apmcal.diagnosis.static_fit import count_orientations
 from apmcal.diagnosis.twin import motion_of, simulate
 
 FOLDS = (0, 1)
+# effects whose models take about twice as long as the others' to fit (moves integrated in
+# every least-squares step, or the holds' own motion extracted): scheduled first
+SLOW_TO_FIT = frozenset({"gyro_scale", "motion_contamination", "time_offset"})
 ACC_TERM_ROUNDS = 2     # hold/move alternations of the accelerometer terms the moves fit
 
 
@@ -257,6 +260,9 @@ class Evaluator:
         todo = list(dict.fromkeys(frozenset(m) for m in models if not self._known(frozenset(m))))
         if not todo:
             return
+        # the slowest models first, so that the last jobs are short ones and no core waits
+        # long for the other (longest-processing-time-first scheduling)
+        todo.sort(key=lambda key: -len(key & SLOW_TO_FIT))
         self.warm()
         parts = self.map([("fold_summary", (key, fold)) for key in todo for fold in FOLDS])
         for i, key in enumerate(todo):
@@ -317,6 +323,13 @@ class Evaluator:
                 return work(), pending.get()
         finally:
             _WORKER = None
+
+    def gap_of(self, effects) -> dict:
+        """The model's gaps with their breakdowns (:func:`apmcal.diagnosis.breakdown.
+        gap_summary`; small enough to send back from a worker, unlike the evaluation)."""
+        from apmcal.diagnosis.breakdown import gap_summary
+
+        return gap_summary(self.evaluate(effects), self.session)
 
     def noise_structure(self) -> dict:
         """White noise, bias instability and random walk of the nominal model's hold

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from apmcal.diagnosis.breakdown import breakdown
+from apmcal.diagnosis.breakdown import gap_summary
 from apmcal.diagnosis.decimate import (FINE_EFFECTS, SHAPES_BLOCK_MEANS, block_factor,
                                        decimated)
 from apmcal.diagnosis.evaluate import Evaluation, Evaluator
@@ -29,16 +29,6 @@ class Diagnosis:
     evaluator: Evaluator
     nominal: Evaluation
     final: Evaluation
-
-
-def gap_summary(ev: Evaluation, session) -> dict:
-    """In-sample and held-out gap of an evaluation, each with its breakdown."""
-    n_in = sum(f.gap_in.n_samples for f in ev.folds)
-    n_out = sum(f.gap_out.n_samples for f in ev.folds)
-    cells_in = [c for f in ev.folds for c in f.gap_in.cells]
-    return {"total": ev.gap_in, "heldout": ev.gap_out,
-            "breakdown": breakdown(cells_in, n_in, session),
-            "breakdown_heldout": breakdown(ev.held_out_cells(), n_out, session)}
 
 
 def session_summary(session, evaluator: Evaluator) -> dict:
@@ -75,9 +65,10 @@ def _diagnose(session, names, seed: int, progress) -> Diagnosis:
     ranked, selection = _rank_and_select(ev, names, say)
     selected = selection.order()
     say("selected model")
-    # the selected model's full evaluation (for its breakdown) beside the noise structure
-    final, (structure,) = ev.beside([("noise_structure", ())],
-                                    lambda: ev.evaluate(tuple(selected)))
+    # the selected model's full evaluation (for its breakdown), and beside it the noise
+    # structure and the nominal model's breakdown, which need nothing more
+    final, (structure, nominal_gap) = ev.beside([("noise_structure", ()), ("gap_of", ((),))],
+                                                lambda: ev.evaluate(tuple(selected)))
     params = {s.name: s.params for s in ranked if s.tested}     # each alone ...
     params.update(ev.summary(tuple(selected)).params)    # ... the selected within the combination
     # best first: the combination, then the rest as ranked
@@ -86,7 +77,7 @@ def _diagnose(session, names, seed: int, progress) -> Diagnosis:
     effects = [_effect_entry(s, selection, params.get(s.name, {})) for s in ranked]
     white = white_noise_of_folds([f.noise for f in nominal.folds])
     result = GapResult(session.source, session_summary(session, ev),
-                       gap_summary(nominal, session), effects, selected,
+                       nominal_gap, effects, selected,
                        gap_summary(final, session), white, structure,
                        notes=list(session.notes))
     return Diagnosis(result, ev, nominal, final)
