@@ -14,12 +14,12 @@ import numpy as np
 
 from apmcal.constants import STANDARD_GRAVITY, normal_gravity
 from apmcal.errors import ApmcalError
-from apmcal.preprocessing.resolution import (INT16_TELEMETRY, add_resolution_floor,
-                                             resolution_limited, telemetry_steps,
-                                             undo_truncation)
+from apmcal.preprocessing.resolution import (INT16_TELEMETRY, resolution_limited,
+                                             telemetry_steps, undo_truncation)
 from apmcal.preprocessing.timebase import monotonic
 from apmcal.recording import SENSOR_COLUMNS, Recording
 from apmcal.solvers.holds import MIN_ELLIPSOID_HOLDS, MIN_ORIENTATIONS, distinct_orientations
+from apmcal.solvers.resolution_floor import add_resolution_floor
 from apmcal.solvers.result import Calibration
 
 METHODS = ("auto", "ferraris", "static", "ellipsoid")

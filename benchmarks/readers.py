@@ -26,9 +26,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))       # pymavlink_ref: the tests' reference decoder
 
 from apmcal.sources import read_log, sniff_format  # noqa: E402
-from apmcal.sources import _pymavlink_ref as ref  # noqa: E402
+import pymavlink_ref as ref  # noqa: E402
 
 
 def _maxrss_mb() -> float:

@@ -121,14 +121,6 @@ class Motion:
                      np.array([s.throttle[1] for s in self.segments], float))
         self._throttle_cache = (len(self.segments), table)
         return table                       # motors never run: exact zeros, no arithmetic
-        starts = np.array([s.t0 for s in self.segments])
-        seg = np.clip(np.searchsorted(starts, t, side="right") - 1, 0, len(self.segments) - 1)
-        for k in np.unique(seg):
-            s = self.segments[k]
-            m = seg == k
-            u = np.clip((t[m] - s.t0) / s.duration, 0.0, 1.0) if s.duration > 0 else 1.0
-            out[m] = s.throttle[0] + (s.throttle[1] - s.throttle[0]) * u
-        return out
 
     def move_to(self, target: np.ndarray, seconds: float, label: str = "transition") -> "Motion":
         """Rotate about one body axis from the current end pose to ``target``."""

@@ -15,7 +15,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
 from apmcal.report import summarize
-from apmcal.sources import _pymavlink_ref as ref
+import pymavlink_ref as ref
 from apmcal.sources import read_log
 from apmcal.sources.dataflash import read_bin_messages
 from apmcal.sources.tlog import read_tlog_messages

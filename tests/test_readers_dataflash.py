@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from apmcal.errors import ApmcalError
-from apmcal.sources import _pymavlink_ref as ref
+import pymavlink_ref as ref
 from apmcal.sources import read_log
 from apmcal.sources.dataflash import read_bin_messages
 

@@ -10,7 +10,7 @@ from pymavlink.dialects.v10 import ardupilotmega as mav1
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
 from apmcal.errors import ApmcalError
-from apmcal.sources import _pymavlink_ref as ref
+import pymavlink_ref as ref
 from apmcal.sources import read_log
 from apmcal.sources.tlog import read_tlog_messages
 

@@ -5,7 +5,7 @@ int16 values in mG, mrad/s and mGauss, converted from float by C's truncation to
 A mean of truncated samples is biased toward zero by up to one step when the noise is smaller
 than a step (the gyro at rest: 1 mrad/s step, noise ~0.1 mrad/s), so the samples are moved to
 the middle of the interval they stand for, and the remaining uncertainty (uniform over one step,
-step/√12) is added to the calibration's sigma. When the noise spans several steps the rounding
+step/√12) is added to the calibration's sigma (:mod:`apmcal.solvers.resolution_floor`). When the noise spans several steps the rounding
 is dithered away: its variance (step²/12 per sample) is already in the residual-based sigma, and
 a floor would only inflate it (5-10× for a 50 Hz accelerometer), so the floor applies only to
 sensors whose noise is below one step (:func:`resolution_limited`).
@@ -18,7 +18,6 @@ import numpy as np
 
 from apmcal.constants import MG_TO_MS2, MRAD_TO_RAD
 from apmcal.recording import SENSOR_COLUMNS, Recording
-from apmcal.solvers.result import Calibration
 
 INT16_TELEMETRY = {"RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3"}
 STEP_SI = {"acc": MG_TO_MS2, "gyr": MRAD_TO_RAD, "mag": 1.0}   # m/s², rad/s, mGauss per count
@@ -68,24 +67,3 @@ def undo_truncation(recording: Recording) -> Recording:
         x = data[cols].to_numpy(dtype=float)
         data[cols] = x + 0.5 * step * np.sign(x)
     return replace(recording, data=data)
-
-
-def add_resolution_floor(calibration: Calibration, steps: dict[str, float],
-                         field: dict[str, float]) -> None:
-    """Widen offset (and accelerometer/magnetometer matrix) sigmas by the step's own spread.
-
-    ``field`` gives the magnitude the matrix was fitted to (|g| m/s², |B| mGauss): a step error in
-    a mean is a relative error step/|field| in the matrix terms it feeds. Only sigmas the method
-    gave are widened: an estimate without one (undetermined) stays without.
-    """
-    for sensor, step in steps.items():
-        cal = calibration.sensors.get(sensor)
-        if cal is None:
-            continue
-        floor = step * ONE_SIGMA_OF_UNIFORM_STEP
-        sigma = dict(cal.sigma)
-        if "offset" in sigma:
-            sigma["offset"] = np.hypot(sigma["offset"], floor)
-        if "matrix" in sigma and field.get(sensor, 0) > 0:
-            sigma["matrix"] = np.hypot(sigma["matrix"], floor / field[sensor])
-        cal.sigma = sigma

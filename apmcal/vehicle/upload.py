@@ -3,7 +3,7 @@
 ardupilot-facts.md "Writing parameters": PARAM_SET (REAL32) is answered with PARAM_VALUE
 carrying the stored value; unknown names and NaN are dropped silently; the value must be
 compared at float32 tolerance by the ground station itself (done by
-:meth:`apmcal.sources.live.VehicleLink.set_param`, which returns the value only once confirmed).
+:meth:`apmcal.link.params.ParamProtocol.set_param`, which returns the value only once confirmed).
 
 Only calibration parameters are written unless the caller asks for all (``all_params``);
 counters the vehicle keeps itself are never written (:mod:`apmcal.vehicle.scope`). The backup
@@ -17,7 +17,7 @@ from pathlib import Path
 
 from apmcal.errors import ApmcalError
 from apmcal.preprocessing.firmware import acc_param_names, firmware_generation, mag_param_names
-from apmcal.sources.live import VehicleLink, same_float32
+from apmcal.link.params import ParamProtocol, same_float32
 from apmcal.vehicle.params import acc_violations, offset_violations, soft_iron_violations
 from apmcal.vehicle.paramfile import read_param_file, read_unrestorable, write_param_file
 from apmcal.vehicle.scope import check_scope, may_write
@@ -89,7 +89,7 @@ def _compass_violations(values, merged, instance: int, generation: str) -> dict[
 
 
 # ----------------------------------------------------------------------------- upload
-def upload_params(link: VehicleLink, values: dict[str, float], backup_path: str | Path,
+def upload_params(link: ParamProtocol, values: dict[str, float], backup_path: str | Path,
                   vehicle_params: dict[str, float] | None = None,
                   all_params: bool = False) -> UploadReport:
     """Back up every parameter, then set ``values`` one by one, verifying each read-back.
@@ -133,7 +133,7 @@ def _reported(value: float | None) -> str:
     return "no answer" if value is None else f"vehicle reports {value!r}"
 
 
-def _write_all(link: VehicleLink, values: dict[str, float], report: UploadReport):
+def _write_all(link: ParamProtocol, values: dict[str, float], report: UploadReport):
     """Set ``values`` in order into ``report.written``; (name, value, last reported value) of
     the first write not confirmed, None when all are."""
     for name, value in values.items():
@@ -144,7 +144,7 @@ def _write_all(link: VehicleLink, values: dict[str, float], report: UploadReport
     return None
 
 
-def _roll_back(link: VehicleLink, report: UploadReport, also: str | None, cause: str) -> None:
+def _roll_back(link: ParamProtocol, report: UploadReport, also: str | None, cause: str) -> None:
     """Put every written name, and ``also`` (the write under way), back to its backed-up value.
 
     A rollback that fails, or is itself interrupted, names the command that finishes it.
@@ -176,14 +176,14 @@ def _is_held(reported: float | None, value: float) -> bool:
     return reported is not None and same_float32(reported, value)
 
 
-def _put_back(link: VehicleLink, name: str, value: float) -> float | None:
+def _put_back(link: ParamProtocol, name: str, value: float) -> float | None:
     """What the vehicle last reported for ``name`` after being set back to ``value`` (that
     value once confirmed); None when it never answered."""
     return link.set_param(name, value, attempts=ROLLBACK_ATTEMPTS)
 
 
 # ----------------------------------------------------------------------------- restore
-def restore_params(link: VehicleLink, backup_path: str | Path,
+def restore_params(link: ParamProtocol, backup_path: str | Path,
                    names: list[str] | None = None, all_params: bool = False) -> UploadReport:
     """Put back the values of a backup file (all, or only ``names``), verified by read-back.
 

@@ -1,6 +1,6 @@
 """Independent reference: the same IMU/MAG/param values decoded by pymavlink's own parsers.
 
-Used by the tests and by benchmarks/readers.py to check that apmcal's vectorised readers give
+Used by the tests and by benchmarks/readers.py (kept out of the installed package) to check that apmcal's vectorised readers give
 values identical to pymavlink (mavutil.mavlink_connection for .tlog, DFReader for .bin/.log).
 Each message is decoded by pymavlink, one at a time; only the unit conversion documented in the
 readers (mG × 9.80665/1000, mrad/s × 1e-3, cdegC × 0.01, Gauss × 1000, µs × 1e-6, ms × 1e-3,

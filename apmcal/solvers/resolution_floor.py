@@ -1,0 +1,36 @@
+"""The resolution floor of a calibration from integer telemetry: what a mean of samples
+truncated to whole steps cannot know, added to the result's sigma.
+
+The samples were moved to the middle of the step they stand for
+(:func:`apmcal.preprocessing.resolution.undo_truncation`); the true value is anywhere in that
+step, uniformly, so each mean keeps an uncertainty of step/√12. Applied only to sensors whose
+noise is below one step (:func:`apmcal.preprocessing.resolution.resolution_limited`): above it
+the rounding is dithered away and its variance is already in the residual-based sigma.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from apmcal.preprocessing.resolution import ONE_SIGMA_OF_UNIFORM_STEP
+from apmcal.solvers.result import Calibration
+
+
+def add_resolution_floor(calibration: Calibration, steps: dict[str, float],
+                         field: dict[str, float]) -> None:
+    """Widen offset (and accelerometer/magnetometer matrix) sigmas by the step's own spread.
+
+    ``field`` gives the magnitude the matrix was fitted to (|g| m/s², |B| mGauss): a step error in
+    a mean is a relative error step/|field| in the matrix terms it feeds. Only sigmas the method
+    gave are widened: an estimate without one (undetermined) stays without.
+    """
+    for sensor, step in steps.items():
+        cal = calibration.sensors.get(sensor)
+        if cal is None:
+            continue
+        floor = step * ONE_SIGMA_OF_UNIFORM_STEP
+        sigma = dict(cal.sigma)
+        if "offset" in sigma:
+            sigma["offset"] = np.hypot(sigma["offset"], floor)
+        if "matrix" in sigma and field.get(sensor, 0) > 0:
+            sigma["matrix"] = np.hypot(sigma["matrix"], floor / field[sensor])
+        cal.sigma = sigma
