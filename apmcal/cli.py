@@ -271,6 +271,9 @@ def add_calibration_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", default=None,
                    help="write summary and calibration as JSON (also when --param-file fails)")
     p.add_argument("--quiet", action="store_true")
+    p.add_argument("--verbose", action="store_true",
+                   help="also print the specialist's lines (fit internals, paper references, "
+                        "the model's misfit); the --json output always has them")
 
 
 def main(argv: list[str] | None = None, *, operator=None) -> int:
@@ -325,8 +328,10 @@ def console_for(args):
 
     # markup and emoji codes off: file names, units "[m/s²]" and notes are printed literally;
     # report.py styles with Text objects
+    # piped or redirected: no line breaks of rich's own (at 80 columns they fell inside numbers
+    # and vectors); the reader's pager or terminal wraps
     return Console(stderr=False, quiet=getattr(args, "quiet", False), highlight=False,
-                   markup=False, emoji=False)
+                   markup=False, emoji=False, soft_wrap=not sys.stdout.isatty())
 
 
 def check_writable(path, what: str) -> None:
@@ -405,8 +410,9 @@ def summarise_and_calibrate(contents, args):
 
         calibration, proposal = calibrate_log(contents, Options(
             args.method, args.lat, args.lon, args.min_still, args.instance, args.firmware))
-        report.print_calibration(calibration, proposal, console)
+        report.print_calibration(calibration, proposal, console, args.verbose)
         output.update(calibration.to_dict())
+        output["verdict"] = report.verdict_dict(calibration, proposal)
         if proposal is not None:
             output["params"] = dict(proposal.values)
             output["rejected_params"] = dict(proposal.rejected)

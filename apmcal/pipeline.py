@@ -234,9 +234,21 @@ def add_magnetometer(cal: Calibration, prepared: Prepared, opts: Options) -> Non
                                                     opts.lon_deg, cal.report, opts.date)
     except ApmcalError as err:
         cal.report.setdefault("warnings", []).append(err.why)
+        cal.report.setdefault("not_calibrated", {})["mag"] = err.why      # for the verdict
         return
+    cal.report["mag_coverage"] = mag_coverage(prepared.raw.xyz("mag"), cal.sensors["mag"])
     steps = {"mag": prepared.floor_steps["mag"]} if "mag" in prepared.floor_steps else {}
     add_resolution_floor(cal, steps, {"mag": cal.report["mag_field_mgauss"]})
+
+
+def mag_coverage(mag: np.ndarray, cal) -> dict:
+    """How well the compass samples [mGauss] cover the directions around the fitted offset:
+    ``fraction`` of the sphere within 20° of a sample, ``min_eig`` the smallest eigenvalue of
+    3·mean(n nᵀ) (1 uniform, 0 all in one plane). Numbers for apmcal.verdict."""
+    from apmcal.solvers.ellipsoid_robust import direction_coverage
+
+    cov = direction_coverage(mag, cal.offset)
+    return {"fraction": cov["fraction"], "min_eig": float(np.min(cov["scatter_eig"]))}
 
 
 def has_live_magnetometer(recording: Recording) -> bool:

@@ -108,25 +108,79 @@ def print_summary(summary: dict, console) -> None:
         console.print(_note(note))
 
 
-def print_calibration(calibration, proposal, console) -> None:
-    """Render a Calibration, its solver's report lines and its ArduPilot parameter proposal."""
+# Report lines for the specialist: shown with --verbose only (the JSON keeps them all). A line
+# is technical when it names a paper's equations, a statistics device or a fit's internals.
+TECHNICAL_MARKERS = ("seed 0", "antithetic", "Jacobian", "rank ", "second-order fit bias",
+                     "coverage eigenvalues", "condition number", "cannot be separated",
+                     "NOT determinable", "not determinable at", "relative MSE", "β, γ, μ",
+                     "τ, ξ, ν", "R_f", "(1σ)", "huber")
+
+
+def is_technical(line: str) -> bool:
+    """True for a solver report line that only a specialist needs (see TECHNICAL_MARKERS)."""
+    return any(marker in line for marker in TECHNICAL_MARKERS)
+
+
+GRADE_STYLE = {"good": "green", "usable": "yellow", "redo": "red"}
+
+
+def print_verdict(verdicts: dict, console) -> None:
+    """The overall grade, its reason and next step, then one line per sensor."""
+    from apmcal.verdict import NAMES
+
+    overall = verdicts.get("overall")
+    if overall is None:
+        return
+    sensors = {n: v for n, v in verdicts.items() if n != "overall"}
+    console.print(Text.assemble(("verdict: ", "bold"),
+                                (overall.grade.upper(), f"bold {GRADE_STYLE[overall.grade]}"),
+                                " (" + ", ".join(f"{NAMES[n]} {v.grade}"
+                                                 for n, v in sensors.items()) + ")"))
+    for name, v in sensors.items():
+        console.print(Text.assemble(f"  {NAMES[name]}: ", (v.grade, GRADE_STYLE[v.grade]),
+                                    f" — {v.reason}"))
+        if v.next_step:
+            console.print(Text(f"    next: {v.next_step}"))
+
+
+def verdict_dict(calibration, proposal) -> dict:
+    """The verdicts as plain dicts, for the JSON output."""
+    from apmcal.verdict import judge
+
+    return {name: v.to_dict() for name, v in judge(calibration, proposal).items()}
+
+
+def _vector(values, fmt: str) -> str:
+    """``(a, b, c)`` with each value in ``fmt``."""
+    return "(" + ", ".join(format(v, fmt) for v in np.ravel(values)) + ")"
+
+
+def print_calibration(calibration, proposal, console, verbose: bool = False) -> None:
+    """Render a Calibration: the verdict first, then the numbers, the solver's report lines
+    (technical ones only when ``verbose``) and the ArduPilot parameter proposal."""
+    from apmcal.verdict import judge
+
+    print_verdict(judge(calibration, proposal), console)
     used = calibration.report.get("recording")
     console.print(Text.assemble(("method:", "bold"), f" {calibration.method}"
                                 + (f" on {used}" if used else "")))
     units = {"acc": "m/s²", "gyr": "rad/s", "mag": "mGauss"}
     for name, cal in calibration.sensors.items():
         sig = cal.sigma.get("offset")
-        off = ", ".join(f"{v:+.6g}" for v in cal.offset)
-        sig_txt = "" if sig is None else " ± (" + ", ".join(f"{v:.2g}" for v in np.ravel(sig)) + ")"
-        console.print(Text(f"  {name}: offset [{units[name]}] = ({off}){sig_txt}"))
+        sig_txt = "" if sig is None else " ± " + _vector(sig, ".2g")
+        console.print(Text(f"  {name}: offset [{units[name]}] = {_vector(cal.offset, '+.6g')}"
+                           f"{sig_txt}"))
         with np.printoptions(precision=6, suppress=True):
             console.print(Text("    matrix = " + str(cal.matrix).replace("\n", "\n             ")))
         if np.any(cal.drift):
             console.print(Text(f"    drift [{units[name]}/s] = {cal.drift}"))
     for line in calibration.report.get("lines", []):     # identifiability, residuals, verdicts
-        console.print(Text(f"  {line}"))
+        if verbose or not is_technical(line):
+            console.print(Text(f"  {line}"))
     for line in calibration.report.get("warnings", []):
         console.print(Text.assemble("  ", ("warning:", "yellow"), f" {line}"))
+    if verbose:
+        _print_misfit(calibration.report, console)
     if proposal is not None:
         console.print(Text(f"ArduPilot parameters ({proposal.generation}):", style="bold"))
         for name, value in proposal.values.items():
@@ -135,3 +189,20 @@ def print_calibration(calibration, proposal, console) -> None:
             console.print(Text.assemble("  ", ("not proposed", "red"), f" {name}: {why}"))
         for note in proposal.notes:
             console.print(Text(f"  note: {note}"))
+
+
+def _print_misfit(report: dict, console) -> None:
+    """The six-face model's misfit and the noise-only σ it widened (verbose only)."""
+    misfit = report.get("acc_misfit")
+    if not misfit:
+        return
+    console.print(Text(f"  acc: six-face model against {misfit['n_holds']} holds: χ² "
+                       f"{misfit['chi2']:.1f} on {misfit['dof']} checks (Birge ratio "
+                       f"{misfit['birge_ratio']:.2f}), largest residual "
+                       f"{misfit['worst_residual']:.4f} m/s²; extra scatter per hold "
+                       f"{_vector(misfit['tau'], '.2g')}, offset spread "
+                       f"{_vector(misfit['offset_spread'], '.2g')} m/s²"))
+    noise_only = report.get("acc_sigma_noise_only", {}).get("offset")
+    if noise_only is not None:
+        console.print(Text(f"  acc: offset ± from the noise alone {_vector(noise_only, '.2g')} "
+                           "m/s² (before the misfit)"))

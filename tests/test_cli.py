@@ -315,3 +315,23 @@ def test_the_command_line_builds_without_the_scientific_stack():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.strip()
     assert out == "[]", out
+
+
+def test_piped_report_verdict_first_no_jargon_no_wrapped_numbers():
+    """`apmcal log` into a pipe (not a terminal): the verdict before the numbers, no specialist
+    lines, no line break inside a number or a parenthesised vector, the sign of COMPASS_OFS
+    explained."""
+    proc = run_cli("log", str(SAMPLE), *SITE)
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout
+    lines = out.splitlines()
+    assert out.index("verdict: ") < out.index("method: ") < out.index("acc: offset")
+    for line in lines:
+        assert line.count("(") == line.count(")"), line      # (the matrix spans 3 lines)
+        # a line broken inside a list or a number ends in "," or starts with its digits
+        assert not line.rstrip().endswith(",") and not re.match(r"[-+]?[\d.]", line), line
+    for jargon in ("seed 0", "antithetic", "Jacobian", "rank", "second-order fit bias"):
+        assert jargon not in out
+    assert "COMPASS_OFS is minus the offset shown above" in out
+    acc = next(ln for ln in lines if "acc: offset" in ln)
+    assert re.fullmatch(r"  acc: offset \[m/s²\] = \([^()]+\) ± \([^()]+\)", acc), acc

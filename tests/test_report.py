@@ -58,14 +58,54 @@ def test_file_name_and_units_are_literal_even_on_a_markup_console():
     assert "gyr: offset [rad/s]" in out and "drift [rad/s/s]" in out
 
 
+def print_verbose(calibration, proposal, console):
+    report.print_calibration(calibration, proposal, console, verbose=True)
+
+
 def test_solver_report_lines_and_warnings_are_printed():
     cal = Calibration(method="static", sensors={"acc": SensorCalibration()}, report={
-        "lines": ["acc: b_x, F_xz cannot be separated [bold]", "acc: F_xx NOT determinable"],
+        "lines": ["acc: b_x, F_xz cannot be separated [bold]", "acc: F_xx NOT determinable",
+                  "acc: tilt from level 1.7° [dim]"],
         "warnings": ["magnetometer not calibrated [red]"]})
-    out = render(report.print_calibration, cal, None)
+    out = render(print_verbose, cal, None)        # --verbose
     assert "acc: b_x, F_xz cannot be separated [bold]" in out
     assert "acc: F_xx NOT determinable" in out
     assert "warning: magnetometer not calibrated [red]" in out
+    plain = render(report.print_calibration, cal, None)
+    assert "cannot be separated" not in plain and "NOT determinable" not in plain
+    assert "acc: tilt from level 1.7° [dim]" in plain and "warning: magnetometer" in plain
+
+
+JARGON = ("seed 0", "antithetic", "Jacobian", "rank", "second-order fit bias", "eigenvalues",
+          "Birge", "χ²")
+
+
+def test_jargon_only_with_verbose():
+    """Every kind of specialist line the solvers write stays out of the default report."""
+    lines = ["mag: second-order fit bias removed (4 antithetic refit pairs): offset by [1 2 3]",
+             "mag: relative MSE of |calibrated| (seed 000) raw 0.06 → 8e-05 on held-out samples",
+             "acc: 1 pose(s), 9 parameters: Jacobian rank 3 of 9, condition number inf",
+             "mag: 23450 samples, directions cover 84% of the sphere (20° cones), coverage "
+             "eigenvalues [0.6 0.98 1.34] (1 = uniform)"]
+    cal = Calibration(method="ferraris", sensors={"acc": SensorCalibration(
+        sigma={"offset": [0.01] * 3, "matrix": np.full((3, 3), 1e-3)})}, report={
+        "lines": lines, "acc_misfit": {"n_holds": 6, "chi2": 60.0, "dof": 6, "birge_ratio": 3.2,
+                                       "worst_residual": 0.04, "tau": [0.01] * 3,
+                                       "offset_spread": [0.02] * 3},
+        "acc_sigma_noise_only": {"offset": [4e-4] * 3}})
+    plain = render(report.print_calibration, cal, None)
+    assert not [j for j in JARGON if j in plain], plain
+    verbose = render(print_verbose, cal, None)
+    assert all(line in verbose for line in lines)
+    assert "Birge ratio 3.20" in verbose and "from the noise alone (0.0004" in verbose
+
+
+def test_verdict_comes_before_the_numbers():
+    cal = Calibration(method="ferraris", sensors={"acc": SensorCalibration(
+        offset=[0.3, 0, 0], sigma={"offset": [0.01] * 3, "matrix": np.full((3, 3), 1e-3)})})
+    out = render(report.print_calibration, cal, None)
+    assert out.index("verdict: GOOD (accelerometer good)") < out.index("acc: offset")
+    assert "accelerometer: good — offsets known to ±0.010 m/s²" in out
 
 
 def test_recording_date_and_its_source_are_shown():

@@ -35,7 +35,9 @@ indistinguishable from a diagonal g-sensitivity Ω sin φ / g · I. Without ``ea
 no latitude) it ends up in K_ga, not in the bias; with it, K_ga is the sensor's own.
 
 Uncertainty (``SensorCalibration.sigma``): each hold mean gets std/√n; accelerometer offset and
-matrix sigmas are propagated through the equations above by a numerical Jacobian; gyro bias and
+matrix sigmas are propagated through the equations above by a numerical Jacobian, each hold mean's σ
+widened by the scatter the redundant holds show beyond their noise (apmcal/solvers/misfit.py:
+quadratic scale, temperature drift between holds, faces not square); gyro bias and
 drift sigmas come from the least-squares covariance; each rotation integral gets
 σ_b·T ⊕ σ_noise·√(Σ Δt²) and goes through the same Jacobian. All assume white noise, so they are
 lower bounds when the noise is correlated (hand tremor, slow thermal drift).
@@ -54,6 +56,7 @@ from apmcal.preprocessing.rotations import Rotation, find_rotations, integrate_s
 from apmcal.preprocessing.static import (ARDUPILOT_FACE, POSES, StaticSegment, find_static_segments,
                                          label_poses, make_segment)
 from apmcal.solvers.gyro_bias import fit_gyro_bias, integrate_motions, motions_between_holds
+from apmcal.solvers.misfit import hold_misfit
 from apmcal.solvers.result import Calibration, SensorCalibration
 from apmcal.solvers.uncertainty import jacobian_sigma
 
@@ -142,9 +145,17 @@ def _pick_rotations(rotations) -> dict[str, Rotation]:
 
 
 # --------------------------------------------------------------------------- accelerometer
-def _accel_part(poses: dict[str, StaticSegment], gravity: float | None, lat_deg: float | None):
+def _accel_part(poses: dict[str, StaticSegment], gravity: float | None, lat_deg: float | None,
+                segments=None):
+    """Accelerometer bias and matrix (seed 002 §4.1-4.2) with σ widened by the model misfit.
+
+    The hold means' σ is their white noise (std/√n) plus τ, the scatter the redundant holds
+    show beyond it on each axis (:mod:`apmcal.solvers.misfit`); the noise-only σ is kept in the
+    report as ``acc_sigma_noise_only``.
+    """
     up, um = u_matrices({k: s.acc_mean for k, s in poses.items()})
     sp, sm = u_matrices({k: s.acc_std / np.sqrt(s.n) for k, s in poses.items()})
+    misfit = hold_misfit(poses, segments)
     q = gravity_q(up)
     if gravity is not None:
         g, source = float(gravity), "given"
@@ -159,10 +170,20 @@ def _accel_part(poses: dict[str, StaticSegment], gravity: float | None, lat_deg:
         return np.concatenate([accel_bias(u_p, u_m), np.linalg.inv(accel_coupling(u_p, u_m, gg)).ravel()])
 
     x = np.concatenate([up.ravel(), um.ravel()])
-    y, sy = solve(x), jacobian_sigma(solve, x, np.concatenate([sp.ravel(), sm.ravel()]))
+    y = solve(x)
+    noise_only = jacobian_sigma(solve, x, np.concatenate([sp.ravel(), sm.ravel()]))
+    # row i of U± is sensor axis i: its readings get that axis' τ on top of their noise
+    tau = misfit.tau[:, None]
+    sy = jacobian_sigma(solve, x, np.concatenate([np.hypot(sp, tau).ravel(),
+                                                  np.hypot(sm, tau).ravel()]))
+    # an offset is further uncertain by how far its other estimates (the checks) lie from it
+    sy[:3] = np.hypot(sy[:3], misfit.offset_spread)
     cal = SensorCalibration(offset=y[:3], matrix=y[3:].reshape(3, 3),
                             sigma={"offset": sy[:3], "matrix": sy[3:].reshape(3, 3)})
-    info = {"U_plus": up, "U_minus": um, "Q": q, "gravity": g, "gravity_source": source}
+    info = {"U_plus": up, "U_minus": um, "Q": q, "gravity": g, "gravity_source": source,
+            "acc_misfit": misfit.to_dict(),
+            "acc_sigma_noise_only": {"offset": noise_only[:3],
+                                     "matrix": noise_only[3:].reshape(3, 3)}}
     return cal, info, g
 
 
@@ -201,6 +222,12 @@ def _gyro_part(t, gyr, acc_cal, poses, segs, rots, g, *, bias_drift, earth_rate,
         b0, b1, kga, sb0, sb1 = fit_gyro_bias(ts, ys, fs if g_sensitivity else None,
                                               drift=bias_drift, t_ref=t_ref)
     info.update(t_ref=t_ref, bias_drift=b1, gyr_g_sensitivity=kga)
+    # The Earth rate left in the bias (its horizontal part Ω cos φ, or all of Ω when it was not
+    # removed) is a vector of known length and unknown heading: σ of one axis = length/√3.
+    # On a clean simulated session it was 2-6σ of the noise-only σ (benchmarks/sigma_coverage.py).
+    left = EARTH_RATE * (np.cos(np.radians(lat_deg)) if earth_rate and lat_deg is not None
+                         else 1.0)
+    sb0 = np.hypot(sb0, left / np.sqrt(3.0))
     cal = SensorCalibration(offset=b0, drift=b1, t_ref=t_ref,
                             sigma={"offset": sb0, "drift": sb1} if bias_drift else {"offset": sb0})
     missing = [a for a in AXES if a not in rots]
@@ -332,7 +359,7 @@ def ferraris_calibration(t, acc, gyr=None, *, segments=None, rotations=None, sec
         raise ApmcalError(f"Ferraris calibration needs all six holds; missing {faces}")
     warnings: list[str] = []
     _quality_warnings(poses, warnings)
-    acc_cal, acc_info, g = _accel_part(poses, gravity, lat_deg)
+    acc_cal, acc_info, g = _accel_part(poses, gravity, lat_deg, all_segs)
     if acc_info["gravity_source"].startswith("Q"):
         warnings.append(f"accelerometer scaled to Q = {acc_info['Q']:.4f} (its own mean norm), not "
                         "to local gravity: pass lat_deg or gravity for an absolute scale")

@@ -142,6 +142,13 @@ def _accelerometer(cal, r, generation, instance, prop: ParamProposal) -> None:
         offset = scale * (r @ o)          # SCAL ⊙ (R raw) − OFFS = diag(B)(R raw − R o)
         cost = cost_of_diagonal_only(b, STANDARD_GRAVITY)
     prop.costs["acc_diagonal_only_ms2"] = cost
+    if generation == "3.2":
+        # ardupilot-facts.md "How the firmware applies the parameters": 3.2 scales first, then
+        # subtracts INS_ACCOFFS, so its offset is the scaled one, not the one the report shows
+        frame = "" if np.allclose(r, np.eye(3)) else ", in the body frame (AHRS_ORIENTATION)"
+        prop.notes.append(f"accelerometer: INS_ACCOFFS = INS_ACCSCAL × the offset shown above"
+                          f"{frame}, because firmware 3.2 scales the reading before it "
+                          "subtracts the offset")
     prop.notes.append(f"accelerometer: per-axis scale only (no cross-axis parameter); worst-case "
                       f"error over all gravity directions {cost:.4f} m/s²")
     values = dict(zip(offs_names, offset)) | dict(zip(scal_names, scale))
@@ -170,6 +177,12 @@ def _compass(cal, params, generation, instance, prop: ParamProposal, field_mgaus
     rm = compass_rotation(params, generation, instance)
     b = rm @ cal.matrix @ rm.T                    # the calibration in body frame
     values = dict(zip(names["ofs"], -(rm @ cal.offset)))   # offset is ADDED by the firmware
+    # ardupilot-facts.md "How the firmware applies the parameters": mag = M·(raw + COMPASS_OFS),
+    # so the sign flips; said in words, since the report shows apmcal's subtracted offset
+    frame = "" if np.allclose(rm, np.eye(3)) else " (turned into the body frame)"
+    prop.notes.append("compass: COMPASS_OFS is minus the offset shown above" + frame + ": "
+                      "ArduPilot adds COMPASS_OFS to the raw reading, apmcal's offset is "
+                      "subtracted from it; the same correction")
     # a 3.3+ vehicle whose parameter list lacks DIA (built without them) gets offsets only
     has_dia = generation == "3.3+" and (not known or all(n in params for n in names["dia"]))
     if has_dia:

@@ -1,0 +1,192 @@
+"""Good / usable / redo: a calibration's numbers turned into a verdict a hobbyist can act on.
+
+Solvers return numbers (σ, misfit, coverage, what they could not determine); this module alone
+turns them into words: per sensor a grade, the reason in plain words and the next step, and an
+overall grade (the worst sensor's). The report prints it before the numbers.
+
+Thresholds, and why (1σ values, as reported):
+
+* Accelerometer offset: an offset error δ tilts the level the autopilot holds by δ/g rad.
+  good ≤ 0.05 m/s² (0.3° of level: below what a pilot notices in a hover), usable ≤ 0.2 m/s²
+  (1.2°: drifts, but trims out), else redo.
+* Accelerometer scale/cross-axis (matrix entries): good ≤ 0.005 (0.5 %), usable ≤ 0.02 (2 %,
+  the spread ArduPilot's own six-face fit leaves), else redo.
+* Six-face model misfit (:mod:`apmcal.solvers.misfit`): when the holds disagree with the model
+  more than MISFIT_BIRGE times beyond their noise, the σ above already covers it, but the grade
+  is at most usable and the user is told why (warm-up, faces not square, non-linear sensor).
+* Gyro offset: good ≤ 0.002 rad/s (0.1 °/s, the stillness ArduPilot's own boot calibration
+  demands), usable ≤ 0.01 rad/s, else redo. A gyro matrix left at identity (no full turns) is
+  usable: ArduPilot has no gyro scale parameter, only the report loses it.
+* Compass: coverage first. Samples nearly in one plane (smallest direction eigenvalue below
+  MIN_MAG_EIG, the ellipsoid fit's own limit for trusting cross-axis terms) is redo; under
+  MIN_MAG_FRACTION of the sphere within 20° of a sample is usable. Offset σ: good ≤ 1 % of the
+  field (a 0.6° heading error at most), usable ≤ 5 % (3°), else redo.
+* A sensor the method could not determine, or could not calibrate at all, or whose parameters
+  the firmware would refuse, is redo.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+GRADES = ("good", "usable", "redo")
+NAMES = {"acc": "accelerometer", "gyr": "gyroscope", "mag": "compass"}
+
+ACC_OFFSET_SIGMA = (0.05, 0.2)        # m/s²: good, usable limits
+ACC_MATRIX_SIGMA = (0.005, 0.02)      # dimensionless
+GYR_OFFSET_SIGMA = (0.002, 0.01)      # rad/s
+MAG_OFFSET_SIGMA = (0.01, 0.05)       # fraction of the field magnitude
+MISFIT_BIRGE = 3.0                    # checks beyond 3× their noise: the model does not fit
+MIN_MAG_EIG = 0.05                    # = ellipsoid_robust.MIN_SCATTER_FULL
+MIN_MAG_FRACTION = 0.5                # half the sphere within 20° of a sample
+
+SIX_FACES = ("hold the vehicle still on each of its six faces (level, on its back, each side, "
+             "nose up, nose down) for 10 s or more")
+TURN_COMPASS = ("turn the vehicle slowly through every direction: nose up and down, each side "
+                "down, upside down, and a full turn about each axis")
+
+
+@dataclass
+class Verdict:
+    """One grade with its reason and next step (plain words).
+
+    Attributes
+    ----------
+    grade : "good", "usable" or "redo"
+    reason : why, in plain words
+    next_step : what to do about it ("" when nothing is needed)
+    """
+
+    grade: str
+    reason: str
+    next_step: str = ""
+
+    def to_dict(self) -> dict:
+        return {"grade": self.grade, "reason": self.reason, "next_step": self.next_step}
+
+
+def _grade(value: float, limits: tuple[float, float]) -> str:
+    """good / usable / redo for ``value`` against its (good, usable) upper limits."""
+    if not np.isfinite(value) or value > limits[1]:
+        return "redo"
+    return "good" if value <= limits[0] else "usable"
+
+
+def worst(verdicts: list[Verdict]) -> Verdict:
+    """The verdict with the worst grade (the first of equals): a chain is as good as its worst."""
+    return max(verdicts, key=lambda v: GRADES.index(v.grade))
+
+
+def accelerometer(cal, report: dict) -> Verdict:
+    """Verdict on an accelerometer calibration (see the module doc for the thresholds)."""
+    if "acc" in report.get("undetermined", {}):
+        return Verdict("redo", f"the offsets could not be measured: "
+                               f"{report['undetermined']['acc']}", SIX_FACES)
+    sig = cal.sigma
+    if "offset" not in sig:
+        return Verdict("redo", "no uncertainty could be given for the offsets", SIX_FACES)
+    off = float(np.max(sig["offset"]))
+    mat = float(np.max(sig["matrix"])) if "matrix" in sig else 0.0
+    found = [Verdict(_grade(off, ACC_OFFSET_SIGMA),
+                     f"offsets known to ±{off:.3f} m/s² (a level error of "
+                     f"{np.degrees(off / 9.81):.2f}°)",
+                     "" if off <= ACC_OFFSET_SIGMA[0] else SIX_FACES),
+             Verdict(_grade(mat, ACC_MATRIX_SIGMA), f"scales known to ±{100 * mat:.2f} %",
+                     "" if mat <= ACC_MATRIX_SIGMA[0] else SIX_FACES)]
+    misfit = report.get("acc_misfit")
+    if misfit and misfit.get("birge_ratio", 0) > MISFIT_BIRGE:
+        found.append(Verdict(
+            "usable", f"the model does not fit: the holds disagree {misfit['birge_ratio']:.0f}× "
+                      f"more than their noise allows (up to {misfit['worst_residual']:.3f} m/s²), "
+                      "so the ± values were widened to cover it (a board warming up between "
+                      "holds, faces not square, or a sensor not quite linear)",
+            "let the board warm up for 5 minutes before calibrating, then hold each face "
+            "square and still"))
+    noisy = [w for w in report.get("warnings", []) if w.startswith("hold ")]
+    if noisy:
+        found.append(Verdict("usable", noisy[0], "hold each face still and square"))
+    return worst(found)
+
+
+def gyroscope(cal, report: dict) -> Verdict:
+    """Verdict on a gyro calibration (offset σ; a missing or odd full turn)."""
+    if "gyr" in report.get("undetermined", {}):
+        return Verdict("redo", report["undetermined"]["gyr"], "keep the vehicle still longer")
+    sig = cal.sigma.get("offset")
+    if sig is None:
+        return Verdict("redo", "no uncertainty could be given for the offsets",
+                       "keep the vehicle still for a minute")
+    off = float(np.max(sig))
+    found = [Verdict(_grade(off, GYR_OFFSET_SIGMA),
+                     f"offsets known to ±{off:.4f} rad/s ({np.degrees(off):.2f} °/s)",
+                     "" if off <= GYR_OFFSET_SIGMA[0] else "keep the vehicle stiller, longer")]
+    turns = [w for w in report.get("warnings", []) if w.startswith(("no 360° rotation",
+                                                                   "rotation about"))]
+    if turns:
+        found.append(Verdict("usable", turns[0] + " (ArduPilot stores gyro offsets only, so "
+                                                  "this costs the report, not the vehicle)",
+                             "turn the vehicle one full turn about each axis, pausing still "
+                             "after each quarter"))
+    return worst(found)
+
+
+def compass(cal, report: dict) -> Verdict:
+    """Verdict on a compass calibration (coverage of directions, offset σ vs the field)."""
+    cover = report.get("mag_coverage", {})
+    field = float(report.get("mag_field_mgauss") or np.nan)
+    found = []
+    if cover.get("min_eig", 1.0) < MIN_MAG_EIG:
+        found.append(Verdict("redo", "the compass was barely turned: its readings lie close to "
+                                     "one plane, so offsets and soft iron across it are "
+                                     "guesses", TURN_COMPASS))
+    elif cover.get("fraction", 1.0) < MIN_MAG_FRACTION:
+        found.append(Verdict("usable", f"the compass saw only {100 * cover['fraction']:.0f} % "
+                                       "of the directions", TURN_COMPASS))
+    sig = cal.sigma.get("offset")
+    if sig is not None and field > 0:
+        rel = float(np.max(sig)) / field
+        found.append(Verdict(_grade(rel, MAG_OFFSET_SIGMA),
+                             f"offsets known to ±{np.max(sig):.1f} mGauss "
+                             f"({100 * rel:.2g} % of the field)",
+                             "" if rel <= MAG_OFFSET_SIGMA[0] else TURN_COMPASS))
+    mismatch = [w for w in report.get("warnings", []) if "field magnitude is" in w]
+    if mismatch:
+        found.append(Verdict("usable", "the field the compass saw differs from the model's at "
+                                       "this site", "check --lat/--lon, then look for iron or "
+                                                    "magnets near the vehicle"))
+    return worst(found) if found else Verdict("usable", "no uncertainty could be given",
+                                              TURN_COMPASS)
+
+
+JUDGES = {"acc": accelerometer, "gyr": gyroscope, "mag": compass}
+
+
+def judge(calibration, proposal=None) -> dict[str, Verdict]:
+    """Per-sensor verdicts and an "overall" one (the worst), in report order.
+
+    ``proposal`` (ParamProposal or None): a sensor whose parameters the firmware would refuse
+    is redo whatever its numbers.
+    """
+    report = calibration.report
+    out = {name: JUDGES[name](cal, report) for name, cal in calibration.sensors.items()
+           if name in JUDGES}
+    for name, why in report.get("not_calibrated", {}).items():
+        out[name] = Verdict("redo", f"not calibrated: {why}",
+                            TURN_COMPASS if name == "mag" else SIX_FACES)
+    for name in _refused(proposal):
+        out[name] = Verdict("redo", "the firmware would refuse its parameters (listed below)",
+                            "check the mounting and the data, then calibrate again")
+    if out:
+        first = worst(list(out.values()))
+        who = next(NAMES[n] for n, v in out.items() if v is first)
+        out["overall"] = Verdict(first.grade, f"{who}: {first.reason}", first.next_step)
+    return out
+
+
+def _refused(proposal) -> list[str]:
+    """Sensors with a parameter the firmware would refuse ("acc", "gyr", "mag")."""
+    if proposal is None:
+        return []
+    prefixes = {"acc": "INS_ACC", "gyr": "INS_GYR", "mag": "COMPASS_"}
+    return [s for s, p in prefixes.items() if any(n.startswith(p) for n in proposal.rejected)]

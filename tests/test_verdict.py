@@ -1,0 +1,108 @@
+"""The verdict (apmcal/verdict.py) and the honesty of the σ it is built on, on sitl sessions.
+
+Sessions are made in one pass of sitl's error model at 50 Hz (sitl_helpers.session_recording,
+about 0.3 s each) and calibrated as `apmcal log` does.
+"""
+import numpy as np
+import pytest
+
+from apmcal.pipeline import Options, calibrate
+from apmcal.solvers.result import Calibration, SensorCalibration
+from apmcal.verdict import compass, judge
+from sitl_helpers import session_recording, sigma_z
+
+LAT = 5.6037
+# clean: the errors ArduPilot's parameters hold, noise, and the physics apmcal models
+CLEAN = (["all"], ["nominal", "local_gravity", "earth_rate"])
+
+
+def calibrated(seed, disable=(), enable=(), method="ferraris", **kw):
+    truth, rec, vehicle = session_recording(seed, disable, enable, **kw)
+    return truth, calibrate(rec, Options(method=method, lat_deg=LAT)), vehicle
+
+
+def test_clean_session_is_good():
+    _, cal, _ = calibrated(1, *CLEAN)
+    v = judge(cal)
+    assert {k: x.grade for k, x in v.items()} == {"acc": "good", "gyr": "good",
+                                                   "overall": "good"}, v
+
+
+def test_every_effect_on_is_usable_because_the_model_does_not_fit():
+    _, cal, _ = calibrated(1)
+    v = judge(cal)
+    assert v["acc"].grade == "usable" and "the model does not fit" in v["acc"].reason
+    assert "warm up" in v["acc"].next_step and v["overall"].grade == "usable"
+
+
+def test_one_pose_cannot_determine_the_accelerometer_redo():
+    _, cal, _ = calibrated(2, *CLEAN, method="static", script="onepos")
+    v = judge(cal)
+    assert v["acc"].grade == "redo" and "six faces" in v["acc"].next_step
+    assert v["overall"].grade == "redo"
+
+
+def test_compass_not_turned_is_redo():
+    _, cal, _ = calibrated(2, *CLEAN, method="static", script="onepos", mag=True)
+    assert "mag" not in cal.sensors                   # refused: samples do not turn
+    v = judge(cal)
+    assert v["mag"].grade == "redo" and "full turn about each axis" in v["mag"].next_step
+
+
+@pytest.mark.parametrize("cover, grade", [({"min_eig": 0.02, "fraction": 0.4}, "redo"),
+                                          ({"min_eig": 0.2, "fraction": 0.3}, "usable"),
+                                          ({"min_eig": 0.6, "fraction": 0.9}, "good")])
+def test_compass_coverage_rules(cover, grade):
+    cal = SensorCalibration(sigma={"offset": [0.5] * 3})
+    v = compass(cal, {"mag_coverage": cover, "mag_field_mgauss": 400.0})
+    assert v.grade == grade, v
+
+
+def test_firmware_refusal_is_redo():
+    from apmcal.vehicle.params import ParamProposal
+
+    cal = Calibration("ferraris", {"acc": SensorCalibration(
+        sigma={"offset": [0.01] * 3, "matrix": np.full((3, 3), 1e-3)})})
+    refused = ParamProposal(rejected={"INS_ACCOFFS_X": "|offset| 4 > 3.5 m/s²"})
+    assert judge(cal)["acc"].grade == "good"
+    assert judge(cal, refused)["acc"].grade == "redo"
+
+
+# ------------------------------------------------------------------------------- honest σ
+SEEDS = range(1, 7)
+
+
+@pytest.fixture(scope="module")
+def every_effect():
+    return [calibrated(seed) for seed in SEEDS]
+
+
+def test_sigma_covers_the_truth_with_every_effect_on(every_effect):
+    """|error| < 3σ for ≥ 90 % of accelerometer and gyro offsets and matrix entries."""
+    z = np.concatenate([np.abs(np.concatenate(list(sigma_z(t, c, v).values())))
+                        for t, c, v in every_effect])
+    assert np.mean(z < 3) >= 0.9, np.mean(z < 3)
+    acc = np.concatenate([np.abs(sigma_z(t, c, v)["acc.offset"]) for t, c, v in every_effect])
+    assert np.mean(acc < 3) >= 0.9, acc
+
+
+def test_the_coverage_check_can_fail(every_effect):
+    """With the noise-only σ (what was reported before the misfit) the accelerometer offsets
+    miss the truth by far more than 3σ: the test above has teeth."""
+    z = []
+    for truth, cal, _ in every_effect:
+        err = cal.sensors["acc"].offset - truth.sensor_calibrations()["acc"].offset
+        z.extend(np.abs(err) / cal.report["acc_sigma_noise_only"]["offset"])
+    assert np.mean(np.array(z) < 3) < 0.2 and np.median(z) > 10
+
+
+def test_sigma_not_inflated_on_a_clean_session():
+    for seed in (1, 2, 3):
+        truth, cal, vehicle = calibrated(seed, *CLEAN)
+        acc = cal.sensors["acc"].sigma
+        noise_only = cal.report["acc_sigma_noise_only"]
+        assert np.allclose(acc["offset"], noise_only["offset"])
+        assert np.allclose(acc["matrix"], noise_only["matrix"])
+        assert cal.report["acc_misfit"]["birge_ratio"] < 1.5
+        z = np.abs(np.concatenate(list(sigma_z(truth, cal, vehicle).values())))
+        assert np.mean(z < 3) >= 0.9
