@@ -51,7 +51,7 @@ def test_serial_link_over_a_pseudo_terminal(tmp_path):
         device = line.split(": ", 1)[1]
         wait_for_boot(tmp_path / "sitl-params.json")
         out = tmp_path / "serial.json"
-        status = main(["live", device, "--baud", "57600", "--duration", "3", "--rate", "20",
+        status = main(["live", device, "--baud", "57600", "--duration", "6", "--rate", "20",
                        "--quiet", "--save-log", str(tmp_path / "serial.tlog"),
                        "--json", str(out)])
     finally:
