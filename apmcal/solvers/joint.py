@@ -87,13 +87,12 @@ def joint_calibration(t, acc, gyr, mag, holds, *, gravity: float,
             dropped = [jm.NAMES[i] for i in np.flatnonzero(insignificant)]
             x1 = fit["x"].copy()
             x1[insignificant] = jm.NOMINAL[insignificant]
-            full = fit
-            fit = _solve(d, x1, free & ~insignificant)
-            # a dropped parameter is nominal, but only known to within its σ of the full fit:
-            # that σ stays in the result (a σ of 0 would claim the nominal value is exact)
+            # a dropped parameter is set to nominal, which the full fit put x̂ ± σ away: its
+            # uncertainty is the RMS error of that choice, √(x̂² + σ²) about nominal, and it
+            # is carried into the refitted parameters as a "consider" covariance
             idx = np.flatnonzero(insignificant)
-            fit["cov"][idx, idx] = full["cov"][idx, idx]
-            fit["sigma"][idx] = full["sigma"][idx]
+            spread = (fit["x"][idx] - jm.NOMINAL[idx]) ** 2 + fit["sigma"][idx] ** 2
+            fit = _solve(d, x1, free & ~insignificant, consider=(insignificant, spread))
     return _calibration(fit, d, dropped)
 
 
@@ -124,8 +123,13 @@ def _robust_weights(u: np.ndarray, family: str) -> np.ndarray:
     return np.ones_like(a)
 
 
-def _solve(d, x0: np.ndarray, free: np.ndarray) -> dict:
-    """Gauss-Helmert iterations with robust re-weighting (module docstring)."""
+def _solve(d, x0: np.ndarray, free: np.ndarray, consider=None) -> dict:
+    """Gauss-Helmert iterations with robust re-weighting (module docstring).
+
+    ``consider`` = (mask, variances): parameters held fixed whose uncertainty is carried into
+    the covariance of the estimated ones (a consider covariance: x̂ moves by S·δc for a change
+    δc of the fixed values, S = −(AᵀA)⁻¹AᵀA_c, so cov += S·C_c·Sᵀ).
+    """
     families = _families(d)
     rows = interval_rows(d) if d.intervals else None
     x = x0.copy()
@@ -159,8 +163,22 @@ def _solve(d, x0: np.ndarray, free: np.ndarray) -> dict:
         if outer > 0 and settled and np.all(np.abs(step) <= 0.01 * np.sqrt(_diag_cov(res.jac))):
             break
     white = Whitener(x, d, families, rows, weights, factor)
-    return _statistics(x, free, white.jacobian(jacobian(x, d, families, rows, free)),
-                       white(misclosures(x, d, families, rows)), weights, factor, families)
+    fit = _statistics(x, free, white.jacobian(jacobian(x, d, families, rows, free)),
+                      white(misclosures(x, d, families, rows)), weights, factor, families)
+    if consider is not None:
+        mask, variances = consider
+        both = free | mask
+        j = white.jacobian(jacobian(x, d, families, rows, both))
+        jf, jc = j[:, free[both]], j[:, mask[both]]
+        sens = -np.linalg.pinv(jf.T @ jf, hermitian=True) @ (jf.T @ jc)   # ∂x̂/∂c
+        cc = np.diag(variances)
+        fi, ci = np.flatnonzero(free), np.flatnonzero(mask)
+        fit["cov"][np.ix_(fi, fi)] += sens @ cc @ sens.T
+        fit["cov"][np.ix_(fi, ci)] = sens @ cc
+        fit["cov"][np.ix_(ci, fi)] = (sens @ cc).T
+        fit["cov"][np.ix_(ci, ci)] = cc
+        fit["sigma"] = np.sqrt(np.clip(np.diag(fit["cov"]), 0, None))
+    return fit
 
 
 def _variance_components(white, j, r, w, weights, factor) -> None:
