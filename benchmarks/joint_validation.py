@@ -29,11 +29,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from apmcal.errors import ApmcalError  # noqa: E402
-from apmcal.pipeline import Options, calibrate, pick_recording, prepare  # noqa: E402
-from apmcal.preprocessing.static import find_static_segments  # noqa: E402
-from apmcal.solvers.joint import joint_calibration  # noqa: E402
-from apmcal.solvers.orientation_check import orientation_errors  # noqa: E402
-from apmcal.solvers.result import Calibration  # noqa: E402
+from apmcal.pipeline import Options  # noqa: E402
+from apmcal.validation import check, fit, session  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data"
 SITE = {"lat_deg": 5.6037, "lon_deg": -0.187,      # sitl's default home (Accra) and the
@@ -41,65 +38,6 @@ SITE = {"lat_deg": 5.6037, "lon_deg": -0.187,      # sitl's default home (Accra)
 UNMODELLED = ("temperature_drift,motion_contamination,scale_nonlinearity,gyro_bias_random_walk,"
               "earth_rate,gyro_bias_drift,lowpass_filter,time_offset,quantization")
 METHODS = ("raw", "ferraris", "ellipsoid", "joint")
-
-
-def session(path: Path, layout: str | None = None):
-    """(prepared raw recording, its compass on the same times or None, still poses)."""
-    from apmcal.joint_pipeline import compass_on_imu_times
-    from apmcal.sources import read_log
-    from apmcal.sources.csv import read_csv
-
-    contents = read_csv(path, layout=layout) if layout else read_log(path)
-    rec, mag_rec = pick_recording(contents, None)
-    prepared = prepare(rec)
-    mag_prepared = prepare(mag_rec) if mag_rec is not None else None
-    mag = compass_on_imu_times(prepared.raw.t, prepared, mag_prepared)
-    holds = find_static_segments(prepared.raw.t, prepared.raw.xyz("acc"),
-                                 prepared.raw.xyz("gyr"), min_duration=1.0)
-    return rec, mag_rec, prepared.raw, mag, holds
-
-
-def fit(method: str, rec, mag_rec, raw, mag, holds, opts: Options, part=None) -> Calibration:
-    """``method`` fitted on the samples ``part`` (a boolean mask; all when None)."""
-    if method == "raw":
-        return Calibration(method="raw")
-    if method == "joint":
-        keep = np.ones(len(raw.t), bool) if part is None else part
-        hs = [h for h in holds if keep[h.i0] and keep[h.i1 - 1]]
-        return joint_calibration(raw.t[keep], raw.xyz("acc")[keep], raw.xyz("gyr")[keep],
-                                 None if mag is None else mag[keep],
-                                 [_shift(h, np.flatnonzero(keep)[0]) for h in hs],
-                                 gravity=opts.gravity, field_mgauss=_field(opts))
-    if part is not None:
-        from dataclasses import replace
-        rec = replace(rec, data=rec.data.loc[part].reset_index(drop=True))
-    o = Options(method, opts.lat_deg, opts.lon_deg, 1.0, date=opts.date)
-    cal = calibrate(rec, o, mag_rec)
-    if mag_rec is not None and "mag" not in cal.sensors:     # as calibrate_log does
-        from apmcal.pipeline import add_magnetometer
-        add_magnetometer(cal, prepare(mag_rec), o)
-    return cal
-
-
-def _shift(h, first: int):
-    from apmcal.preprocessing.static import StaticSegment
-    from dataclasses import replace
-    return replace(h, i0=h.i0 - first, i1=h.i1 - first,
-                   excluded=tuple((a - first, b - first) for a, b in h.excluded)) \
-        if isinstance(h, StaticSegment) else h
-
-
-def _field(opts: Options) -> float | None:
-    if opts.lat_deg is None or opts.lon_deg is None:
-        return None
-    from apmcal.geomag import decimal_year, earth_field_ned
-    field, _ = earth_field_ned(opts.lat_deg, opts.lon_deg, 0.0, decimal_year(opts.date))
-    return float(np.linalg.norm(field))
-
-
-def check(cal: Calibration, raw, mag, holds, pairs=None) -> tuple[float, int, str]:
-    r = orientation_errors(cal, raw.t, raw.xyz("acc"), raw.xyz("gyr"), mag, holds, pairs)
-    return float(np.sqrt(np.mean(r["error_deg"] ** 2))), len(r["error_deg"]), r["kind"]
 
 
 def sitl_log(tmp: Path, script: str, seed: int, truth: Path | None, duration: float | None,
