@@ -72,17 +72,17 @@ def matrices(x: np.ndarray) -> dict[str, np.ndarray]:
 
 def correct_acc(y_a: np.ndarray, mats: dict) -> np.ndarray:
     """True specific force a [m/s²] (n, 3) from measured y_a, eq. 1 inverted."""
-    return np.linalg.solve(mats["K_a"], (np.asarray(y_a) - mats["b_a"]).T).T
+    return (np.asarray(y_a) - mats["b_a"]) @ np.linalg.inv(mats["K_a"]).T
 
 
 def correct_gyr(y_w: np.ndarray, a: np.ndarray, mats: dict) -> np.ndarray:
     """True angular rate ω [rad/s] (n, 3) from measured y_ω and true specific force a, eq. 2."""
-    return np.linalg.solve(mats["K_w"], (np.asarray(y_w) - mats["b_w"] - a @ mats["G_w"].T).T).T
+    return (np.asarray(y_w) - mats["b_w"] - a @ mats["G_w"].T) @ np.linalg.inv(mats["K_w"]).T
 
 
 def correct_mag(y_m: np.ndarray, mats: dict) -> np.ndarray:
     """True field m [mGauss] (n, 3) in the accelerometer frame from measured y_m, eq. 3."""
-    return np.linalg.solve(mats["D_m"], (np.asarray(y_m) - mats["o_m"]).T).T
+    return (np.asarray(y_m) - mats["o_m"]) @ np.linalg.inv(mats["D_m"]).T
 
 
 def calibration_parts(x: np.ndarray) -> dict[str, np.ndarray]:
