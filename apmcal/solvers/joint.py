@@ -249,6 +249,8 @@ def _calibration(fit: dict, d, dropped: list[str]) -> Calibration:
            f"{', '.join(dropped)}" if dropped else ""),
         f"joint: gyro scale/misalignment cannot be held by ArduPilot (INS_GYROFFS only): "
         f"left uncorrected it costs up to {np.degrees(gyr_cost * 2 * np.pi):.2f}° per 360° turn",
+        f"joint: gyro g-sensitivity cannot be held either: up to "
+        f"{np.linalg.norm(extra['gyr_g_sensitivity'], 2) * d.gravity:.2g} rad/s at 1 g",
     ]
     report = {"method": "joint", "lines": lines, "warnings": [],
               "joint_parameters": {n: [float(v), float(s)] for n, v, s, f in
