@@ -82,7 +82,12 @@ def joint_on_prepared(prepared, mag_prepared, opts) -> Calibration:
                           f"{opts.min_still_s:g} s or more")
     report: dict = {}
     field = field_magnitude(mag, opts, report)
-    cal = joint_calibration(t, acc, gyr, mag, holds, gravity=opts.gravity, field_mgauss=field)
+    try:
+        cal = joint_calibration(t, acc, gyr, mag, holds, gravity=opts.gravity,
+                                field_mgauss=field)
+    except np.linalg.LinAlgError as err:      # a degenerate session (e.g. all poses alike)
+        raise ApmcalError(f"joint calibration: the session does not determine the parameters "
+                          f"({err}); add still poses in other orientations") from None
     cal.report["lines"] = report.get("lines", []) + cal.report["lines"]
     cal.report["warnings"] = report.get("warnings", []) + cal.report["warnings"]
     cal.report["static_segments"] = len(holds)

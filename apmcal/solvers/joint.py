@@ -11,10 +11,13 @@ of seed 001 §3.3 on the conditions of §3.2 (:mod:`apmcal.solvers.joint_residua
   the Gauss-Helmert iteration with a step control); only X (42 values) is ever unknown.
 * Robustness (§3.3): Huber weights for the accelerometer's conditions (static norm, levelling,
   ZUPT), Tukey's biweight for the magnetometer's, re-computed each outer iteration; each
-  family's variance factor is re-estimated from its residuals (median absolute deviation), as
-  the sensor noise of a hand-held session is not the datasheet's.
+  family's variance factor is re-estimated from its residuals over its redundancy (variance
+  components), as the noise of a hand-held session is not the still periods' white noise; a
+  factor never goes below 1 (see :func:`_variance_components`).
 * §5.1: parameters not significant by a two-sided t-test at 95 % are fixed to their error-free
-  value and the fit is repeated once.
+  value and the fit is repeated once. Added here: the dropped parameters' spread about nominal
+  is carried into the refitted parameters' covariance (a consider covariance), without which
+  the refit's σ ignore what fixing them costs (in sitl, a gyro matrix entry 5σ off).
 
 Simplified against the paper, and why: see :mod:`apmcal.solvers.joint_residuals` (block means,
 closed-form condition covariance, CUPT left out). The Earth rate is not modelled (the paper
@@ -242,7 +245,7 @@ def _calibration(fit: dict, d, dropped: list[str]) -> Calibration:
         "joint (seed 001): " + ", ".join(f"{k} {n}" + (f" ({fit['rejected'][k]} rejected)"
                                                        if fit["rejected"][k] else "")
                                          for k, n in fit["counts"].items()) + " conditions",
-        "joint: noise scale per family (1 = the still-period white noise) "
+        "joint: noise scale per family (1 = the still periods' white noise, never less) "
         + ", ".join(f"{k} {v:.2f}" for k, v in fit["factor"].items() if k != "mag_datum"),
         f"joint: {int(fit['free'].sum())} of {jm.N_PARAMS} parameters estimated"
         + (f"; insignificant at 95 % (t-test, fixed to nominal and refitted): "
@@ -254,7 +257,8 @@ def _calibration(fit: dict, d, dropped: list[str]) -> Calibration:
     ]
     report = {"method": "joint", "lines": lines, "warnings": [],
               "joint_parameters": {n: [float(v), float(s)] for n, v, s, f in
-                                   zip(jm.NAMES, fit["x"], fit["sigma"], fit["free"]) if f},
+                                   zip(jm.NAMES, fit["x"], fit["sigma"], fit["free"])
+                                   if f or n in dropped},
               "joint_fixed": [n for n, f in zip(jm.NAMES, fit["free"]) if not f],
               "joint_dropped_t_test": dropped, "gyr_matrix_cost_deg_per_turn":
               float(np.degrees(gyr_cost * 2 * np.pi)), **extra}

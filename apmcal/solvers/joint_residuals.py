@@ -19,6 +19,10 @@ mag_datum  mean |m| − F = 0                                          (datum, s
 perpendicular to pose j's: the levelling compares inclinations only (two angles [rad]); the
 length of ā is the static norm's business — with it too, one combination of the three
 conditions would carry no noise at all (rotation keeps lengths) and make B·C_l·Bᵀ singular.
+Equation numbers are those the text of seed 001 refers to (the equations themselves are
+missing from the text we have): 1-3 sensor models, 4 mechanisation, 5 static norm, 6 ZARU,
+7-8 compass + gyro, 9 levelling, 10-11 ZUPT, 12-13 CUPT, 14-15 the adjustment. (§5.2 calls
+the compass + gyro pair "(6) and (7)"; its §3.2.3 text, "(7)" and "(8)", is followed here.)
 dR(t, t+T) = Π Exp(ω_k Δt_k) is the strap-down integration of the calibrated gyro (eq. 8, the
 quaternion product written with rotation matrices). In eq. 10 the gravity at the first still
 pose is −ā_i (specific force at rest), so the velocity change to the next still pose is zero.
