@@ -12,7 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
-from apmcal.pipeline import Options, add_magnetometer, calibrate, pick_recording, prepare
+from apmcal.pipeline import (
+    Options,
+    add_magnetometer,
+    calibrate,
+    pick_recording,
+    prepare,
+)
 from apmcal.preprocessing.static import find_static_segments
 from apmcal.solvers.joint import joint_calibration
 from apmcal.solvers.orientation_check import orientation_errors
@@ -70,8 +76,9 @@ def _shift(h, first: int):
 def _field(opts: Options) -> float | None:
     if opts.lat_deg is None or opts.lon_deg is None:
         return None
-    from apmcal.geomag import decimal_year, earth_field_ned
     import datetime
+
+    from apmcal.geomag import decimal_year, earth_field_ned
     when = opts.date or datetime.date.today()
     field, _ = earth_field_ned(opts.lat_deg, opts.lon_deg, 0.0, decimal_year(when))
     return float(np.linalg.norm(field))

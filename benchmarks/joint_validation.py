@@ -28,9 +28,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from apmcal.errors import ApmcalError  # noqa: E402
-from apmcal.pipeline import Options  # noqa: E402
-from apmcal.validation import check, fit, session  # noqa: E402
+from apmcal.errors import ApmcalError
+from apmcal.pipeline import Options
+from apmcal.solvers.result import Calibration
+from apmcal.validation import check, fit, session
 
 DATA = ROOT.parent / "shared" / "data"
 SITE = {"lat_deg": 5.6037, "lon_deg": -0.187,      # sitl's default home (Accra) and the
@@ -115,7 +116,7 @@ def run_imucal() -> None:
         except ApmcalError as err:
             res[m] = f"n/a ({err.why[:40]})"
             continue
-        rms, n, kind = check(cal, raw, None, holds, pairs_val)
+        rms, n, _ = check(cal, raw, None, holds, pairs_val)
         res[m] = f"{rms:.3f}" + ("*" if m == "ferraris" else "")
     row(f"imucal hand-held, faces → turns after them, {n} pairs, tilt (no compass)", res,
         "* Ferraris needs the turns: in-sample")
@@ -140,7 +141,7 @@ def run_mpu6050() -> None:
         except ApmcalError as err:
             res[m] = f"n/a ({err.why[:40]})"
             continue
-        rms, n, kind = check(cal, v[2], None, v[4])
+        rms, n, _ = check(cal, v[2], None, v[4])
         res[m] = f"{rms:.3f}"
     row(f"MPU-6050 six orientations → separate 90° turn file, {n} pair, tilt (no compass)", res)
 

@@ -129,8 +129,8 @@ def test_joint_beats_the_other_methods_out_of_sample(fitted):
 
 def test_session_without_compass_is_refused_in_one_line(tmp_path, capsys):
     """A CSV without magnetometer columns: exit 2, one line naming the file and the reason."""
-    from sitl.vehicle import SimVehicle
     from sitl.truth import Truth
+    from sitl.vehicle import SimVehicle
     v = SimVehicle(Truth.random(3), "handheld", "3.3", fs=50.0, record=True, seed=3,
                    duration=20.0)
     v.run_for(20.0)

@@ -31,8 +31,8 @@ from scipy.optimize import least_squares
 
 from apmcal.errors import ApmcalError
 from apmcal.solvers import joint_model as jm
-from apmcal.solvers.joint_jacobian import jacobian
 from apmcal.solvers.joint_covariance import Whitener
+from apmcal.solvers.joint_jacobian import jacobian
 from apmcal.solvers.joint_residuals import DIM, interval_rows, layout, misclosures
 from apmcal.solvers.result import Calibration
 
@@ -152,10 +152,10 @@ def _solve(d, x0: np.ndarray, free: np.ndarray, consider=None, start=None) -> di
     for outer in range(MAX_OUTER):
         white = Whitener(x, d, families, rows, weights, factor)
 
-        def fun(xf):
+        def fun(xf, white=white):
             return white(misclosures(full(xf), d, families, rows))
 
-        def jac(xf):
+        def jac(xf, white=white):
             return white.jacobian(jacobian(full(xf), d, families, rows, free))
 
         # the outer loop re-linearises anyway: a few Gauss-Newton steps per pass suffice
@@ -233,7 +233,7 @@ def _statistics(x, free, j, r, weights, factor, families) -> dict:
             "weights": {k: v.copy() for k, v in weights.items()},
             "t_crit": float(stats.t.ppf(0.5 + T_TEST_LEVEL / 2, dof)), "dof": dof,
             "sigma0": float(np.sqrt(sigma0_sq)), "factor": dict(factor),
-            "counts": {k: int(len(weights[k])) for k in families},
+            "counts": {k: len(weights[k]) for k in families},
             "rejected": {k: int(np.sum(weights[k] < 0.01)) for k in families}}
 
 

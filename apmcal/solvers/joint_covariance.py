@@ -23,8 +23,8 @@ import numpy as np
 from scipy.linalg import solve_triangular
 
 from apmcal.solvers.joint_model import correct_acc, correct_gyr, correct_mag, matrices
-from apmcal.solvers.joint_residuals import (DIM, hat, midpoint, prefix_products, product,
-                                            so3_exp)
+from apmcal.solvers.joint_residuals import DIM
+from apmcal.solvers.strapdown import hat, midpoint, prefix_products, product, so3_exp
 
 INERTIAL = ("acc_norm", "zaru", "level", "zupt")
 WEIGHT_FLOOR = 1e-8        # a rejected condition (weight 0) gets this weight: its variance ×1e8

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from apmcal.solvers import joint_model as jm
-from apmcal.solvers.joint_residuals import hat, midpoint, prefix_products, so3_exp
+from apmcal.solvers.strapdown import hat, midpoint, prefix_products, so3_exp
 
 STEP = 1e-7
 

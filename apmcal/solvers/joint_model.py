@@ -38,7 +38,7 @@ SLICES = {"b_a": slice(0, 3), "s_a": slice(3, 6), "n_a": slice(6, 9), "b_w": sli
           "s_w": slice(12, 15), "n_w": slice(15, 18), "G_w": slice(18, 27),
           "r_w": slice(27, 30), "D_m": slice(30, 39), "o_m": slice(39, 42)}
 SLICES_RANGE = {k: range(v.start, v.stop) for k, v in SLICES.items()}
-ACC_PARAMS = range(0, 9)
+ACC_PARAMS = range(9)
 GYR_PARAMS = range(9, 30)
 MAG_PARAMS = range(30, 42)
 NOMINAL = np.zeros(N_PARAMS)

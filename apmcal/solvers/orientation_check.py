@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from apmcal.solvers.joint_residuals import midpoint, so3_exp
+from apmcal.solvers.strapdown import midpoint, so3_exp
 
 BLOCK_S = 1.0     # reference: mean over this much of each pose next to the turn [s]
 
