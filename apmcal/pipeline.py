@@ -22,7 +22,7 @@ from apmcal.solvers.holds import MIN_ELLIPSOID_HOLDS, MIN_ORIENTATIONS, distinct
 from apmcal.solvers.resolution_floor import add_resolution_floor
 from apmcal.solvers.result import Calibration
 
-METHODS = ("auto", "ferraris", "static", "ellipsoid")
+METHODS = ("auto", "ferraris", "static", "ellipsoid", "joint")
 FERRARIS_FACES = {"x_p", "x_a", "y_p", "y_a", "z_p", "z_a"}
 FERRARIS_MAX_TILT_DEG = 10.0    # Ferraris assumes each hold has one axis along gravity
 
@@ -100,18 +100,23 @@ def choose_method(segments) -> str:
     return "static"
 
 
-def calibrate(recording: Recording, opts: Options = Options()) -> Calibration:
+def calibrate(recording: Recording, opts: Options = Options(),
+              mag_recording: Recording | None = None) -> Calibration:
     """Calibrate ``recording`` (raw or firmware-corrected): the result is for the raw
     sensor-frame samples.
 
     With ``method="auto"`` a recording that suits no accelerometer method (a magnetometer tumble,
     say) still yields its magnetometer calibration, with a warning about the rest.
+    ``mag_recording`` (a separate compass record, dataflash MAG) is only used by the joint
+    method, which calibrates the compass together with the IMU.
     """
     if opts.method not in METHODS:
         raise ApmcalError(f"unknown method {opts.method!r}; choose one of {', '.join(METHODS)}")
     if not recording.has("acc"):
         raise ApmcalError("recording has no accelerometer samples", recording.source)
     prepared = prepare(recording, opts.generation)
+    if opts.method == "joint":
+        return joint_calibration_of(prepared, mag_recording, opts)
     try:
         cal = inertial_calibration(prepared, opts)
     except ApmcalError as err:
@@ -123,6 +128,25 @@ def calibrate(recording: Recording, opts: Options = Options()) -> Calibration:
     add_resolution_floor(cal, prepared.floor_steps, {"acc": opts.gravity})
     if has_live_magnetometer(prepared.raw):
         add_magnetometer(cal, prepared, opts)
+    return cal
+
+
+def joint_calibration_of(prepared: Prepared, mag_recording: Recording | None,
+                         opts: Options) -> Calibration:
+    """Seed 001's joint calibration of IMU and compass (:mod:`apmcal.joint_pipeline`)."""
+    from apmcal.joint_pipeline import joint_on_prepared
+
+    mag_prepared = None
+    if mag_recording is not None and mag_recording is not prepared.raw:
+        mag_prepared = prepare(mag_recording, opts.generation)
+    cal = joint_on_prepared(prepared, mag_prepared, opts)
+    cal.report["warnings"].extend(prepared.warnings)
+    if mag_prepared is not None:
+        cal.report["warnings"].extend(f"mag: {w}" for w in mag_prepared.warnings)
+    add_resolution_floor(cal, prepared.floor_steps, {"acc": opts.gravity})
+    if "mag" in prepared.floor_steps:
+        add_resolution_floor(cal, {"mag": prepared.floor_steps["mag"]},
+                             {"mag": cal.report["mag_field_mgauss"]})
     return cal
 
 
@@ -180,7 +204,7 @@ def calibrate_log(contents, opts: Options = Options()):
         recording, mag_recording, contents.param_changes, contents.path)
     if opts.date is None:
         opts = replace(opts, date=recording_date(contents))
-    cal = calibrate(recording, opts)
+    cal = calibrate(recording, opts, mag_recording)
     cal.report.setdefault("warnings", []).extend(change_warnings)
     cal.report["recording"] = f"{recording.message} (IMU instance {recording.instance})"
     if mag_recording is not None and "mag" not in cal.sensors:

@@ -37,7 +37,7 @@ POSES = {
 # ArduPilot accelcal ACCELCAL_VEHICLE_POS values (param1 of MAV_CMD_ACCELCAL_VEHICLE_POS)
 ACCELCAL_POSES = {1: "level", 2: "left", 3: "right", 4: "nosedown", 5: "noseup", 6: "back"}
 SCRIPTS = ("ferraris", "ardupilot6", "onepos", "tumble", "warmup", "operator", "motors",
-           "diagnosis")
+           "diagnosis", "handheld")
 
 
 def pose_matrix(name: str, yaw_deg: float = 0.0) -> np.ndarray:
@@ -270,6 +270,19 @@ def tumble(seconds: float = 90.0, seed: int = 0, step_s: float = 1.5) -> Motion:
     return m.hold(max(seconds - m.duration, 2.0), "still")   # total = ``seconds`` exactly
 
 
+def handheld(seconds: float = 60.0, seed: int = 0, hold_s: float = 3.0,
+             turn_s: float = 2.0) -> Motion:
+    """Seed 001 §4.2's on-site session: still poses ``hold_s`` long with turns of 60-180° about
+    random body axes between them (``turn_s`` each), starting level; ``seconds`` in all."""
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x4A4D]))
+    m = Motion().hold(hold_s, "hold")
+    while m.duration + turn_s + hold_s <= seconds:
+        axis = rng.standard_normal(3)
+        m.rotate(axis, rng.uniform(60, 180) * rng.choice([-1, 1]), turn_s, "turn")
+        m.hold(hold_s, "hold")
+    return m.hold(max(seconds - m.duration, 0.5), "hold")
+
+
 def motors(seconds: float = 60.0, idle_s: float = 5.0, full_s: float = 5.0) -> Motion:
     """Motors run while the vehicle is held still and level (like ArduPilot's compassmot):
     idle at throttle 0, a linear ramp to full throttle, a hold at full throttle, a ramp back
@@ -328,7 +341,8 @@ def operator() -> Motion:
 
 
 def build(name: str, seed: int = 0, duration: float | None = None) -> Motion:
-    """The named script (``SCRIPTS``); ``duration`` stretches onepos, warmup, tumble and motors
+    """The named script (``SCRIPTS``); ``duration`` stretches onepos, warmup, tumble, motors
+    and handheld
     (ignored by the fixed sessions ferraris, ardupilot6, operator and diagnosis)."""
     if name == "ferraris":
         return ferraris()
@@ -344,6 +358,8 @@ def build(name: str, seed: int = 0, duration: float | None = None) -> Motion:
         return operator()
     if name == "motors":
         return motors(duration or 60.0)
+    if name == "handheld":
+        return handheld(duration or 60.0, seed)
     if name == "diagnosis":              # its own length, or longer with a final still hold
         return diagnosis(duration=duration)
     raise ValueError(f"unknown script {name!r}; known: {', '.join(SCRIPTS)}")

@@ -1,0 +1,94 @@
+"""Joins the stages for ``--method joint`` (seed 001): the compass samples are brought onto the
+IMU's time base, the still periods found, the field magnitude chosen, the solver run.
+
+Kept apart from :mod:`apmcal.pipeline` because the joint method needs the compass together with
+the IMU (the other methods calibrate the compass on its own, afterwards).
+"""
+from __future__ import annotations
+
+import datetime
+
+import numpy as np
+
+from apmcal.errors import ApmcalError
+from apmcal.solvers.result import Calibration
+
+MIN_HOLDS = 3      # still poses; fewer leave most of the 42 parameters undetermined
+
+
+def compass_on_imu_times(t: np.ndarray, prepared, mag_prepared) -> np.ndarray | None:
+    """Raw compass samples [mGauss] at the IMU times ``t`` (n, 3), NaN outside the compass's
+    own time span; None when neither recording has a live compass.
+
+    A compass in the IMU's own message (RAW_IMU, HIGHRES_IMU) is used as it is; a separate
+    one (dataflash MAG) is interpolated linearly onto the IMU times.
+    """
+    from apmcal.pipeline import has_live_magnetometer
+
+    if has_live_magnetometer(prepared.raw):
+        return prepared.raw.xyz("mag")
+    if mag_prepared is None or not has_live_magnetometer(mag_prepared.raw):
+        return None
+    tm, m = mag_prepared.raw.t, mag_prepared.raw.xyz("mag")
+    out = np.column_stack([np.interp(t, tm, m[:, i]) for i in range(3)])
+    out[(t < tm[0]) | (t > tm[-1])] = np.nan
+    return out
+
+
+def field_magnitude(mag: np.ndarray, opts, report: dict) -> float:
+    """Field magnitude [mGauss] that fixes the scale of the soft-iron matrix: the World
+    Magnetic Model's at --lat/--lon when given, else the samples' sphere fit."""
+    from apmcal.geomag import decimal_year, earth_field_ned
+    from apmcal.solvers.ellipsoid import sphere_fit
+
+    if opts.lat_deg is not None and opts.lon_deg is not None:
+        when = opts.date or datetime.date.today()
+        field, note = earth_field_ned(opts.lat_deg, opts.lon_deg, 0.0, decimal_year(when))
+        if note:
+            report.setdefault("warnings", []).append(f"mag: {note}")
+        radius, origin = float(np.linalg.norm(field)), f"WMM at {when}"
+    else:
+        radius, origin = float(sphere_fit(mag)[1]), "sphere fit (no --lat/--lon)"
+    report.setdefault("lines", []).append(f"mag: field magnitude {radius:.1f} mGauss from "
+                                          f"{origin}")
+    return radius
+
+
+def joint_on_prepared(prepared, mag_prepared, opts) -> Calibration:
+    """Seed 001's joint calibration of a prepared recording and its compass.
+
+    Raises ApmcalError (one line) when the session has no live compass, too few still poses
+    or no turns between them.
+    """
+    from apmcal.preprocessing.static import find_static_segments
+    from apmcal.solvers.joint import joint_calibration
+
+    raw = prepared.raw
+    if not raw.has("gyr"):
+        raise ApmcalError("joint calibration needs gyro samples; this recording has none")
+    t = raw.t
+    mag = compass_on_imu_times(t, prepared, mag_prepared)
+    if mag is None:
+        raise ApmcalError("joint calibration needs a compass, and this session has none (or "
+                          "it logged only zeros); use --method ferraris, ellipsoid or auto")
+    span = np.all(np.isfinite(mag), axis=1)
+    if span.sum() < 10:
+        raise ApmcalError("joint calibration: the compass and IMU records do not overlap in time")
+    t, acc, gyr, mag = t[span], raw.xyz("acc")[span], raw.xyz("gyr")[span], mag[span]
+    holds = find_static_segments(t, acc, gyr, min_duration=opts.min_still_s)
+    if len(holds) < MIN_HOLDS:
+        raise ApmcalError(f"joint calibration needs at least {MIN_HOLDS} still poses with turns "
+                          f"between them; found {len(holds)} still period(s) of "
+                          f"{opts.min_still_s:g} s or more")
+    report: dict = {}
+    field = field_magnitude(mag, opts, report)
+    try:
+        cal = joint_calibration(t, acc, gyr, mag, holds, gravity=opts.gravity,
+                                field_mgauss=field)
+    except np.linalg.LinAlgError as err:      # a degenerate session (e.g. all poses alike)
+        raise ApmcalError(f"joint calibration: the session does not determine the parameters "
+                          f"({err}); add still poses in other orientations") from None
+    cal.report["lines"] = report.get("lines", []) + cal.report["lines"]
+    cal.report["warnings"] = report.get("warnings", []) + cal.report["warnings"]
+    cal.report["static_segments"] = len(holds)
+    return cal

@@ -1,0 +1,135 @@
+"""The 42-parameter sensor model of seed 001 §3.1: parameter vector ↔ matrices, corrections.
+
+Seed 001 (Chow, Hol, Luinge), §3.1. Upper-case letters are 3×3 matrices, S diagonal scale, N
+lower-triangular non-orthogonality (unit diagonal), R a rotation:
+
+* eq. 1, accelerometer:  y_a = S_a·N_a·a + b_a + ε_a                          [m/s²]
+* eq. 2, gyroscope:      y_ω = S_ω·N_ω·R_ω·ω + b_ω + G_ω·a + ε_ω                [rad/s]
+* eq. 3, magnetometer:   y_m = D_m·m + o_m + ε_m                               [mGauss]
+
+Frames: a, ω and m are in the ACCELEROMETER frame (x along the accelerometer's x axis, y in
+its xy plane: that is what a lower-triangular N_a means); R_ω is the gyro triad's misalignment
+to it, and D_m holds the magnetometer's misalignment as well as its soft iron (seed 001 note
+under eq. 3). The g-sensitivity acts on the true specific force a.
+
+Parameter vector (:data:`NAMES`, 42 entries): b_a, s_a (S_a = diag(1 + s_a)), n_a (the three
+sub-diagonal entries of N_a, row-major), b_ω, s_ω, n_ω, G_ω (row-major), r_ω (R_ω = Exp(r_ω),
+rotation vector [rad]), D_m (row-major), o_m. :data:`NOMINAL` is the error-free sensor.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from apmcal.solvers.result import SensorCalibration
+
+_AX = "xyz"
+NAMES = ([f"acc_bias_{a}" for a in _AX] + [f"acc_scale_{a}" for a in _AX]
+         + ["acc_nonorth_yx", "acc_nonorth_zx", "acc_nonorth_zy"]
+         + [f"gyr_bias_{a}" for a in _AX] + [f"gyr_scale_{a}" for a in _AX]
+         + ["gyr_nonorth_yx", "gyr_nonorth_zx", "gyr_nonorth_zy"]
+         + [f"gyr_gsens_{r}{c}" for r in _AX for c in _AX]
+         + [f"gyr_misalign_{a}" for a in _AX]
+         + [f"mag_soft_{r}{c}" for r in _AX for c in _AX] + [f"mag_hard_{a}" for a in _AX])
+UNITS = (["m/s²"] * 3 + ["1"] * 6 + ["rad/s"] * 3 + ["1"] * 6 + ["rad/s per m/s²"] * 9
+         + ["rad"] * 3 + ["1"] * 9 + ["mGauss"] * 3)
+N_PARAMS = len(NAMES)                   # 42, seed 001 §3
+SLICES = {"b_a": slice(0, 3), "s_a": slice(3, 6), "n_a": slice(6, 9), "b_w": slice(9, 12),
+          "s_w": slice(12, 15), "n_w": slice(15, 18), "G_w": slice(18, 27),
+          "r_w": slice(27, 30), "D_m": slice(30, 39), "o_m": slice(39, 42)}
+SLICES_RANGE = {k: range(v.start, v.stop) for k, v in SLICES.items()}
+ACC_PARAMS = range(9)
+GYR_PARAMS = range(9, 30)
+MAG_PARAMS = range(30, 42)
+NOMINAL = np.zeros(N_PARAMS)
+NOMINAL[SLICES["D_m"]] = np.eye(3).ravel()
+_LOWER = (np.array([1, 2, 2]), np.array([0, 0, 1]))     # sub-diagonal entries of N, row-major
+
+
+def lower(n: np.ndarray) -> np.ndarray:
+    """Unit lower-triangular non-orthogonality matrix N from its three sub-diagonal entries."""
+    out = np.eye(3)
+    out[_LOWER] = n
+    return out
+
+
+def matrices(x: np.ndarray) -> dict[str, np.ndarray]:
+    """The model's matrices from the (42,) parameter vector ``x``.
+
+    Returns
+    -------
+    dict with "b_a" (3,) m/s², "K_a" = S_a·N_a (3, 3), "b_w" (3,) rad/s, "K_w" = S_ω·N_ω·R_ω,
+    "G_w" (3, 3) rad/s per m/s², "D_m" (3, 3), "o_m" (3,) mGauss.
+    """
+    x = np.asarray(x, dtype=float)
+    k_a = np.diag(1.0 + x[SLICES["s_a"]]) @ lower(x[SLICES["n_a"]])
+    r_w = Rotation.from_rotvec(x[SLICES["r_w"]]).as_matrix()
+    k_w = np.diag(1.0 + x[SLICES["s_w"]]) @ lower(x[SLICES["n_w"]]) @ r_w
+    return {"b_a": x[SLICES["b_a"]], "K_a": k_a, "b_w": x[SLICES["b_w"]], "K_w": k_w,
+            "G_w": x[SLICES["G_w"]].reshape(3, 3), "D_m": x[SLICES["D_m"]].reshape(3, 3),
+            "o_m": x[SLICES["o_m"]]}
+
+
+def correct_acc(y_a: np.ndarray, mats: dict) -> np.ndarray:
+    """True specific force a [m/s²] (n, 3) from measured y_a, eq. 1 inverted."""
+    return (np.asarray(y_a) - mats["b_a"]) @ np.linalg.inv(mats["K_a"]).T
+
+
+def correct_gyr(y_w: np.ndarray, a: np.ndarray, mats: dict) -> np.ndarray:
+    """True angular rate ω [rad/s] (n, 3) from measured y_ω and true specific force a, eq. 2."""
+    return (np.asarray(y_w) - mats["b_w"] - a @ mats["G_w"].T) @ np.linalg.inv(mats["K_w"]).T
+
+
+def correct_mag(y_m: np.ndarray, mats: dict) -> np.ndarray:
+    """True field m [mGauss] (n, 3) in the accelerometer frame from measured y_m, eq. 3."""
+    return (np.asarray(y_m) - mats["o_m"]) @ np.linalg.inv(mats["D_m"]).T
+
+
+def calibration_parts(x: np.ndarray) -> dict[str, np.ndarray]:
+    """The result in the project's convention ``calibrated = matrix @ (measured − offset)``:
+    flat vector of acc offset, acc matrix, gyro offset, gyro matrix, g-sensitivity, mag offset,
+    mag matrix (see :func:`unflatten_parts`)."""
+    m = matrices(x)
+    return np.concatenate([m["b_a"], np.linalg.inv(m["K_a"]).ravel(), m["b_w"],
+                           np.linalg.inv(m["K_w"]).ravel(), m["G_w"].ravel(), m["o_m"],
+                           np.linalg.inv(m["D_m"]).ravel()])
+
+
+_PARTS = (("acc", "offset", 3), ("acc", "matrix", 9), ("gyr", "offset", 3),
+          ("gyr", "matrix", 9), ("gyr", "g_sensitivity", 9), ("mag", "offset", 3),
+          ("mag", "matrix", 9))
+
+
+def unflatten_parts(v: np.ndarray) -> dict[tuple[str, str], np.ndarray]:
+    """(sensor, part) → array, from a vector laid out as :func:`calibration_parts`."""
+    out, k = {}, 0
+    for sensor, part, size in _PARTS:
+        val = np.asarray(v[k:k + size])
+        out[(sensor, part)] = val.reshape(3, 3) if size == 9 else val
+        k += size
+    return out
+
+
+def sensor_calibrations(x: np.ndarray, cov: np.ndarray, sensors=("acc", "gyr", "mag"),
+                        step: float = 1e-7) -> tuple[dict[str, SensorCalibration], dict]:
+    """SensorCalibrations (with one-sigma figures) of the parameters ``x`` and their (42, 42)
+    covariance ``cov``; the σ of the derived offsets and matrices come from J·cov·Jᵀ with a
+    forward-difference Jacobian J of :func:`calibration_parts`.
+
+    Returns (sensor → SensorCalibration, {"gyr_g_sensitivity": (3, 3), "..._sigma": (3, 3)}).
+    """
+    f0 = calibration_parts(x)
+    jac = np.empty((f0.size, x.size))
+    for i in range(x.size):
+        dx = np.zeros_like(x)
+        dx[i] = step
+        jac[:, i] = (calibration_parts(x + dx) - f0) / step
+    sig = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", jac, cov, jac), 0, None))
+    val, s = unflatten_parts(f0), unflatten_parts(sig)
+    out = {name: SensorCalibration(offset=val[(name, "offset")], matrix=val[(name, "matrix")],
+                                   sigma={"offset": s[(name, "offset")],
+                                          "matrix": s[(name, "matrix")]})
+           for name in sensors}
+    extra = {"gyr_g_sensitivity": val[("gyr", "g_sensitivity")],
+             "gyr_g_sensitivity_sigma": s[("gyr", "g_sensitivity")]}
+    return out, extra

@@ -1,0 +1,90 @@
+"""Out-of-sample check of calibration methods on recordings (seed 001 §5): read a session,
+fit a method on (part of) it, score the gyro's orientation change between still poses of
+another session (:mod:`apmcal.solvers.orientation_check`).
+
+Glue for ``benchmarks/joint_validation.py`` and the tests; like :mod:`apmcal.pipeline` it
+joins the stages (reading, preparation, solvers) and is the only other module that does.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from apmcal.pipeline import (
+    Options,
+    add_magnetometer,
+    calibrate,
+    pick_recording,
+    prepare,
+)
+from apmcal.preprocessing.static import find_static_segments
+from apmcal.solvers.joint import joint_calibration
+from apmcal.solvers.orientation_check import orientation_errors
+from apmcal.solvers.result import Calibration
+
+
+def session(path: Path, layout: str | None = None):
+    """(prepared raw recording, its compass on the same times or None, still poses)."""
+    from apmcal.joint_pipeline import compass_on_imu_times
+    from apmcal.sources import read_log
+    from apmcal.sources.csv import read_csv
+
+    contents = read_csv(path, layout=layout) if layout else read_log(path)
+    rec, mag_rec = pick_recording(contents, None)
+    prepared = prepare(rec)
+    mag_prepared = prepare(mag_rec) if mag_rec is not None else None
+    mag = compass_on_imu_times(prepared.raw.t, prepared, mag_prepared)
+    holds = find_static_segments(prepared.raw.t, prepared.raw.xyz("acc"),
+                                 prepared.raw.xyz("gyr"), min_duration=1.0)
+    return rec, mag_rec, prepared.raw, mag, holds
+
+
+def fit(method: str, rec, mag_rec, raw, mag, holds, opts: Options, part=None) -> Calibration:
+    """``method`` ("raw", "ferraris", "ellipsoid", "joint") fitted on the samples ``part`` (a
+    boolean mask; all when None) of a :func:`session`. The joint method runs its solver
+    directly, so that a session without a compass gets its accelerometer + gyro part (the
+    command line refuses such a session)."""
+    if method == "raw":
+        return Calibration(method="raw")
+    if method == "joint":
+        keep = np.ones(len(raw.t), bool) if part is None else part
+        hs = [h for h in holds if keep[h.i0] and keep[h.i1 - 1]]
+        return joint_calibration(raw.t[keep], raw.xyz("acc")[keep], raw.xyz("gyr")[keep],
+                                 None if mag is None else mag[keep],
+                                 [_shift(h, np.flatnonzero(keep)[0]) for h in hs],
+                                 gravity=opts.gravity, field_mgauss=_field(opts))
+    if part is not None:
+        if len(rec.data) != len(raw.t):
+            raise ValueError("part is a mask over the prepared samples; this recording lost "
+                             "rows in preparation")
+        rec = replace(rec, data=rec.data.loc[part].reset_index(drop=True))
+    o = Options(method, opts.lat_deg, opts.lon_deg, 1.0, date=opts.date)
+    cal = calibrate(rec, o, mag_rec)
+    if mag_rec is not None and "mag" not in cal.sensors:     # as calibrate_log does
+        add_magnetometer(cal, prepare(mag_rec), o)
+    return cal
+
+
+def _shift(h, first: int):
+    """A still period's indices counted from sample ``first``."""
+    return replace(h, i0=h.i0 - first, i1=h.i1 - first,
+                   excluded=tuple((a - first, b - first) for a, b in h.excluded))
+
+
+def _field(opts: Options) -> float | None:
+    if opts.lat_deg is None or opts.lon_deg is None:
+        return None
+    import datetime
+
+    from apmcal.geomag import decimal_year, earth_field_ned
+    when = opts.date or datetime.date.today()
+    field, _ = earth_field_ned(opts.lat_deg, opts.lon_deg, 0.0, decimal_year(when))
+    return float(np.linalg.norm(field))
+
+
+def check(cal: Calibration, raw, mag, holds, pairs=None) -> tuple[float, int, str]:
+    """(RMS orientation error [deg], number of pose pairs, "attitude" or "tilt")."""
+    r = orientation_errors(cal, raw.t, raw.xyz("acc"), raw.xyz("gyr"), mag, holds, pairs)
+    return float(np.sqrt(np.mean(r["error_deg"] ** 2))), len(r["error_deg"]), r["kind"]
