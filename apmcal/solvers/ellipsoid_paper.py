@@ -15,7 +15,6 @@ Model (seed 000 eq. 1): ``S_p = W·S + V0`` with symmetric ``W``; inverse (eq. 4
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import minimize
 
 from apmcal.errors import ApmcalError
 from apmcal.solvers.result import SensorCalibration
@@ -166,6 +165,8 @@ def fit_ellipsoid_numerical(samples, radius: float | None = None, *, diagonal_on
     x0 : array, optional
         Start ``[V0 (3), w1, w2, w3, w4, w5, w6]`` (first 6 only when ``diagonal_only``).
     """
+    from scipy.optimize import minimize     # here: scipy.optimize costs ~0.2 s to import
+
     s = check_samples(samples, 6 if diagonal_only else 10)     # seed 000 §V: ≥ 10 for 10 unknowns
     V0a, S = sphere_fit(s)
     R = S if radius is None else float(radius)

@@ -1,0 +1,225 @@
+"""How long ``apmcal log`` takes on a ten-minute 400 Hz session, stage by stage, now and before.
+
+    python benchmarks/end_to_end.py [--runs 5] [--before REF | --no-before] [--session FILE]
+
+The session is simulated once with sitl (the ``diagnosis`` script: 632 s at 400 Hz with
+accelerometer, gyro and compass — six faces, corner holds, turns about each axis, motors; a
+dataflash .bin of 20 MB) and kept in ``benchmarks/_data/``. Measured in this one run, each in a
+fresh process (so imports, numba's cache loading and the page cache are as for a user):
+
+* ``import``: ``python -c "import apmcal.cli, apmcal.pipeline, apmcal.sources"``;
+* the stages of ``apmcal log SESSION --lat 47.4 --lon 8.5`` run in-process: read, prepare
+  (parameter changes, time base, the firmware's correction undone, units check), static holds,
+  each solver (ferraris / ellipsoid / one-position, magnetometer), parameters, report; times are
+  exclusive (a stage called inside another is not counted twice), the rest is "other";
+* ``whole process``: the wall time of ``python -m apmcal log ...`` (warm: after one run);
+* ``apmcal --help``;
+* the same for the code "before" (``--before``, default the commit this benchmark was written
+  against), exported with ``git archive`` into the cache directory and run the same way;
+* the peer: pymavlink's DFReader reading the same file's IMU and MAG records.
+
+Times are the minimum over ``--runs`` runs (one for the slow "before" pipeline, ``--before-runs``)
+— the machine is shared, the minimum is the least disturbed. Issue 10's targets: calibration
+≤ 1 s beyond reading, whole process ≤ 2 s warm, ``apmcal --help`` ≤ 0.3 s.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT / "benchmarks" / "_data"
+BEFORE = "545fc532e7c157f73b10a9933037596bef4fc6f9"     # main before issue 10's speed work
+SITE = ["--lat", "47.4", "--lon", "8.5"]
+TARGETS = {"beyond_read": 1.0, "whole_process": 2.0, "help": 0.3}
+
+# (module, function, stage): wrapped with a timer in the measured process
+STAGES = [
+    ("apmcal.sources", "read_log", "read"),
+    ("apmcal.sources.units", "require_plausible_units", "prepare"),
+    ("apmcal.pipeline", "pick_recording", "prepare"),
+    ("apmcal.preprocessing.param_changes", "split_at_param_changes", "prepare"),
+    ("apmcal.pipeline", "prepare", "prepare"),
+    ("apmcal.preprocessing.static", "find_static_segments", "static holds"),
+    ("apmcal.solvers.ferraris", "ferraris_calibration", "solver: ferraris"),
+    ("apmcal.solvers.holds", "ellipsoid_on_holds", "solver: ellipsoid"),
+    ("apmcal.solvers.holds", "one_position_on_holds", "solver: one-position"),
+    ("apmcal.solvers.magnetometer", "calibrate_magnetometer", "solver: magnetometer"),
+    ("apmcal.vehicle.params", "to_ardupilot_params", "parameters"),
+    ("apmcal.report", "summarize", "report"),
+    ("apmcal.report", "print_summary", "report"),
+    ("apmcal.report", "print_calibration", "report"),
+]
+
+
+# ---------------------------------------------------------------- measured process (--child)
+
+def _instrument(times: dict, stack: list) -> None:
+    """Wrap each STAGES function with an exclusive timer (children's time subtracted)."""
+    import importlib
+
+    def wrap(fn, stage):
+        def timed(*args, **kwargs):
+            stack.append(0.0)
+            t0 = time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                spent = time.perf_counter() - t0
+                inner = stack.pop()
+                times[stage] = times.get(stage, 0.0) + spent - inner
+                if stack:
+                    stack[-1] += spent
+        return timed
+
+    for module, name, stage in STAGES:
+        mod = importlib.import_module(module)
+        setattr(mod, name, wrap(getattr(mod, name), stage))
+
+
+def child(session: str) -> None:
+    """Run ``apmcal log`` in this process and print its stage times as JSON (stdout's last
+    line); the command's own output goes to /dev/null."""
+    t0 = time.perf_counter()
+    import apmcal.cli
+    import apmcal.pipeline  # noqa: F401
+    import apmcal.sources  # noqa: F401
+    times = {"import": time.perf_counter() - t0}
+    _instrument(times, [])
+    out = sys.stdout
+    with open(os.devnull, "w") as null:
+        sys.stdout = null
+        try:
+            status = apmcal.cli.main(["log", session, *SITE])
+        finally:
+            sys.stdout = out
+    times["total"] = time.perf_counter() - t0
+    times["other"] = times["total"] - sum(v for k, v in times.items() if k != "total")
+    print(json.dumps({"status": status, "times": times}))
+
+
+# ---------------------------------------------------------------- driver
+
+def make_session(path: Path) -> None:
+    """The diagnosis script at 400 Hz (accelerometer, gyro, compass), firmware 3.3, seed 11."""
+    subprocess.run([sys.executable, "-m", "sitl.makelog", "--script", "diagnosis", "--rate",
+                    "400", "--fs", "400", "--firmware", "3.3", "--seed", "11", "--out",
+                    str(path)], cwd=ROOT, check=True)
+
+
+def export_tree(ref: str) -> Path:
+    """``ref``'s files (git archive) in the cache directory, once per commit."""
+    commit = subprocess.run(["git", "rev-parse", ref], cwd=ROOT, check=True, capture_output=True,
+                            text=True).stdout.strip()
+    tree = DATA / f"tree-{commit[:12]}"
+    if not (tree / "apmcal").is_dir():
+        tree.mkdir(parents=True, exist_ok=True)
+        archive = subprocess.run(["git", "archive", commit], cwd=ROOT, check=True,
+                                 capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
+    return tree
+
+
+def _run(tree: Path, argv: list[str]) -> tuple[float, str]:
+    """(wall time [s], stdout) of ``python argv`` with ``tree`` first on the path."""
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    t0 = time.perf_counter()
+    done = subprocess.run([sys.executable, *argv], env=env, cwd=DATA, capture_output=True,
+                          text=True)
+    wall = time.perf_counter() - t0
+    if done.returncode not in (0, 1):
+        raise RuntimeError(f"{argv} failed ({done.returncode}): {done.stderr[-2000:]}")
+    return wall, done.stdout
+
+
+def measure(tree: Path, session: Path, runs: int, whole: bool = True) -> dict:
+    """Minimum over ``runs`` of: import, each stage, whole process, --help (after a warm-up
+    read: numba's cache, .pyc files and the file's pages in place). ``whole=False`` (the slow
+    "before" code) takes the in-process total of the staged run as the whole process."""
+    _run(tree, ["-c", f"from apmcal.sources import read_log; read_log({str(session)!r})"])
+    best: dict = {}
+
+    def keep(name, value):
+        best[name] = min(best.get(name, float("inf")), value)
+
+    for _ in range(runs):
+        keep("import", _run(tree, ["-c", "import apmcal.cli, apmcal.pipeline, apmcal.sources"])[0])
+        out = json.loads(_run(tree, [__file__, "--child", str(session)])[1].splitlines()[-1])
+        for name, value in out["times"].items():
+            keep("stage " + name, value)
+        keep("whole process", _run(tree, ["-m", "apmcal", "log", str(session), *SITE])[0]
+             if whole else out["times"]["total"])
+        keep("help", _run(tree, ["-m", "apmcal", "--help"])[0])
+    return best
+
+
+def pymavlink_read(path: Path, runs: int) -> float:
+    """Best time of pymavlink's DFReader reading the IMU and MAG records [s]."""
+    from pymavlink import DFReader
+
+    best = float("inf")
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        log = DFReader.DFReader_binary(str(path))
+        while log.recv_match(type=["IMU", "MAG"]) is not None:
+            pass
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def report(now: dict, before: dict | None, peer: float) -> None:
+    """The table, the ratios and the targets."""
+    names = [k for k in now if k.startswith("stage ")]
+    print(f"{'':26s} {'now [s]':>9s} {'before [s]':>11s} {'before/now':>11s}")
+    for name in ["import", *names, "whole process", "help"]:
+        b = before.get(name) if before else None
+        ratio = f"{b / now[name]:10.1f}×" if b and now[name] > 0 else ""
+        print(f"  {name:24s} {now[name]:9.3f} {'' if b is None else f'{b:11.3f}'} {ratio}")
+    read, total = now["stage read"], now["stage total"]
+    beyond = total - now["stage import"] - read
+    print(f"  total / read: {total / read:.1f} (now)"
+          + (f", {before['stage total'] / before['stage read']:.1f} (before)" if before else ""))
+    print(f"  peer: pymavlink DFReader reading the IMU and MAG records {peer:.2f} s; "
+          f"apmcal's read {peer / read:.0f}× faster, the whole `apmcal log` process "
+          f"{now['whole process'] / peer:.2f}× the peer's read")
+    checks = [("calibration beyond reading (total − import − read)", beyond, "beyond_read"),
+              ("whole process, warm", now["whole process"], "whole_process"),
+              ("apmcal --help", now["help"], "help")]
+    for label, value, key in checks:
+        verdict = "met" if value <= TARGETS[key] else "NOT met"
+        print(f"  target {label}: {value:.2f} s ≤ {TARGETS[key]} s: {verdict}")
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--runs", type=int, default=5)
+    ap.add_argument("--before", default=BEFORE, help="git ref of the code to compare with")
+    ap.add_argument("--before-runs", type=int, default=1)
+    ap.add_argument("--no-before", action="store_true")
+    ap.add_argument("--session", type=Path, help="a log to use instead of the sitl session")
+    ap.add_argument("--child", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.child:
+        child(args.child)
+        return
+    DATA.mkdir(parents=True, exist_ok=True)
+    session = args.session or DATA / "end_to_end_diagnosis_400hz.bin"
+    if not session.exists():
+        print(f"simulating {session.name} ...", flush=True)
+        make_session(session)
+    session = session.resolve()
+    print(f"{session.name}: {session.stat().st_size / 1e6:.1f} MB; best of {args.runs} runs "
+          f"(before: {args.before_runs})", flush=True)
+    now = measure(ROOT, session, args.runs)
+    before = None if args.no_before else measure(export_tree(args.before), session,
+                                                 args.before_runs, whole=False)
+    report(now, before, pymavlink_read(session, min(args.runs, 2)))
+
+
+if __name__ == "__main__":
+    main()
