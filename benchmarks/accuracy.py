@@ -28,7 +28,7 @@ from apmcal.solvers.ellipsoid_paper import (DIAGONAL_ENTRIES, SYMMETRIC_ENTRIES,
                                             fit_ellipsoid_analytical, fit_ellipsoid_numerical,
                                             geometric_residual, matrix_to_params)
 from apmcal.solvers.ellipsoid_debias import debiased  # noqa: E402
-from apmcal.solvers.ellipsoid_robust import fit_ellipsoid_robust  # noqa: E402
+from apmcal.solvers.ellipsoid_robust import fit_ellipsoid_robust, warm_refit  # noqa: E402
 
 NAMES = ["o_x", "o_y", "o_z", "M_xx", "M_yy", "M_zz", "M_xy", "M_xz", "M_yz"]
 RADIUS = 500.0          # e.g. mGauss
@@ -81,7 +81,7 @@ def fits(diagonal: bool) -> dict:
     def robust_debiased(s):
         info: dict = {}
         cal = robust(s, info)
-        return debiased(robust, s[info["inliers"]], cal, RADIUS)[0]
+        return debiased(warm_refit(cal, RADIUS, info), s[info["inliers"]], cal, RADIUS)[0]
 
     return {
         "analytical": lambda s: fit_ellipsoid_analytical(s, RADIUS, diagonal_only=diagonal),
