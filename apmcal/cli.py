@@ -21,6 +21,7 @@ import warnings
 from pathlib import Path
 
 from apmcal.errors import ApmcalError
+from apmcal.solvers.blas_threads import single_threaded_blas
 
 EXIT_USER_ERROR = 2
 EXIT_INTERNAL_ERROR = 3
@@ -369,6 +370,7 @@ def check_outputs(args) -> None:
     check_writable(args.json, "JSON file")
 
 
+@single_threaded_blas      # small BLAS products on long arrays: threads only contend (see there)
 def cmd_log(args) -> int:
     from apmcal.sources import read_log
 

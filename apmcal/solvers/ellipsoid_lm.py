@@ -26,6 +26,7 @@ import numpy as np
 from apmcal.solvers.ellipsoid_paper import params_to_matrix
 
 XTOL = 1e-10        # relative step below which the iteration stops
+SD_TOL = 1e-3       # ... or a step below this many standard deviations of the parameters
 FTOL = 1e-13        # relative cost decrease below which it stops
 MAX_ITER = 200
 MU_START = 1e-4     # Marquardt damping, relative to diag(JᵀWJ)
@@ -63,10 +64,10 @@ def curvature_weights(f: np.ndarray, f_scale: float, loss: str) -> np.ndarray:
 
 def loss_cost(f: np.ndarray, f_scale: float, loss: str) -> float:
     """½ Σ ρ(f²) with scipy's scaling ``ρ(z) = C²·ρ₀(z/C²)`` [residual units²]."""
-    z = (f / f_scale) ** 2
     if loss == "linear":
-        rho = z
-    elif loss == "huber":
+        return 0.5 * float(f @ f)
+    z = (f / f_scale) ** 2
+    if loss == "huber":
         rho = np.where(z <= 1, z, 2 * np.sqrt(z) - 1)
     elif loss == "soft_l1":
         rho = 2 * (np.sqrt(1 + z) - 1)
@@ -81,7 +82,9 @@ def residual(x: np.ndarray, sT: np.ndarray, entries) -> np.ndarray:
     """``|M(s − o)| − 1`` (n,) for ``x = [o (3), m (k)]`` and samples ``sT`` (3, n), in units
     of the radius."""
     M = params_to_matrix(x[3:], entries)
-    u = M @ (sT - x[:3, None])
+    # einsum, not M @ c: a 3×3 by 3×n BLAS product is threaded, which on a busy 2-core
+    # machine costs 4× the single-threaded loop
+    u = np.einsum("ij,jn->in", M, sT - x[:3, None])
     return np.sqrt(np.einsum("in,in->n", u, u)) - 1.0
 
 
@@ -94,17 +97,30 @@ def residual_jacobian(x: np.ndarray, sT: np.ndarray, entries) -> tuple[np.ndarra
     """
     M = params_to_matrix(x[3:], entries)
     c = sT - x[:3, None]
-    u = M @ c
+    u = np.einsum("ij,jn->in", M, c)            # (see residual: no threaded BLAS here)
     norm = np.sqrt(np.einsum("in,in->n", u, u))
     nrm = u / np.where(norm > 0, norm, 1.0)
     J = np.empty((3 + len(entries), sT.shape[1]))
-    J[:3] = -(M.T @ nrm)
+    np.einsum("ji,jn->in", -M, nrm, out=J[:3])
     for k, cells in enumerate(entries):
         (a, b), rest = cells[0], cells[1:]
         np.multiply(nrm[a], c[b], out=J[3 + k])
         for a, b in rest:
             J[3 + k] += nrm[a] * c[b]
     return norm - 1.0, J
+
+
+def gradient(x: np.ndarray, sT: np.ndarray, entries) -> np.ndarray:
+    """``Jᵀr`` (p,) of the geometric residual without forming J (p, n): ``−Mᵀ Σ nᵢrᵢ`` for the
+    offset, ``Σ rᵢ n_a c_b`` (one 3×3 product of (3, n) arrays) for the matrix entries."""
+    M = params_to_matrix(x[3:], entries)
+    c = sT - x[:3, None]
+    u = np.einsum("ij,jn->in", M, c)
+    norm = np.sqrt(np.einsum("in,in->n", u, u))
+    nr = u * ((norm - 1.0) / np.where(norm > 0, norm, 1.0))       # nᵢ·rᵢ
+    G = np.einsum("an,bn->ab", nr, c)                              # Σ rᵢ n_a c_b
+    return np.concatenate([-(M.T @ nr.sum(axis=1)), [sum(G[a, b] for a, b in cells)
+                                                      for cells in entries]])
 
 
 @dataclass
@@ -125,6 +141,9 @@ class Problem:
     hi: np.ndarray
     prior: tuple | None = None
 
+    def __post_init__(self):
+        self.unit_weights = bool(np.all(self.sw == 1.0))
+
     def prior_rows(self, x: np.ndarray) -> np.ndarray:
         """λ·(m − m_p) (k,), or an empty array without a prior."""
         if self.prior is None or not self.prior[1]:
@@ -134,7 +153,9 @@ class Problem:
 
     def cost(self, x: np.ndarray) -> float:
         """½ Σ ρ(f²) over data and prior rows, as least_squares defines it."""
-        f = residual(x, self.sT, self.entries) * self.sw
+        f = residual(x, self.sT, self.entries)
+        if not self.unit_weights:
+            f *= self.sw
         return (loss_cost(f, self.f_scale, self.loss)
                 + loss_cost(self.prior_rows(x), self.f_scale, self.loss))
 
@@ -145,10 +166,18 @@ class Problem:
         (:func:`curvature_weights`), f = √w·r: one (p, n) product each.
         """
         r, J = residual_jacobian(x, self.sT, self.entries)
-        f = r * self.sw
-        g = J @ (loss_weights(f, self.f_scale, self.loss) * self.sw * f)
-        J *= self.sw                     # J of f, in place: no second (p, n) array
-        A = (J * curvature_weights(f, self.f_scale, self.loss)) @ J.T
+        unit = self.unit_weights
+        f = r if unit else r * self.sw
+        if self.loss == "linear":        # ρ' = ρ'' = 1: no per-sample weights to apply
+            g = J @ (f if unit else self.sw * f)
+            if not unit:
+                J *= self.sw
+            A = J @ J.T
+        else:
+            g = J @ (loss_weights(f, self.f_scale, self.loss) * (f if unit else self.sw * f))
+            if not unit:
+                J *= self.sw             # J of f, in place: no second (p, n) array
+            A = (J * curvature_weights(f, self.f_scale, self.loss)) @ J.T
         fp = self.prior_rows(x)
         if fp.size:
             lam = self.prior[1]
@@ -198,8 +227,18 @@ def solve(problem: Problem, x0: np.ndarray, max_iter: int = MAX_ITER) -> np.ndar
             mu *= 8.0
         else:
             break                            # no descent left at any damping: a minimum
-        moved = np.linalg.norm(x_new - x)
+        step = x_new - x
         x, mu = x_new, max(mu / 8.0, 1e-12)
-        if moved <= XTOL * (XTOL + np.linalg.norm(x)) or cost - new_cost <= FTOL * cost:
+        if _settled(step, A, cost, problem.sT.shape[1], x) or cost - new_cost <= FTOL * cost:
             break
     return x
+
+
+def _settled(step: np.ndarray, A: np.ndarray, cost: float, n: int, x: np.ndarray) -> bool:
+    """True when the last step was below ``SD_TOL`` standard deviations of the parameters
+    (``δᵀAδ ≤ SD_TOL²·σ²`` with σ² = 2·cost/(n − p), the residual variance), or negligible
+    relative to x: iterating on cannot move the estimate by anything its noise could show,
+    and saves the pass over the samples that would only confirm it."""
+    sigma2 = 2.0 * cost / max(n - len(x), 1)
+    return (float(step @ A @ step) <= SD_TOL ** 2 * sigma2
+            or np.linalg.norm(step) <= XTOL * (XTOL + np.linalg.norm(x)))

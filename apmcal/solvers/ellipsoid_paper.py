@@ -32,7 +32,9 @@ def check_samples(samples, min_rows: int, what: str = "samples") -> np.ndarray:
     s = np.asarray(samples, dtype=float)
     if s.ndim != 2 or s.shape[1] != 3:
         raise ApmcalError(f"{what} must be an (n, 3) array, got shape {s.shape}")
-    s = s[np.all(np.isfinite(s), axis=1)]
+    finite = np.isfinite(s).all(axis=1)
+    if not finite.all():                 # copy only when something must go
+        s = s[finite]
     if len(s) < min_rows:
         raise ApmcalError(f"{what}: {len(s)} finite samples, at least {min_rows} needed")
     return s

@@ -24,7 +24,7 @@ import numpy as np
 from dataclasses import replace
 
 from apmcal.errors import ApmcalError
-from apmcal.solvers.ellipsoid_lm import Problem, residual, residual_jacobian
+from apmcal.solvers.ellipsoid_lm import Problem, gradient, residual, residual_jacobian
 from apmcal.solvers.ellipsoid_lm import solve as lm_solve
 from apmcal.solvers.ellipsoid_paper import (DIAGONAL_ENTRIES, SYMMETRIC_ENTRIES, UPPER_ENTRIES,
                                             check_samples, params_to_matrix, sphere_fit)
@@ -37,14 +37,16 @@ MAX_COND = 1e6             # Jacobian condition number above which the full fit 
 PRESOLVE_SAMPLES = 20_000  # samples of the first, subsampled pass of a fit from a far start
 
 
-def direction_coverage(samples, offset, n_grid: int = 200, cone_deg: float = 20.0) -> dict:
+def direction_coverage(samples, offset, n_grid: int = 200, cone_deg: float = 20.0,
+                       fraction: bool = True) -> dict:
     """How well the sample directions (seen from ``offset``) cover the unit sphere.
 
     Returns ``scatter_eig`` — eigenvalues of ``3·mean(n nᵀ)`` (all 1 for uniform coverage, one
     near 0 when the samples lie in a plane through the offset) —, ``spread_eig`` — eigenvalues of
     the sample covariance scaled to mean 1 (0 for any planar set, whatever the offset) — and
     ``fraction`` — share of ``n_grid`` Fibonacci
-    points on the sphere with a sample direction within ``cone_deg``.
+    points on the sphere with a sample direction within ``cone_deg`` (NaN with
+    ``fraction=False``: the one part that costs a pass over the samples per grid point).
     """
     c = np.asarray(samples, dtype=float) - offset
     n = c / np.linalg.norm(c, axis=1, keepdims=True)
@@ -52,8 +54,9 @@ def direction_coverage(samples, offset, n_grid: int = 200, cone_deg: float = 20.
     # centre-free: shape of the sample cloud itself (a circle in a plane → 0 whatever the offset)
     C = np.cov(c.T) if len(c) > 1 else np.zeros((3, 3))
     spread = np.linalg.eigvalsh(3.0 * C / np.trace(C)) if np.trace(C) > 0 else np.zeros(3)
-    near = _grid_points_near(n, n_grid, np.cos(np.radians(cone_deg)))
-    return {"scatter_eig": eig, "spread_eig": spread, "fraction": float(near.mean())}
+    share = (float(_grid_points_near(n, n_grid, np.cos(np.radians(cone_deg))).mean())
+             if fraction else float("nan"))
+    return {"scatter_eig": eig, "spread_eig": spread, "fraction": share}
 
 
 def _grid_points_near(n: np.ndarray, n_grid: int, cos_cone: float,
@@ -190,19 +193,39 @@ def _default_f_scale(s, radius, o0, M0, entries) -> float:
     return max(1.345 * mad, 1e-9)
 
 
-def warm_refit(cal: SensorCalibration, radius: float, info: dict):
-    """The fit that made ``cal`` (with ``info``), as a function of new samples, started at
-    ``cal``: for samples simulated from ``cal``'s model with Gaussian noise (the parametric
-    bootstrap of :mod:`apmcal.solvers.ellipsoid_debias`).
+def warm_refit(cal: SensorCalibration, radius: float, info: dict, steps: int = 3):
+    """The final least-squares stage of the fit that made ``cal`` (with ``info``), as a
+    function of new samples, from ``cal``: for samples simulated from ``cal``'s model with
+    Gaussian noise (the parametric bootstrap of :mod:`apmcal.solvers.ellipsoid_debias`).
 
-    Same parameterisation, same f_scale (so the same prior weight), plain least squares: on
-    outlier-free Gaussian samples the Huber stage and the 4σ rejection leave the LS minimum
-    where it is (the 4σ cut drops 6e-5 of them), so only the last Gauss-Newton steps remain.
+    Same parameterisation and prior rows, plain least squares (on outlier-free Gaussian
+    samples the Huber stage and the 4σ rejection leave the LS minimum where it is: the cut
+    drops 6e-5 of them), no bounds. Started at the model the samples were drawn from, the
+    refit is δ = O(σ) away: ``steps`` chord steps ``x ← x − A⁻¹Jᵀr`` with A = JᵀJ (+ prior)
+    formed once at the start contract the error by ~σ/r each (A is off by O(σ/r), as
+    Gauss-Newton's own contraction), so three leave ~(σ/r)³·δ, far below the O(σ²/r) bias the
+    bootstrap measures. A step needs only Jᵀr (:func:`apmcal.solvers.ellipsoid_lm.gradient`),
+    and the setup a cold fit repeats (sphere fit, coverage, quadric start, Huber pass,
+    covariance) is skipped.
     """
+    entries = ENTRIES[info["parameterisation"]]
+    x0 = np.concatenate([cal.offset / radius, [cal.matrix[c[0]] for c in entries]])
+    prior = info.get("prior")
+    box = np.full(len(x0), np.inf)
+
     def refit(samples: np.ndarray) -> SensorCalibration:
-        return fit_ellipsoid_robust(samples, radius, loss="linear", reject_sigma=None,
-                                    f_scale=info["f_scale"],
-                                    parameterisation=info["parameterisation"], start=cal)
+        sT = np.ascontiguousarray(np.asarray(samples, dtype=float).T / radius)
+        problem = Problem(sT, entries, np.ones(sT.shape[1]), "linear", 1.0, -box, box, prior)
+        A, g, _ = problem.normal_equations(x0)
+        lu = np.linalg.cholesky(A)
+        x = x0.copy()
+        for k in range(steps):
+            if k:
+                g = gradient(x, sT, entries)
+                if prior is not None:
+                    g[3:] += prior[1] ** 2 * (x[3:] - prior[0])
+            x = x - np.linalg.solve(lu.T, np.linalg.solve(lu, g))
+        return SensorCalibration(offset=x[:3] * radius, matrix=params_to_matrix(x[3:], entries))
     return refit
 
 
@@ -282,7 +305,7 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
     w = np.ones(len(s)) if weights is None else weights
     notes = []
     o_sph, S_sph = sphere_fit(s)
-    cov0 = direction_coverage(s, o_sph)
+    cov0 = direction_coverage(s, o_sph, fraction=info is not None)   # fraction: for info only
     mode = parameterisation
     flat = min(cov0["scatter_eig"][0], cov0["spread_eig"][0])
     if mode != "diagonal" and (flat < MIN_SCATTER_FULL or len(s) < 18):
@@ -308,7 +331,12 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
                         for c in entries])
         return m_p, (f_scale_n / 1.345) / prior_sigma
 
-    x, r, J = _solve(s, radius, o0, M0, ENTRIES[mode], loss, f_scale_n, w,
+    finish_ls = loss != "linear" and bool(reject_sigma)
+    # with an LS stage to follow, the robust stage only has to find the outliers: on many
+    # samples it runs on every k-th one (≤ 2·PRESOLVE_SAMPLES) and every sample is then judged
+    # by its residual at that fit; the estimate is the LS stage on all inliers
+    k = len(s) // PRESOLVE_SAMPLES if finish_ls and len(s) > 2 * PRESOLVE_SAMPLES else 1
+    x, r, J = _solve(s[::k], radius, o0, M0, ENTRIES[mode], loss, f_scale_n, w[::k],
                      _bounds(o_sph, S_sph, radius, ENTRIES[mode]), prior(ENTRIES[mode]),
                      presolve=start is None)
     cond = _cond(J)                                    # data rows only
@@ -316,10 +344,12 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
         notes.append(f"Jacobian condition number {cond:.2g} > {MAX_COND:.0g}: full matrix not "
                      "determinable from these samples, fitted a diagonal matrix")
         mode = "diagonal"
-        x, r, J = _solve(s, radius, o0, np.diag(np.abs(np.diag(M0))), ENTRIES[mode], loss,
-                         f_scale_n, w, _bounds(o_sph, S_sph, radius, ENTRIES[mode]),
+        x, r, J = _solve(s[::k], radius, o0, np.diag(np.abs(np.diag(M0))), ENTRIES[mode], loss,
+                         f_scale_n, w[::k], _bounds(o_sph, S_sph, radius, ENTRIES[mode]),
                          prior(ENTRIES[mode]), presolve=start is None)
         cond = _cond(J)
+    if k > 1:
+        r = residual(x, np.ascontiguousarray(s.T / radius), ENTRIES[mode])
     if prior_sigma is not None and not cond < MAX_COND:
         notes.append(f"still ill-conditioned (condition number {cond:.2g}): the result leans on "
                      f"the prior toward a sphere (σ_prior = {prior_sigma}) — poorly determined")
@@ -356,7 +386,8 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
                      "n_params": J.shape[0], "start": start_name, "parameterisation": mode,
                      "coverage": cov0, "notes": notes, "f_scale": f_scale_n * radius,
                      "outlier_fraction": float(np.mean(~keep)), "inliers": keep,
-                     "cov": cov, "method": f"robust geometric ({loss} + LS on inliers)"})
+                     "cov": cov, "method": f"robust geometric ({loss} + LS on inliers)",
+                     "prior": prior(entries)})
     if n_bootstrap > 0:
         bs = bootstrap(lambda d: fit_ellipsoid_robust(d, radius, loss=loss, f_scale=f_scale_n *
                                                       radius, parameterisation=mode,
@@ -389,8 +420,9 @@ def verdict(samples, cal: SensorCalibration, radius: float, *, sensor: str = "se
     """
     s = check_samples(samples, 1)
     lines = []
-    cov = direction_coverage(cal.apply(s), np.zeros(3))   # calibrated: exposes a collapse
-    eig, frac = np.minimum(cov["scatter_eig"], direction_coverage(s, cal.offset)["spread_eig"]), \
+    calibrated = cal.apply(s)
+    cov = direction_coverage(calibrated, np.zeros(3))   # calibrated: exposes a collapse
+    eig, frac = np.minimum(cov["scatter_eig"], direction_coverage(s, cal.offset, fraction=False)["spread_eig"]), \
         cov["fraction"]
     lines.append(f"{sensor}: {len(s)} samples, directions cover {100 * frac:.0f}% of the sphere "
                  f"(20° cones), coverage eigenvalues {np.array2string(eig, precision=2)} "
@@ -402,7 +434,7 @@ def verdict(samples, cal: SensorCalibration, radius: float, *, sensor: str = "se
     elif eig[0] < 0.3:
         lines.append(f"{sensor}: uneven coverage — the fit is weighted toward the densest "
                      "directions (seed 000 §VII.C); more orientations would help")
-    e = np.linalg.norm(cal.apply(s), axis=1) - radius
+    e = np.linalg.norm(calibrated, axis=1) - radius
     rms = float(np.sqrt(np.mean(e ** 2)))
     spread = float(1.4826 * np.median(np.abs(e - np.median(e))))     # robust σ (MAD)
     n_out = int(np.sum(np.abs(e - np.median(e)) > 5 * max(spread, 1e-12 * radius)))
