@@ -113,13 +113,13 @@ def make_session(path: Path) -> None:
 
 
 def export_tree(ref: str) -> Path:
-    """``ref``'s files (git archive) in the cache directory, once per commit."""
+    """``ref``'s package (git archive of apmcal/) in the cache directory, once per commit."""
     commit = subprocess.run(["git", "rev-parse", ref], cwd=ROOT, check=True, capture_output=True,
                             text=True).stdout.strip()
     tree = DATA / f"tree-{commit[:12]}"
     if not (tree / "apmcal").is_dir():
         tree.mkdir(parents=True, exist_ok=True)
-        archive = subprocess.run(["git", "archive", commit], cwd=ROOT, check=True,
+        archive = subprocess.run(["git", "archive", commit, "apmcal"], cwd=ROOT, check=True,
                                  capture_output=True).stdout
         subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
     return tree

@@ -87,8 +87,9 @@ def convert_column(values: np.ndarray, fmt_char: str) -> np.ndarray:
 def scan(buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, list[int]]:
     """Record offsets and types of a whole .bin buffer, bytes skipped, damage offsets.
 
-    An undamaged log is framed by numpy (:mod:`apmcal.sources._fastscan`), which spares the
-    ~2 s numba costs to load; one that needs resynchronising by the compiled scan.
+    An undamaged log up to 32 MB is framed by numpy (:mod:`apmcal.sources._fastscan`), which
+    spares the ~2 s numba costs to load; a bigger one or one that needs resynchronising by the
+    compiled scan.
     """
     fast = _fastscan.scan_dataflash(buf)
     if fast is not None:
