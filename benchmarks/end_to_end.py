@@ -214,11 +214,14 @@ def main(argv=None) -> None:
         make_session(session)
     session = session.resolve()
     print(f"{session.name}: {session.stat().st_size / 1e6:.1f} MB; best of {args.runs} runs "
-          f"(before: {args.before_runs})", flush=True)
+          f"(before: {args.before_runs}); load average {os.getloadavg()[0]:.1f} on "
+          f"{os.cpu_count()} cores", flush=True)
     now = measure(ROOT, session, args.runs)
     before = None if args.no_before else measure(export_tree(args.before), session,
                                                  args.before_runs, whole=False)
     report(now, before, pymavlink_read(session, min(args.runs, 2)))
+    print(f"  load average at the end {os.getloadavg()[0]:.1f} (other work on the machine "
+          f"slows every stage alike)")
 
 
 if __name__ == "__main__":

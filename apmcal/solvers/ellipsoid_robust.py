@@ -356,7 +356,7 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
     entries = ENTRIES[mode]
     bounds = _bounds(o_sph, S_sph, radius, entries)
     keep = np.ones(len(s), dtype=bool)
-    if loss != "linear" and reject_sigma:
+    if finish_ls:
         # final stage: plain LS on the samples the robust fit calls inliers — Gaussian
         # efficiency of the ML fit (Huber alone: ≈ 0.95) and no pull from gross outliers
         dev = np.abs(r - np.median(r))
