@@ -5,7 +5,7 @@ force, so a level vehicle at rest reads (0, 0, -g) m/s² (../shared/ardupilot-fa
 """
 from __future__ import annotations
 
-import math     # not numpy: `apmcal --help` reads DEFAULT_BAUD from here (numpy: ~0.15 s)
+import math  # not numpy: `apmcal --help` reads DEFAULT_BAUD from here (numpy: ~0.15 s)
 
 STANDARD_GRAVITY = 9.80665          # m/s², the constant ArduPilot uses for mG <-> m/s² (RAW_IMU)
 EARTH_RATE = 7.292115e-5            # rad/s, seed 002 §5.2 (WGS-84 value)

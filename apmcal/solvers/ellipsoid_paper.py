@@ -167,7 +167,7 @@ def fit_ellipsoid_numerical(samples, radius: float | None = None, *, diagonal_on
     x0 : array, optional
         Start ``[V0 (3), w1, w2, w3, w4, w5, w6]`` (first 6 only when ``diagonal_only``).
     """
-    from scipy.optimize import minimize     # here: scipy.optimize costs ~0.2 s to import
+    from scipy.optimize import minimize  # here: scipy.optimize costs ~0.2 s to import
 
     s = check_samples(samples, 6 if diagonal_only else 10)     # seed 000 §V: ≥ 10 for 10 unknowns
     V0a, S = sphere_fit(s)

@@ -422,8 +422,8 @@ def verdict(samples, cal: SensorCalibration, radius: float, *, sensor: str = "se
     lines = []
     calibrated = cal.apply(s)
     cov = direction_coverage(calibrated, np.zeros(3))   # calibrated: exposes a collapse
-    eig, frac = np.minimum(cov["scatter_eig"], direction_coverage(s, cal.offset, fraction=False)["spread_eig"]), \
-        cov["fraction"]
+    shape_eig = direction_coverage(s, cal.offset, fraction=False)["spread_eig"]
+    eig, frac = np.minimum(cov["scatter_eig"], shape_eig), cov["fraction"]
     lines.append(f"{sensor}: {len(s)} samples, directions cover {100 * frac:.0f}% of the sphere "
                  f"(20° cones), coverage eigenvalues {np.array2string(eig, precision=2)} "
                  "(1 = uniform)")

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-
 from apmcal.errors import ApmcalError
 from apmcal.recording import LogContents
 
