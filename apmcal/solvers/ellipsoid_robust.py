@@ -236,7 +236,7 @@ def _covariance(J: np.ndarray, r: np.ndarray, irls: np.ndarray, prior) -> tuple[
     (zero residual, unit weight, counted as parameters so that the dof stay n − p) are
     information too and enter the normal matrix as λ² on the matrix block.
     """
-    A = (J * irls) @ J.T
+    A = J @ J.T if np.all(irls == 1.0) else (J * irls) @ J.T    # LS stage: unit weights
     if prior is not None:
         A[3:, 3:] += prior[1] ** 2 * np.eye(A.shape[0] - 3)
     return covariance_from_normal_equations(A, float(np.sum(irls * r * r)),
