@@ -21,7 +21,7 @@ import warnings
 from pathlib import Path
 
 from apmcal.errors import ApmcalError
-from apmcal.solvers.blas_threads import single_threaded_blas
+from apmcal.solvers.blas_threads import one_blas_thread_from_start, single_threaded_blas
 
 EXIT_USER_ERROR = 2
 EXIT_INTERNAL_ERROR = 3
@@ -302,6 +302,8 @@ def run(argv: list[str] | None, operator=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.guide_operator = operator
+    if args.command == "log":
+        one_blas_thread_from_start()        # before numpy loads (see apmcal.solvers.blas_threads)
     if getattr(args, "lon", None) is not None and args.lat is None:
         # longitude alone would be silently unused (gravity and Earth rate need the latitude,
         # the WMM field both)

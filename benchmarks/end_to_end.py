@@ -95,6 +95,11 @@ def child(session: str) -> None:
     """Run ``apmcal log`` in this process and print its stage times (wall and CPU) as JSON
     (stdout's last line); the command's own output goes to /dev/null."""
     w0, c0 = _now()
+    try:        # as `apmcal log` does before numpy loads (the code before this change did not)
+        from apmcal.solvers.blas_threads import one_blas_thread_from_start
+        one_blas_thread_from_start()
+    except ImportError:
+        pass
     import apmcal.cli
     import apmcal.pipeline
     import apmcal.sources

@@ -24,3 +24,22 @@ def single_threaded_blas(fn):
         with threadpool_limits(limits=1, user_api="blas"):
             return fn(*args, **kwargs)
     return wrapper
+
+
+def one_blas_thread_from_start() -> bool:
+    """Ask OpenBLAS for one thread before numpy loads it (``OPENBLAS_NUM_THREADS=1`` unless
+    the user set it); False, and nothing done, when numpy is already imported.
+
+    Why, beyond :func:`single_threaded_blas`: OpenBLAS starts its threads when numpy is
+    imported, and on a busy 2-core machine they cost CPU even while limited to one: a whole
+    ``apmcal log`` run of the 10-minute 400 Hz session took 2.5 s with them, 2.0 s without
+    (min of 8 each, ``benchmarks/end_to_end.py``'s session).
+    """
+    import os
+    import sys
+
+    if "numpy" in sys.modules:
+        return False
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    return True
+
