@@ -248,6 +248,7 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
                          parameterisation: str = "symmetric", n_bootstrap: int = 0,
                          rng=None, prior_sigma: float | None = 0.3,
                          reject_sigma: float | None = 4.0, start: SensorCalibration | None = None,
+                         sphere: tuple | None = None,
                          info: dict | None = None) -> SensorCalibration:
     """Robust geometric ellipsoid fit: offset (3) + symmetric/upper-triangular M (6).
 
@@ -281,6 +282,8 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
         Start (offset, matrix) instead of the quadric fit: a fit already known to be close
         (refits on a subset or on simulated samples of a fitted model) needs a few steps only.
         With ``f_scale`` given, the cost minimised is the same whatever the start.
+    sphere : (offset (3,), radius) of :func:`sphere_fit` on the same ``samples``, optional
+        When the caller has it already (it sets the box and the prior).
     info : dict, optional
         Filled with rms, cond, rank, start, parameterisation, coverage, notes, cov.
 
@@ -304,7 +307,7 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
         raise ApmcalError(f"unknown parameterisation {parameterisation!r}")
     w = np.ones(len(s)) if weights is None else weights
     notes = []
-    o_sph, S_sph = sphere_fit(s)
+    o_sph, S_sph = sphere_fit(s) if sphere is None else sphere
     cov0 = direction_coverage(s, o_sph, fraction=info is not None)   # fraction: for info only
     mode = parameterisation
     flat = min(cov0["scatter_eig"][0], cov0["spread_eig"][0])

@@ -42,6 +42,7 @@ def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: floa
     today when unknown.
     """
     check_coverage(mag)
+    sphere = sphere_fit(mag)           # seed 000 step 1: the field check and the fit's box
     if lat_deg is not None and lon_deg is not None:
         date = f"recording date {when}" if when else f"today's date {datetime.date.today()}"
         field, note = earth_field_ned(lat_deg, lon_deg, 0.0,
@@ -50,13 +51,13 @@ def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: floa
         origin = f"WMM at {date}"
         if note:
             report.setdefault("warnings", []).append(f"mag: {note}")
-        mismatch = field_mismatch(sphere_fit(mag)[1], radius, lat_deg, lon_deg)
+        mismatch = field_mismatch(sphere[1], radius, lat_deg, lon_deg)
         if mismatch:
             report.setdefault("warnings", []).append(mismatch)
     else:
-        radius, origin = sphere_fit(mag)[1], "sphere fit (no --lat/--lon)"
+        radius, origin = sphere[1], "sphere fit (no --lat/--lon)"
     info: dict = {}
-    fitted = fit_ellipsoid_robust(mag, radius, info=info)
+    fitted = fit_ellipsoid_robust(mag, radius, info=info, sphere=sphere)
     cal, bias_line = debiased(warm_refit(fitted, radius, info), mag[info["inliers"]], fitted,
                               radius)
     report.setdefault("lines", []).append(f"mag: field magnitude {radius:.1f} mGauss from {origin}")
