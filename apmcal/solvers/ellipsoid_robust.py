@@ -202,30 +202,49 @@ def warm_refit(cal: SensorCalibration, radius: float, info: dict, steps: int = 3
     samples the Huber stage and the 4σ rejection leave the LS minimum where it is: the cut
     drops 6e-5 of them), no bounds. Started at the model the samples were drawn from, the
     refit is δ = O(σ) away: ``steps`` chord steps ``x ← x − A⁻¹Jᵀr`` with A = JᵀJ (+ prior)
-    formed once at the start contract the error by ~σ/r each (A is off by O(σ/r), as
-    Gauss-Newton's own contraction), so three leave ~(σ/r)³·δ, far below the O(σ²/r) bias the
-    bootstrap measures. A step needs only Jᵀr (:func:`apmcal.solvers.ellipsoid_lm.gradient`),
-    and the setup a cold fit repeats (sphere fit, coverage, quadric start, Huber pass,
-    covariance) is skipped.
+    at the start contract the error by ~σ/r each (A is off by O(σ/r), as Gauss-Newton's own
+    contraction), so three leave ~(σ/r)³·δ, far below the O(σ²/r) bias the bootstrap
+    measures. A step needs only Jᵀr (:func:`apmcal.solvers.ellipsoid_lm.gradient`), and the
+    setup a cold fit repeats (sphere fit, coverage, quadric start, Huber pass, covariance) is
+    skipped. ``refit.at_design(clean)`` (m, 3): the same with A formed once, from the
+    noise-free samples all draws perturb (as good a chord matrix: it too is O(σ/r) off).
+
+    Returns
+    -------
+    callable
+        (m, 3) samples [sensor units] → SensorCalibration (no sigmas).
     """
     entries = ENTRIES[info["parameterisation"]]
     x0 = np.concatenate([cal.offset / radius, [cal.matrix[c[0]] for c in entries]])
     prior = info.get("prior")
     box = np.full(len(x0), np.inf)
 
-    def refit(samples: np.ndarray) -> SensorCalibration:
-        sT = np.ascontiguousarray(np.asarray(samples, dtype=float).T / radius)
+    def chord_matrix(sT: np.ndarray) -> np.ndarray:
+        """Cholesky factor of JᵀJ (+ prior) at the start, samples ``sT`` (3, m) / radius."""
         problem = Problem(sT, entries, np.ones(sT.shape[1]), "linear", 1.0, -box, box, prior)
-        A, g, _ = problem.normal_equations(x0)
-        lu = np.linalg.cholesky(A)
+        return np.linalg.cholesky(problem.normal_equations(x0)[0])
+
+    def steps_from_start(sT: np.ndarray, chol: np.ndarray) -> SensorCalibration:
         x = x0.copy()
-        for k in range(steps):
-            if k:
-                g = gradient(x, sT, entries)
-                if prior is not None:
-                    g[3:] += prior[1] ** 2 * (x[3:] - prior[0])
-            x = x - np.linalg.solve(lu.T, np.linalg.solve(lu, g))
+        for _ in range(steps):
+            g = gradient(x, sT, entries)
+            if prior is not None:
+                g[3:] += prior[1] ** 2 * (x[3:] - prior[0])
+            x = x - np.linalg.solve(chol.T, np.linalg.solve(chol, g))
         return SensorCalibration(offset=x[:3] * radius, matrix=params_to_matrix(x[3:], entries))
+
+    def scaled(samples: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(np.asarray(samples, dtype=float).T / radius)
+
+    def refit(samples: np.ndarray) -> SensorCalibration:
+        sT = scaled(samples)
+        return steps_from_start(sT, chord_matrix(sT))
+
+    def at_design(clean: np.ndarray):
+        chol = chord_matrix(scaled(clean))
+        return lambda samples: steps_from_start(scaled(samples), chol)
+
+    refit.at_design = at_design
     return refit
 
 
@@ -420,12 +439,16 @@ def verdict(samples, cal: SensorCalibration, radius: float, *, sensor: str = "se
     ----------
     noise : float, optional
         Expected per-sample noise [sensor units]; residual RMS above 5× this is flagged.
+    info : dict, optional
+        The fit's info on these same ``samples``: its notes are added, and its coverage's
+        ``spread_eig`` (the samples' own shape, whatever the centre) is reused.
     """
     s = check_samples(samples, 1)
     lines = []
     calibrated = cal.apply(s)
     cov = direction_coverage(calibrated, np.zeros(3))   # calibrated: exposes a collapse
-    shape_eig = direction_coverage(s, cal.offset, fraction=False)["spread_eig"]
+    shape_eig = (info["coverage"]["spread_eig"] if info and "coverage" in info
+                 else direction_coverage(s, cal.offset, fraction=False)["spread_eig"])
     eig, frac = np.minimum(cov["scatter_eig"], shape_eig), cov["fraction"]
     lines.append(f"{sensor}: {len(s)} samples, directions cover {100 * frac:.0f}% of the sphere "
                  f"(20° cones), coverage eigenvalues {np.array2string(eig, precision=2)} "
