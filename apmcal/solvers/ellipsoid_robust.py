@@ -20,8 +20,9 @@ Convention: ``calibrated = M @ (measured − o)`` (apmcal/solvers/result.py), ``
 """
 from __future__ import annotations
 
-import numpy as np
 from dataclasses import replace
+
+import numpy as np
 
 from apmcal.errors import ApmcalError
 from apmcal.solvers.ellipsoid_lm import Problem, gradient, residual, residual_jacobian
