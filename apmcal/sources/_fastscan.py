@@ -46,20 +46,24 @@ def gather_fixed(buf: np.ndarray, off: np.ndarray, skip: int, width: int) -> np.
 def gather(buf: np.ndarray, off: np.ndarray, lens: np.ndarray, width: int) -> np.ndarray:
     """(n, width) rows of ``lens[i]`` bytes from ``buf[off[i]:]``, zero-padded on the right.
 
-    MAVLink 2 truncates trailing zero bytes of a payload; the zeros restore them. Rows whose
-    window would run past the end of ``buf`` are copied one by one (at most a few).
+    MAVLink 2 truncates trailing zero bytes of a payload; the zeros restore them. Whole windows
+    are copied, then each row's bytes past its length cleared, one length at a time (no (n,
+    width) mask: the output is the only large allocation). Rows whose window would run past the
+    end of ``buf`` are copied one by one (at most a few).
     """
     off = np.asarray(off, dtype=np.int64)
     lens = np.minimum(np.asarray(lens, dtype=np.int64), width)
-    out = np.zeros((len(off), width), dtype=np.uint8)
     inside = off + width <= buf.shape[0]
-    idx = np.flatnonzero(inside)
-    if idx.size and width:
-        rows = gather_fixed(buf, off[idx], 0, width)
-        rows *= np.arange(width) < lens[idx, None]
-        out[idx] = rows
-    for i in np.flatnonzero(~inside):
-        out[i, :lens[i]] = buf[off[i]:off[i] + lens[i]]
+    if inside.all():
+        out = gather_fixed(buf, off, 0, width)
+    else:
+        out = np.zeros((len(off), width), dtype=np.uint8)
+        idx = np.flatnonzero(inside)
+        out[idx] = gather_fixed(buf, off[idx], 0, width)
+        for i in np.flatnonzero(~inside):
+            out[i, :lens[i]] = buf[off[i]:off[i] + lens[i]]
+    for length in np.unique(lens[lens < width]):
+        out[lens == length, length:] = 0
     return out
 
 
