@@ -5,7 +5,7 @@ force, so a level vehicle at rest reads (0, 0, -g) m/s² (../shared/ardupilot-fa
 """
 from __future__ import annotations
 
-import numpy as np
+import math  # not numpy: `apmcal --help` reads DEFAULT_BAUD from here (numpy: ~0.15 s)
 
 STANDARD_GRAVITY = 9.80665          # m/s², the constant ArduPilot uses for mG <-> m/s² (RAW_IMU)
 EARTH_RATE = 7.292115e-5            # rad/s, seed 002 §5.2 (WGS-84 value)
@@ -24,12 +24,14 @@ def normal_gravity(lat_deg: float, height_m: float = 0.0) -> float:
     Somigliana's formula with the free-air correction of about 3.086e-6 s⁻² per metre
     (ardupilot-facts.md, "Frames and signs").
     """
-    s2 = np.sin(np.radians(lat_deg)) ** 2
-    g0 = 9.7803253359 * (1 + 0.00193185265241 * s2) / np.sqrt(1 - 0.00669437999013 * s2)
+    s2 = math.sin(math.radians(lat_deg)) ** 2
+    g0 = 9.7803253359 * (1 + 0.00193185265241 * s2) / math.sqrt(1 - 0.00669437999013 * s2)
     return float(g0 - 3.086e-6 * height_m)
 
 
-def earth_rate_ned(lat_deg: float) -> np.ndarray:
-    """Earth rotation rate [rad/s] in the local NED frame: Ω·(cos φ, 0, −sin φ)."""
+def earth_rate_ned(lat_deg: float):
+    """Earth rotation rate [rad/s] in the local NED frame: Ω·(cos φ, 0, −sin φ), (3,) array."""
+    import numpy as np
+
     phi = np.radians(lat_deg)
     return EARTH_RATE * np.array([np.cos(phi), 0.0, -np.sin(phi)])

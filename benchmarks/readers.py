@@ -2,8 +2,9 @@
 
     python benchmarks/readers.py FILE [FILE ...]        (make big files with make_big_log.py)
 
-For each file: apmcal is run cold (first call in the process: loads numba's cached machine code,
-or compiles it on the very first run after a change) and warm (best of 3); pymavlink reads the IMU messages with mavutil.mavlink_connection + recv_match
+For each file: apmcal is run cold (first call in the process: an undamaged file is framed by
+numpy; a damaged one loads numba's cached machine code, or compiles it on the very first run
+after a change) and warm (best of 3); pymavlink reads the IMU messages with mavutil.mavlink_connection + recv_match
 (DFReader for .bin/.log); the IMU values of both are asserted identical (exact float64 equality,
 after the documented unit conversion). For .tlog, fasttlogparser is timed too when importable.
 Peak memory is the tracemalloc peak of Python/numpy allocations during one apmcal read (the

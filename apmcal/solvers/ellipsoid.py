@@ -90,7 +90,7 @@ def ellipsoid_calibration(samples: dict, radius: dict, *, method: str = "robust"
         cal.sensors[name] = sc
         mse_raw = relative_mse(test, None, radius[name])
         mse_cal = relative_mse(test, sc, radius[name])
-        cal.report[name] = {k: v for k, v in info.items() if k not in ("cov", "inliers")}
+        cal.report[name] = {k: v for k, v in info.items() if k not in ("cov", "inliers", "prior")}
         cal.report[name].update({"relative_mse_raw": mse_raw, "relative_mse_calibrated": mse_cal,
                                  "scored_on": "held-out" if n_test else "fitting"})
         cal.report["lines"] += verdict(train, sc, radius[name], sensor=name, info=info)

@@ -5,7 +5,8 @@ Improves on seed 000's two estimators in three ways:
 1. start: the general algebraic quadric LS fit (10 coefficients, as in Li & Griffiths 2004 but
    without their ellipsoid constraint; rejected when not an ellipsoid), or seed 000's sphere fit
    when the directions cover the sphere poorly;
-2. fit: ``scipy.optimize.least_squares`` on the *geometric* residual ``|M(s − o)| − r`` with a
+2. fit: bounded least squares (``least_squares``' cost, minimised on 9×9 normal equations by
+   :mod:`apmcal.solvers.ellipsoid_lm`) on the *geometric* residual ``|M(s − o)| − r`` with a
    Huber loss (outliers, motion during "static" holds), then plain LS on the samples within 4
    robust sigmas (full Gaussian efficiency, no pull from gross outliers) — seed 000 minimises the
    same residual but on all samples unweighted (Fig. 4) or an algebraic one (Fig. 2); bounds
@@ -19,29 +20,35 @@ Convention: ``calibrated = M @ (measured − o)`` (apmcal/solvers/result.py), ``
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
-from scipy.optimize import least_squares
 
 from apmcal.errors import ApmcalError
+from apmcal.solvers.ellipsoid_lm import Problem, gradient, residual, residual_jacobian
+from apmcal.solvers.ellipsoid_lm import solve as lm_solve
 from apmcal.solvers.ellipsoid_paper import (DIAGONAL_ENTRIES, SYMMETRIC_ENTRIES, UPPER_ENTRIES,
-                                            check_samples, geometric_residual, params_to_matrix,
-                                            sphere_fit)
+                                            check_samples, params_to_matrix, sphere_fit)
 from apmcal.solvers.result import SensorCalibration
-from apmcal.solvers.uncertainty import bootstrap, covariance_from_jacobian
+from apmcal.solvers.uncertainty import bootstrap, covariance_from_normal_equations
 
 ENTRIES = {"symmetric": SYMMETRIC_ENTRIES, "upper": UPPER_ENTRIES, "diagonal": DIAGONAL_ENTRIES}
 MIN_SCATTER_FULL = 0.05    # min eigenvalue of 3·mean(nnᵀ) below which off-diagonals are dropped
 MAX_COND = 1e6             # Jacobian condition number above which the full fit is not trusted
+PRESOLVE_SAMPLES = 20_000  # samples of the first, subsampled pass of a fit from a far start
 
 
-def direction_coverage(samples, offset, n_grid: int = 200, cone_deg: float = 20.0) -> dict:
+def direction_coverage(samples, offset, n_grid: int = 200, cone_deg: float = 20.0,
+                       fraction: bool = True, fraction_samples: int | None = None) -> dict:
     """How well the sample directions (seen from ``offset``) cover the unit sphere.
 
     Returns ``scatter_eig`` — eigenvalues of ``3·mean(n nᵀ)`` (all 1 for uniform coverage, one
     near 0 when the samples lie in a plane through the offset) —, ``spread_eig`` — eigenvalues of
     the sample covariance scaled to mean 1 (0 for any planar set, whatever the offset) — and
     ``fraction`` — share of ``n_grid`` Fibonacci
-    points on the sphere with a sample direction within ``cone_deg``.
+    points on the sphere with a sample direction within ``cone_deg`` (NaN with
+    ``fraction=False``: the one part that costs a pass over the samples per grid point; from
+    every k-th sample, at most about ``fraction_samples``, when given).
     """
     c = np.asarray(samples, dtype=float) - offset
     n = c / np.linalg.norm(c, axis=1, keepdims=True)
@@ -49,12 +56,34 @@ def direction_coverage(samples, offset, n_grid: int = 200, cone_deg: float = 20.
     # centre-free: shape of the sample cloud itself (a circle in a plane → 0 whatever the offset)
     C = np.cov(c.T) if len(c) > 1 else np.zeros((3, 3))
     spread = np.linalg.eigvalsh(3.0 * C / np.trace(C)) if np.trace(C) > 0 else np.zeros(3)
+    step = max(1, len(n) // fraction_samples) if fraction_samples else 1
+    share = (float(_grid_points_near(n[::step], n_grid, np.cos(np.radians(cone_deg))).mean())
+             if fraction else float("nan"))
+    return {"scatter_eig": eig, "spread_eig": spread, "fraction": share}
+
+
+def _grid_points_near(n: np.ndarray, n_grid: int, cos_cone: float,
+                      chunk: int = 8192) -> np.ndarray:
+    """Which of ``n_grid`` Fibonacci points have a unit direction of ``n`` (m, 3) within the
+    cone (cos ≥ ``cos_cone``); bool (n_grid,).
+
+    In chunks of samples, and only for the points not yet covered: the one-shot
+    ``grid @ n.T`` is an n_grid × m array (400 MB for 250 000 samples), while a covered
+    sphere is usually settled by the first chunk. The answer is the same.
+    """
     k = np.arange(n_grid) + 0.5
     z = 1 - 2 * k / n_grid
     phi = np.pi * (1 + 5 ** 0.5) * k
     grid = np.column_stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z])
-    near = (grid @ n.T).max(axis=1) >= np.cos(np.radians(cone_deg))
-    return {"scatter_eig": eig, "spread_eig": spread, "fraction": float(near.mean())}
+    # every k-th sample first (it spans the whole record, so it settles most points), then
+    # the points still open against contiguous chunks of all samples
+    near = (grid @ n[::max(1, len(n) // chunk)].T).max(axis=1) >= cos_cone
+    for lo in range(0, len(n), 8 * chunk):
+        todo = np.flatnonzero(~near)
+        if not todo.size:
+            break
+        near[todo] = (grid[todo] @ n[lo:lo + 8 * chunk].T).max(axis=1) >= cos_cone
+    return near
 
 
 def algebraic_ellipsoid(samples) -> tuple[np.ndarray, np.ndarray] | None:
@@ -108,43 +137,42 @@ def _huber_weights(r: np.ndarray, f_scale: float, loss: str) -> np.ndarray:
     raise ApmcalError(f"unknown loss {loss!r} (linear, huber, soft_l1, cauchy)")
 
 
-def _solve(s, radius, o0, M0, entries, loss, f_scale, w, bounds, prior=None):
-    """One least_squares run in units of the radius; returns (x, r, J) in those units.
+def _solve(s, radius, o0, M0, entries, loss, f_scale, w, bounds, prior=None,
+           presolve: bool = False):
+    """One bounded fit in units of the radius; returns (x, r (n,), J (p, n)) of the data rows.
 
     ``prior = (m_prior, weight)`` appends rows ``weight·(m − m_prior)`` for the matrix
     parameters. They are needed: with a free matrix the geometric cost has a degenerate valley
     (M → 0 with |o| → ∞ maps every sample to one point at distance r, residual → 0), which an
     optimiser follows whenever the directions do not pin M down (partial coverage).
     ``bounds = (lo, hi)`` in the same units keep the solution physical (see :func:`_bounds`).
+    The minimiser is :func:`apmcal.solvers.ellipsoid_lm.solve` (the cost least_squares had,
+    on p×p normal equations). ``presolve``: from a far start (the quadric) on many samples,
+    first converge on every k-th sample (≤ ``PRESOLVE_SAMPLES``), so that the full set only
+    pays for the last few steps; the minimum reached is the full set's either way.
     """
-    sn = s / radius
+    sT = np.ascontiguousarray((np.asarray(s, dtype=float) / radius).T)
     x0 = np.concatenate([o0 / radius, [M0[c[0]] for c in entries]])
-    sw = np.sqrt(w)
-    k = len(entries)
-    m_p, lam = (np.zeros(k), 0.0) if prior is None else prior
-
-    def fun(x):
-        r = geometric_residual(x, sn, 1.0, entries) * sw
-        return np.concatenate([r, lam * (x[3:] - m_p)]) if lam else r
-
-    def jac(x):
-        J = geometric_residual(x, sn, 1.0, entries, jac=True)[1] * sw[:, None]
-        if not lam:
-            return J
-        Jp = np.zeros((k, 3 + k))
-        Jp[:, 3:] = lam * np.eye(k)
-        return np.vstack([J, Jp])
-
     lo, hi = bounds
-    x0 = np.clip(x0, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
-    res = least_squares(fun, x0, jac=jac, loss=loss, f_scale=f_scale, method="trf",
-                        x_scale="jac", max_nfev=500, bounds=(lo, hi))
-    r, J = geometric_residual(res.x, sn, 1.0, entries, jac=True)
-    if lam:     # the prior rows are information too: keep them in the covariance
-        Jp = np.zeros((k, 3 + k))
-        Jp[:, 3:] = lam * np.eye(k)
-        J = np.vstack([J, Jp])
-    return res.x, r, J
+    problem = Problem(sT, entries, np.sqrt(w), loss, f_scale, lo, hi, prior)
+    n = sT.shape[1]
+    if presolve and n > 2 * PRESOLVE_SAMPLES:
+        k = n // PRESOLVE_SAMPLES
+        x0 = lm_solve(replace(problem, sT=np.ascontiguousarray(sT[:, ::k]),
+                              sw=problem.sw[::k]), x0)
+    x = lm_solve(problem, x0)
+    r, J = residual_jacobian(x, sT, entries)
+    return x, r, J
+
+
+def _cond(J: np.ndarray) -> float:
+    """Condition number of the (p, n) Jacobian from its p×p Gram matrix: √(λmax/λmin).
+
+    The same number as ``np.linalg.cond(J.T)`` (an n×p SVD) to ~1e-4 relative for condition
+    numbers up to 1e6 (MAX_COND), where JᵀJ's eigenvalues are still resolved in float64.
+    """
+    lam = np.linalg.eigvalsh(J @ J.T)
+    return float(np.sqrt(lam[-1] / lam[0])) if lam[0] > 0 else float("inf")
 
 
 def _bounds(o_sph, S_sph, radius, entries) -> tuple[np.ndarray, np.ndarray]:
@@ -159,11 +187,90 @@ def _bounds(o_sph, S_sph, radius, entries) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
+def _default_f_scale(s, radius, o0, M0, entries) -> float:
+    """1.345 × the MAD noise of the start's residuals [radius units] (Huber's 95 %-efficiency
+    constant), at least 1e-9."""
+    r0 = residual(np.concatenate([o0 / radius, [M0[c[0]] for c in entries]]),
+                  np.ascontiguousarray(s.T / radius), entries)
+    mad = 1.4826 * np.median(np.abs(r0 - np.median(r0)))
+    return max(1.345 * mad, 1e-9)
+
+
+def warm_refit(cal: SensorCalibration, radius: float, info: dict, steps: int = 3):
+    """The final least-squares stage of the fit that made ``cal`` (with ``info``), as a
+    function of new samples, from ``cal``: for samples simulated from ``cal``'s model with
+    Gaussian noise (the parametric bootstrap of :mod:`apmcal.solvers.ellipsoid_debias`).
+
+    Same parameterisation and prior rows, plain least squares (on outlier-free Gaussian
+    samples the Huber stage and the 4σ rejection leave the LS minimum where it is: the cut
+    drops 6e-5 of them), no bounds. Started at the model the samples were drawn from, the
+    refit is δ = O(σ) away: ``steps`` chord steps ``x ← x − A⁻¹Jᵀr`` with A = JᵀJ (+ prior)
+    at the start contract the error by ~σ/r each (A is off by O(σ/r), as Gauss-Newton's own
+    contraction), so three leave ~(σ/r)³·δ, far below the O(σ²/r) bias the bootstrap
+    measures. A step needs only Jᵀr (:func:`apmcal.solvers.ellipsoid_lm.gradient`), and the
+    setup a cold fit repeats (sphere fit, coverage, quadric start, Huber pass, covariance) is
+    skipped. ``refit.at_design(clean)`` (m, 3): the same with A formed once, from the
+    noise-free samples all draws perturb (as good a chord matrix: it too is O(σ/r) off).
+
+    Returns
+    -------
+    callable
+        (m, 3) samples [sensor units] → SensorCalibration (no sigmas).
+    """
+    entries = ENTRIES[info["parameterisation"]]
+    x0 = np.concatenate([cal.offset / radius, [cal.matrix[c[0]] for c in entries]])
+    prior = info.get("prior")
+    box = np.full(len(x0), np.inf)
+
+    def chord_matrix(sT: np.ndarray) -> np.ndarray:
+        """Cholesky factor of JᵀJ (+ prior) at the start, samples ``sT`` (3, m) / radius."""
+        problem = Problem(sT, entries, np.ones(sT.shape[1]), "linear", 1.0, -box, box, prior)
+        return np.linalg.cholesky(problem.normal_equations(x0)[0])
+
+    def steps_from_start(sT: np.ndarray, chol: np.ndarray) -> SensorCalibration:
+        x = x0.copy()
+        for _ in range(steps):
+            g = gradient(x, sT, entries)
+            if prior is not None:
+                g[3:] += prior[1] ** 2 * (x[3:] - prior[0])
+            x = x - np.linalg.solve(chol.T, np.linalg.solve(chol, g))
+        return SensorCalibration(offset=x[:3] * radius, matrix=params_to_matrix(x[3:], entries))
+
+    def scaled(samples: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(np.asarray(samples, dtype=float).T / radius)
+
+    def refit(samples: np.ndarray) -> SensorCalibration:
+        sT = scaled(samples)
+        return steps_from_start(sT, chord_matrix(sT))
+
+    def at_design(clean: np.ndarray):
+        chol = chord_matrix(scaled(clean))
+        return lambda samples: steps_from_start(scaled(samples), chol)
+
+    refit.at_design = at_design
+    return refit
+
+
+def _covariance(J: np.ndarray, r: np.ndarray, irls: np.ndarray, prior) -> tuple[np.ndarray, int]:
+    """σ²(JᵀWJ + λ²·I_m)⁻¹ at the solution, and the rank (radius units).
+
+    J (p, n) and r (n,) are the data rows, ``irls`` their loss × sample weights. The prior rows
+    (zero residual, unit weight, counted as parameters so that the dof stay n − p) are
+    information too and enter the normal matrix as λ² on the matrix block.
+    """
+    A = J @ J.T if np.all(irls == 1.0) else (J * irls) @ J.T    # LS stage: unit weights
+    if prior is not None:
+        A[3:, 3:] += prior[1] ** 2 * np.eye(A.shape[0] - 3)
+    return covariance_from_normal_equations(A, float(np.sum(irls * r * r)),
+                                            float(np.sum(irls)) - A.shape[0])
+
+
 def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
                          f_scale: float | None = None, weights=None,
                          parameterisation: str = "symmetric", n_bootstrap: int = 0,
                          rng=None, prior_sigma: float | None = 0.3,
-                         reject_sigma: float | None = 4.0,
+                         reject_sigma: float | None = 4.0, start: SensorCalibration | None = None,
+                         sphere: tuple | None = None,
                          info: dict | None = None) -> SensorCalibration:
     """Robust geometric ellipsoid fit: offset (3) + symmetric/upper-triangular M (6).
 
@@ -174,7 +281,7 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
     radius : float
         Known field magnitude, same units (|g|, WMM total intensity).
     loss : {"huber", "soft_l1", "cauchy", "linear"}
-        scipy.optimize.least_squares loss.
+        Robust loss, as scipy.optimize.least_squares defines it.
     f_scale : float, optional
         Residual scale [sensor units] where the loss turns robust; default 1.345 × the MAD-based
         noise estimate of the start residuals (Huber's 95 %-efficiency constant).
@@ -193,6 +300,12 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
         sigmas (MAD) are dropped and the fit is finished by plain LS on the rest (None: skip).
     n_bootstrap : int
         If > 0, also bootstrap sigma (``info["bootstrap_sigma"]``).
+    start : SensorCalibration, optional
+        Start (offset, matrix) instead of the quadric fit: a fit already known to be close
+        (refits on a subset or on simulated samples of a fitted model) needs a few steps only.
+        With ``f_scale`` given, the cost minimised is the same whatever the start.
+    sphere : (offset (3,), radius) of :func:`sphere_fit` on the same ``samples``, optional
+        When the caller has it already (it sets the box and the prior).
     info : dict, optional
         Filled with rms, cond, rank, start, parameterisation, coverage, notes, cov.
 
@@ -216,8 +329,10 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
         raise ApmcalError(f"unknown parameterisation {parameterisation!r}")
     w = np.ones(len(s)) if weights is None else weights
     notes = []
-    o_sph, S_sph = sphere_fit(s)
-    cov0 = direction_coverage(s, o_sph)
+    o_sph, S_sph = sphere_fit(s) if sphere is None else sphere
+    # the fraction is for info only (the verdict scores the calibrated samples): from ≤ 40 000
+    cov0 = direction_coverage(s, o_sph, fraction=info is not None,
+                              fraction_samples=2 * PRESOLVE_SAMPLES)
     mode = parameterisation
     flat = min(cov0["scatter_eig"][0], cov0["spread_eig"][0])
     if mode != "diagonal" and (flat < MIN_SCATTER_FULL or len(s) < 18):
@@ -225,16 +340,15 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
                if flat < MIN_SCATTER_FULL else f"only {len(s)} samples (< 18 = 2 per unknown)")
         notes.append(f"{why}: off-diagonal terms not determinable, fitted a diagonal matrix")
         mode = "diagonal"
-    o0, M0, start = _start(s, radius, use_quadric=flat >= MIN_SCATTER_FULL)
+    if start is None:
+        o0, M0, start_name = _start(s[::max(1, len(s) // PRESOLVE_SAMPLES)], radius,
+                                    use_quadric=flat >= MIN_SCATTER_FULL)
+    else:
+        o0, M0, start_name = start.offset, start.matrix, "given"
     if mode == "diagonal":
         M0 = np.diag(np.abs(np.diag(M0)))
-    if f_scale is None:
-        r0 = geometric_residual(np.concatenate([o0 / radius, [M0[c[0]] for c in ENTRIES[mode]]]),
-                                s / radius, 1.0, ENTRIES[mode])
-        mad = 1.4826 * np.median(np.abs(r0 - np.median(r0)))
-        f_scale_n = max(1.345 * mad, 1e-9)
-    else:
-        f_scale_n = float(f_scale) / radius
+    f_scale_n = (_default_f_scale(s, radius, o0, M0, ENTRIES[mode]) if f_scale is None
+                 else float(f_scale) / radius)
 
     def prior(entries):
         """Pull toward the sphere solution M = (r/S)·I, σ_prior per matrix term (None: off)."""
@@ -244,31 +358,39 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
                         for c in entries])
         return m_p, (f_scale_n / 1.345) / prior_sigma
 
-    x, r, J = _solve(s, radius, o0, M0, ENTRIES[mode], loss, f_scale_n, w,
-                     _bounds(o_sph, S_sph, radius, ENTRIES[mode]), prior(ENTRIES[mode]))
-    cond = float(np.linalg.cond(J[:len(s)]))          # data rows only
+    finish_ls = loss != "linear" and bool(reject_sigma)
+    # with an LS stage to follow, the robust stage only has to find the outliers: on many
+    # samples it runs on every k-th one (≤ 2·PRESOLVE_SAMPLES) and every sample is then judged
+    # by its residual at that fit; the estimate is the LS stage on all inliers
+    k = len(s) // PRESOLVE_SAMPLES if finish_ls and len(s) > 2 * PRESOLVE_SAMPLES else 1
+    x, r, J = _solve(s[::k], radius, o0, M0, ENTRIES[mode], loss, f_scale_n, w[::k],
+                     _bounds(o_sph, S_sph, radius, ENTRIES[mode]), prior(ENTRIES[mode]),
+                     presolve=start is None)
+    cond = _cond(J)                                    # data rows only
     if mode != "diagonal" and not cond < MAX_COND:
         notes.append(f"Jacobian condition number {cond:.2g} > {MAX_COND:.0g}: full matrix not "
                      "determinable from these samples, fitted a diagonal matrix")
         mode = "diagonal"
-        x, r, J = _solve(s, radius, o0, np.diag(np.abs(np.diag(M0))), ENTRIES[mode], loss,
-                         f_scale_n, w, _bounds(o_sph, S_sph, radius, ENTRIES[mode]),
-                         prior(ENTRIES[mode]))
-        cond = float(np.linalg.cond(J[:len(s)]))
+        x, r, J = _solve(s[::k], radius, o0, np.diag(np.abs(np.diag(M0))), ENTRIES[mode], loss,
+                         f_scale_n, w[::k], _bounds(o_sph, S_sph, radius, ENTRIES[mode]),
+                         prior(ENTRIES[mode]), presolve=start is None)
+        cond = _cond(J)
+    if k > 1:
+        r = residual(x, np.ascontiguousarray(s.T / radius), ENTRIES[mode])
     if prior_sigma is not None and not cond < MAX_COND:
         notes.append(f"still ill-conditioned (condition number {cond:.2g}): the result leans on "
                      f"the prior toward a sphere (σ_prior = {prior_sigma}) — poorly determined")
     entries = ENTRIES[mode]
     bounds = _bounds(o_sph, S_sph, radius, entries)
     keep = np.ones(len(s), dtype=bool)
-    if loss != "linear" and reject_sigma:
+    if finish_ls:
         # final stage: plain LS on the samples the robust fit calls inliers — Gaussian
         # efficiency of the ML fit (Huber alone: ≈ 0.95) and no pull from gross outliers
         dev = np.abs(r - np.median(r))
         keep = dev <= reject_sigma * max(1.4826 * np.median(dev), 1e-12)
         x, r, J = _solve(s[keep], radius, x[:3] * radius, params_to_matrix(x[3:], entries),
                          entries, "linear", f_scale_n, w[keep], bounds, prior(entries))
-        cond = float(np.linalg.cond(J[:len(r)]))
+        cond = _cond(J)
         if not keep.all():
             notes.append(f"{np.sum(~keep)} of {len(s)} samples rejected as outliers "
                          f"(> {reject_sigma}σ after the {loss} fit)")
@@ -281,21 +403,18 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
                      + " stopped at the physical bound — the samples do not determine it")
     lw = "linear" if reject_sigma else loss
     irls = _huber_weights(r * np.sqrt(w[keep]), f_scale_n, lw) * w[keep]
-    n_prior = J.shape[0] - len(r)
-    # prior rows carry zero residual and unit weight; counting them as parameters keeps dof = n − p
-    cov, rank = covariance_from_jacobian(J, np.concatenate([r, np.zeros(n_prior)]),
-                                         J.shape[1] + n_prior,
-                                         weights=np.concatenate([irls, np.ones(n_prior)]))
+    cov, rank = _covariance(J, r, irls, prior(entries))
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
     sig_M = params_to_matrix(sd[3:], entries)
     cal = SensorCalibration(offset=x[:3] * radius, matrix=params_to_matrix(x[3:], entries),
                             sigma={"offset": sd[:3] * radius, "matrix": sig_M})
     if info is not None:
         info.update({"rms": float(np.sqrt(np.mean(r * r))) * radius, "cond": cond, "rank": rank,
-                     "n_params": J.shape[1], "start": start, "parameterisation": mode,
+                     "n_params": J.shape[0], "start": start_name, "parameterisation": mode,
                      "coverage": cov0, "notes": notes, "f_scale": f_scale_n * radius,
                      "outlier_fraction": float(np.mean(~keep)), "inliers": keep,
-                     "cov": cov, "method": f"robust geometric ({loss} + LS on inliers)"})
+                     "cov": cov, "method": f"robust geometric ({loss} + LS on inliers)",
+                     "prior": prior(entries)})
     if n_bootstrap > 0:
         bs = bootstrap(lambda d: fit_ellipsoid_robust(d, radius, loss=loss, f_scale=f_scale_n *
                                                       radius, parameterisation=mode,
@@ -325,12 +444,17 @@ def verdict(samples, cal: SensorCalibration, radius: float, *, sensor: str = "se
     ----------
     noise : float, optional
         Expected per-sample noise [sensor units]; residual RMS above 5× this is flagged.
+    info : dict, optional
+        The fit's info on these same ``samples``: its notes are added, and its coverage's
+        ``spread_eig`` (the samples' own shape, whatever the centre) is reused.
     """
     s = check_samples(samples, 1)
     lines = []
-    cov = direction_coverage(cal.apply(s), np.zeros(3))   # calibrated: exposes a collapse
-    eig, frac = np.minimum(cov["scatter_eig"], direction_coverage(s, cal.offset)["spread_eig"]), \
-        cov["fraction"]
+    calibrated = cal.apply(s)
+    cov = direction_coverage(calibrated, np.zeros(3))   # calibrated: exposes a collapse
+    shape_eig = (info["coverage"]["spread_eig"] if info and "coverage" in info
+                 else direction_coverage(s, cal.offset, fraction=False)["spread_eig"])
+    eig, frac = np.minimum(cov["scatter_eig"], shape_eig), cov["fraction"]
     lines.append(f"{sensor}: {len(s)} samples, directions cover {100 * frac:.0f}% of the sphere "
                  f"(20° cones), coverage eigenvalues {np.array2string(eig, precision=2)} "
                  "(1 = uniform)")
@@ -341,7 +465,7 @@ def verdict(samples, cal: SensorCalibration, radius: float, *, sensor: str = "se
     elif eig[0] < 0.3:
         lines.append(f"{sensor}: uneven coverage — the fit is weighted toward the densest "
                      "directions (seed 000 §VII.C); more orientations would help")
-    e = np.linalg.norm(cal.apply(s), axis=1) - radius
+    e = np.linalg.norm(calibrated, axis=1) - radius
     rms = float(np.sqrt(np.mean(e ** 2)))
     spread = float(1.4826 * np.median(np.abs(e - np.median(e))))     # robust σ (MAD)
     n_out = int(np.sum(np.abs(e - np.median(e)) > 5 * max(spread, 1e-12 * radius)))

@@ -56,6 +56,7 @@ from apmcal.preprocessing.rotations import Rotation, find_rotations, integrate_s
 from apmcal.preprocessing.static import (ARDUPILOT_FACE, POSES, StaticSegment, find_static_segments,
                                          label_poses, make_segment)
 from apmcal.solvers.gyro_bias import fit_gyro_bias, integrate_motions, motions_between_holds
+from apmcal.solvers.blas_threads import single_threaded_blas
 from apmcal.solvers.misfit import hold_misfit
 from apmcal.solvers.result import Calibration, SensorCalibration
 from apmcal.solvers.uncertainty import jacobian_sigma
@@ -287,6 +288,7 @@ def _quality_warnings(poses: dict[str, StaticSegment], warnings: list[str]) -> N
             warnings.append(f"hold {name} tilted {s.tilt_deg:.1f}° from its axis")
 
 
+@single_threaded_blas
 def ferraris_calibration(t, acc, gyr=None, *, segments=None, rotations=None, sections=None,
                          lat_deg: float | None = None, gravity: float | None = None,
                          bias_drift: bool = True, earth_rate: bool = True,

@@ -57,6 +57,39 @@ def covariance_from_jacobian(J: np.ndarray, residuals: np.ndarray, n_params: int
     return cov, rank
 
 
+def covariance_from_normal_equations(A: np.ndarray, weighted_rss: float, dof: float, *,
+                                     rcond: float = 1e-10) -> tuple[np.ndarray, int]:
+    """:func:`covariance_from_jacobian` from the normal matrix instead of the Jacobian.
+
+    For fits that never form an n×p Jacobian: ``σ²·A⁺`` with ``A = JᵀWJ`` (p, p) and
+    ``σ² = Σ w·r² / dof``; the same pseudo-inverse as there. The rank counts the singular
+    values √λ of √W·J above ``rcond`` × the largest, from the eigenvalues λ of A, so a
+    direction weaker than ~1e-8 of the strongest (below A's float64 resolution) still counts.
+
+    Parameters
+    ----------
+    A : (p, p) array
+        JᵀWJ at the solution [1 / parameter units²].
+    weighted_rss : float
+        Σ w·r² [residual units²].
+    dof : float
+        Σ w − number of parameters.
+
+    Returns
+    -------
+    cov : (p, p) array, rank : int
+    """
+    A = 0.5 * (A + A.T)
+    p = A.shape[0]
+    lam = np.clip(np.linalg.eigvalsh(A), 0.0, None)
+    s = np.sqrt(lam[::-1])
+    rank = int(np.sum(s > rcond * s[0])) if p and s[0] > 0 else 0
+    if dof <= 0:
+        return np.full((p, p), np.nan), rank
+    sigma2 = weighted_rss / dof
+    return sigma2 * np.linalg.pinv(A, rcond=rcond ** 2, hermitian=True), rank
+
+
 def _as_vector(est) -> np.ndarray:
     """A fit result as one flat vector: SensorCalibration → offset (3) + matrix (9, row-major)."""
     if isinstance(est, SensorCalibration):

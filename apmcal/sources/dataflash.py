@@ -2,7 +2,7 @@
 
 A dataflash log is a stream of records ``0xA3 0x95 type body``; FMT records (type 0x80) give
 each type its name, length, field formats and column names. The record boundaries are found in
-one compiled pass (``_framing.scan_dataflash``), then all records of one type are gathered and
+one pass (numpy for an undamaged log, else the compiled ``_framing.scan_dataflash``), then all records of one type are gathered and
 decoded at once with a numpy structured dtype. Format-character multipliers (c, C, e, E: 0.01;
 L: 1e-7) are applied the way pymavlink's DFReader does (division by ``1/mul``), so values are
 identical to DFReader's.
@@ -32,7 +32,7 @@ import pandas as pd
 
 from apmcal.errors import ApmcalError
 from apmcal.recording import ACC, GYR, MAG, LogContents
-from apmcal.sources import _framing
+from apmcal.sources import _fastscan
 from apmcal.sources._common import (
     MAX_DAMAGE_OFFSETS, _params, add_recording, attach_current, cstr, current_series, finish,
     load_bytes, note_current, param_changes, parse_firmware,
@@ -85,9 +85,19 @@ def convert_column(values: np.ndarray, fmt_char: str) -> np.ndarray:
 
 
 def scan(buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, list[int]]:
-    """Record offsets and types of a whole .bin buffer, bytes skipped, damage offsets."""
+    """Record offsets and types of a whole .bin buffer, bytes skipped, damage offsets.
+
+    An undamaged log up to 32 MB is framed by numpy (:mod:`apmcal.sources._fastscan`), which
+    spares the ~2 s numba costs to load; a bigger one or one that needs resynchronising by the
+    compiled scan.
+    """
+    fast = _fastscan.scan_dataflash(buf)
+    if fast is not None:
+        return fast[0], fast[1], 0, []
+    from apmcal.sources import _framing
+
     lengths = np.zeros(256, dtype=np.int64)
-    lengths[_framing.DF_FMT_TYPE] = _framing.DF_FMT_LEN
+    lengths[_fastscan.DF_FMT_TYPE] = _fastscan.DF_FMT_LEN
     state = np.zeros(3, dtype=np.int64)
     damage = np.zeros(MAX_DAMAGE_OFFSETS, dtype=np.int64)
     offs, types = [], []
@@ -106,7 +116,7 @@ def record_spans(buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     off, typ, _, _ = scan(buf)
     length = np.zeros(256, np.int64)
     names = np.full(256, "", dtype=object)
-    length[_framing.DF_FMT_TYPE], names[_framing.DF_FMT_TYPE] = _framing.DF_FMT_LEN, "FMT"
+    length[_fastscan.DF_FMT_TYPE], names[_fastscan.DF_FMT_TYPE] = _fastscan.DF_FMT_LEN, "FMT"
     for _, t, ln, name, _, _ in _format_segments(buf, off, typ):
         length[t], names[t] = ln, name
     return off, off + length[typ], names[typ]
@@ -114,8 +124,8 @@ def record_spans(buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def _format_segments(buf, off, typ):
     """FMT definitions in file order: list of (record index, type, length, name, fmt, columns)."""
-    idx = np.flatnonzero(typ == _framing.DF_FMT_TYPE)
-    rows = _framing.gather_fixed(buf, off[idx], 3, _FMT_DTYPE.itemsize).view(_FMT_DTYPE)
+    idx = np.flatnonzero(typ == _fastscan.DF_FMT_TYPE)
+    rows = _fastscan.gather_fixed(buf, off[idx], 3, _FMT_DTYPE.itemsize).view(_FMT_DTYPE)
     segs = []
     for i, r in zip(idx, rows.reshape(-1)):
         name, fmt = cstr(r["Name"]), cstr(r["Format"])
@@ -133,7 +143,7 @@ def _decode_segment(buf, offs, length, fmt, cols, keep) -> dict[str, np.ndarray]
         return None
     if dt.itemsize != length - 3:
         return None
-    rows = _framing.gather_fixed(buf, offs, 3, dt.itemsize).view(dt).reshape(-1)
+    rows = _fastscan.gather_fixed(buf, offs, 3, dt.itemsize).view(dt).reshape(-1)
     return {c: convert_column(rows[c], f) for c, f in zip(cols, fmt) if keep is None or c in keep}
 
 
@@ -160,7 +170,7 @@ def decode_messages(buf, off, typ, want, columns=None, *, offsets=(), first=None
             defs.append(seg)
     out: dict[str, list] = {}
     for t, defs in bounds.items():
-        if t == _framing.DF_FMT_TYPE or not want(defs[-1][3]):
+        if t == _fastscan.DF_FMT_TYPE or not want(defs[-1][3]):
             continue
         sel_t = np.flatnonzero(typ == t)
         for j, (start, _, length, name, fmt, cols) in enumerate(defs):

@@ -2,7 +2,8 @@
 
 A .tlog is a sequence of frames: an 8-byte big-endian timestamp [µs since 1970] followed by one
 MAVLink v1 (0xFE) or v2 (0xFD) packet. Framing and the CRC check (with the dialect's CRC_EXTRA)
-run in one compiled pass (``_framing.scan_tlog``); the wanted messages are then gathered into a
+run in one pass (numpy for an undamaged log, :mod:`apmcal.sources._fastscan`, else the compiled
+``_framing.scan_tlog``); the wanted messages are then gathered into a
 zero-padded (n, wire_length) byte array and decoded all at once through a numpy structured dtype
 built from pymavlink's own message definition (same field order and types as pymavlink), so the
 values are bit-identical to pymavlink's.
@@ -48,7 +49,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from apmcal.constants import GAUSS_TO_MGAUSS, MG_TO_MS2, MRAD_TO_RAD
 from apmcal.errors import ApmcalError
 from apmcal.recording import LogContents
-from apmcal.sources import _framing
+from apmcal.sources import _fastscan
 from apmcal.sources._common import (
     MAX_DAMAGE_OFFSETS, _params, add_recording, attach_current, cstr, current_series, finish,
     load_bytes, note_current, param_changes, parse_firmware, struct_dtype,
@@ -106,6 +107,11 @@ def message_dtype(name: str) -> tuple[int, np.dtype]:
 def _index(buf: np.ndarray, wanted: np.ndarray):
     """Frame offsets, payload lengths and msgids of wanted frames; bytes skipped; damage."""
     crc, max_len, _ = _tables()
+    fast = _fastscan.scan_tlog(buf, crc, max_len, wanted)
+    if fast is not None:            # undamaged: framed by numpy, numba not even loaded
+        return (*fast, 0, [])
+    from apmcal.sources import _framing
+
     state = np.zeros(3, dtype=np.int64)
     damage = np.zeros(MAX_DAMAGE_OFFSETS, dtype=np.int64)
     offs, lens, mids = [], [], []
@@ -123,7 +129,7 @@ def _index(buf: np.ndarray, wanted: np.ndarray):
 
 def _header_len(buf: np.ndarray, off: np.ndarray) -> np.ndarray:
     """MAVLink header length (6 for v1, 10 for v2) of the frames starting at ``off``."""
-    return np.where(buf[off + 8] == _framing.MAV1_MAGIC, 6, 10)
+    return np.where(buf[off + 8] == _fastscan.MAV1_MAGIC, 6, 10)
 
 
 def frame_spans(buf: np.ndarray, names=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -171,7 +177,7 @@ def _scan(buf: np.ndarray, names):
     decoded, offsets = {}, {}
     for msgid, (nm, dt) in ids.items():
         sel = np.flatnonzero(mid == msgid)
-        rows = _framing.gather(buf, payload[sel], ln[sel], dt.itemsize)
+        rows = _fastscan.gather(buf, payload[sel], ln[sel], dt.itemsize)
         decoded[nm] = rows.view(dt).reshape(-1)
         offsets[nm] = off[sel]
     return decoded, skipped, damaged, offsets
@@ -354,7 +360,7 @@ def _attach_sys_status_current(out: LogContents, df: pd.DataFrame, pick: slice,
 
 def _frame_sources(buf: np.ndarray, off: np.ndarray) -> np.ndarray:
     """(system id << 8 | component id) of the frames starting at ``off`` (the timestamp)."""
-    v1 = buf[off + 8] == _framing.MAV1_MAGIC
+    v1 = buf[off + 8] == _fastscan.MAV1_MAGIC
     sysid = np.where(v1, buf[off + 11], buf[off + 13]).astype(np.int32)
     return (sysid << 8) | np.where(v1, buf[off + 12], buf[off + 14])
 
