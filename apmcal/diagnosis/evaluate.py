@@ -7,8 +7,6 @@ average in-sample as well as held-out.
 """
 from __future__ import annotations
 
-import multiprocessing
-import os
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -22,6 +20,7 @@ from apmcal.diagnosis.model import (ModelFit, calibrated_rate, fit_model, hold_r
 from apmcal.diagnosis.noise_fit import NoiseModel, fit_noise, lattice_step
 from apmcal.diagnosis.params import effect_params, mean_of_folds
 from apmcal.diagnosis.static_fit import count_orientations
+from apmcal.diagnosis import workers
 from apmcal.diagnosis.twin import motion_of, simulate
 
 FOLDS = (0, 1)
@@ -132,22 +131,6 @@ class Summary:
         params = {name: mean_of_folds([f.params[name] for f in folds]) for name in effects}
         return cls(nats_in / n_in if n_in else 0.0, nats_out / n_out if n_out else 0.0,
                    float(nats_out), params)
-
-
-_WORKER: "Evaluator | None" = None      # the evaluator a forked worker inherits
-_IN_WORKER = False                      # True in a forked worker: it must not fork again
-
-
-def _call(job) -> object:
-    global _IN_WORKER
-    _IN_WORKER = True
-    method, args = job
-    return getattr(_WORKER, method)(*args)
-
-
-def _parallel() -> bool:
-    """Whether work may be spread over forked workers (more than one core, not in a worker)."""
-    return not _IN_WORKER and (os.cpu_count() or 1) >= 2
 
 
 class Evaluator:
@@ -288,41 +271,15 @@ class Evaluator:
         return {key: self._motion[key] for key in (fold, ("nominal", fold))}
 
     def map(self, jobs: list[tuple[str, tuple]]) -> list:
-        """``[self.method(*args) for method, args in jobs]``, spread over every core: forked
-        workers inherit the session and what is cached so far; results come back pickled."""
-        workers = min(len(jobs), os.cpu_count() or 1)
-        if workers < 2 or not _parallel():
-            return [getattr(self, method)(*args) for method, args in jobs]
-        from threadpoolctl import threadpool_limits
-
-        global _WORKER
-        _WORKER = self
-        try:
-            # one BLAS thread per worker: OpenBLAS's own threads in forked workers spin against
-            # each other (measured: six models on two cores took as long as in one process)
-            with threadpool_limits(limits=1), \
-                    multiprocessing.get_context("fork").Pool(workers) as pool:
-                return pool.map(_call, jobs, chunksize=1)
-        finally:
-            _WORKER = None
+        """``[self.method(*args) for method, args in jobs]``, spread over every core
+        (:func:`apmcal.diagnosis.workers.run`)."""
+        return workers.run(self, jobs)
 
     def beside(self, jobs: list[tuple[str, tuple]], work):
         """``work()`` here while ``jobs`` (as for :meth:`map`) run in a forked worker — for a
-        result too big to send back (an Evaluation pickles to hundreds of MB at 400 Hz);
-        returns (work's result, the jobs' results)."""
-        from threadpoolctl import threadpool_limits
-
-        if not _parallel():
-            return work(), [getattr(self, method)(*args) for method, args in jobs]
-        global _WORKER
-        _WORKER = self
-        try:
-            with threadpool_limits(limits=1), \
-                    multiprocessing.get_context("fork").Pool(1) as pool:
-                pending = pool.map_async(_call, jobs, chunksize=1)
-                return work(), pending.get()
-        finally:
-            _WORKER = None
+        result too big to send back (an Evaluation is hundreds of MB at 400 Hz); returns
+        (work's result, the jobs' results)."""
+        return workers.beside(self, jobs, work)
 
     def gap_of(self, effects) -> dict:
         """The model's gaps with their breakdowns (:func:`apmcal.diagnosis.breakdown.
