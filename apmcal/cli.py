@@ -202,10 +202,9 @@ def add_tcal_parser(sub) -> None:
 
 def cmd_tcal(args) -> int:
     from apmcal.sources import read_log
+    from apmcal.sources.units import require_plausible_units
     from apmcal.tcal_pipeline import calibrate_temperature, tcal_params
     from apmcal.tcal_report import print_tcal
-
-    from apmcal.sources.units import require_plausible_units
 
     check_writable(args.param_file, "parameter file")
     check_writable(args.json, "JSON file")

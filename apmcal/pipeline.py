@@ -14,8 +14,12 @@ import numpy as np
 
 from apmcal.constants import STANDARD_GRAVITY, normal_gravity
 from apmcal.errors import ApmcalError
-from apmcal.preprocessing.resolution import (INT16_TELEMETRY, resolution_limited,
-                                             telemetry_steps, undo_truncation)
+from apmcal.preprocessing.resolution import (
+    INT16_TELEMETRY,
+    resolution_limited,
+    telemetry_steps,
+    undo_truncation,
+)
 from apmcal.preprocessing.timebase import monotonic
 from apmcal.recording import SENSOR_COLUMNS, Recording
 from apmcal.solvers.holds import MIN_ELLIPSOID_HOLDS, MIN_ORIENTATIONS, distinct_orientations
@@ -100,7 +104,7 @@ def choose_method(segments) -> str:
     return "static"
 
 
-def calibrate(recording: Recording, opts: Options = Options(),
+def calibrate(recording: Recording, opts: Options | None = None,
               mag_recording: Recording | None = None) -> Calibration:
     """Calibrate ``recording`` (raw or firmware-corrected): the result is for the raw
     sensor-frame samples.
@@ -110,6 +114,7 @@ def calibrate(recording: Recording, opts: Options = Options(),
     ``mag_recording`` (a separate compass record, dataflash MAG) is only used by the joint
     method, which calibrates the compass together with the IMU.
     """
+    opts = opts or Options()
     if opts.method not in METHODS:
         raise ApmcalError(f"unknown method {opts.method!r}; choose one of {', '.join(METHODS)}")
     if not recording.has("acc"):
@@ -188,17 +193,17 @@ def board_rotation(recording: Recording) -> np.ndarray:
     return rotation_matrix(code, recording.params)
 
 
-def calibrate_log(contents, opts: Options = Options()):
+def calibrate_log(contents, opts: Options | None = None):
     """Calibrate one IMU instance of a log (and its compass) and propose ArduPilot parameters.
 
     Returns (Calibration, ParamProposal or None); None when the source is not an ArduPilot log
     and no generation was given (a CSV file has no firmware to write parameters for).
     """
     from apmcal.preprocessing.firmware import firmware_generation
+    from apmcal.preprocessing.param_changes import split_at_param_changes
     from apmcal.vehicle.params import to_ardupilot_params, withhold_undetermined
 
-    from apmcal.preprocessing.param_changes import split_at_param_changes
-
+    opts = opts or Options()
     recording, mag_recording = pick_recording(contents, opts.instance)
     recording, mag_recording, change_warnings = split_at_param_changes(
         recording, mag_recording, contents.param_changes, contents.path)

@@ -24,10 +24,15 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from apmcal.solvers.ellipsoid_paper import (DIAGONAL_ENTRIES, SYMMETRIC_ENTRIES,  # noqa: E402
-                                            fit_ellipsoid_analytical, fit_ellipsoid_numerical,
-                                            geometric_residual, matrix_to_params)
 from apmcal.solvers.ellipsoid_debias import debiased  # noqa: E402
+from apmcal.solvers.ellipsoid_paper import (  # noqa: E402
+    DIAGONAL_ENTRIES,
+    SYMMETRIC_ENTRIES,
+    fit_ellipsoid_analytical,
+    fit_ellipsoid_numerical,
+    geometric_residual,
+    matrix_to_params,
+)
 from apmcal.solvers.ellipsoid_robust import fit_ellipsoid_robust, warm_refit  # noqa: E402
 
 NAMES = ["o_x", "o_y", "o_z", "M_xx", "M_yy", "M_zz", "M_xy", "M_xz", "M_yz"]

@@ -20,10 +20,9 @@ DATA = Path(__file__).resolve().parent / "_data"
 
 
 def make_session(path: Path, rate: float, seconds: float) -> None:
+    from apmcal.diagnosis.benchmark import START_UNIX, truth_for
     from sitl.makelog import write_bin
     from sitl.vehicle import SimVehicle
-
-    from apmcal.diagnosis.benchmark import START_UNIX, truth_for
 
     v = SimVehicle(truth_for(("temperature_drift",), 11), "diagnosis", "3.3", None, fs=rate,
                    seed=11, duration=seconds, start_unix=START_UNIX)

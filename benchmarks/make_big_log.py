@@ -88,7 +88,7 @@ def _shift_bin(src: np.ndarray, copies: int) -> bytes:
     off, typ, _, _ = dataflash.scan(src)
     segs = dataflash._format_segments(src, off, typ)
     timed = {}  # type → (numpy dtype of the time field, scale to µs)
-    for _, t, _, name, fmt, cols in segs:
+    for _, t, _, _name, fmt, cols in segs:
         if cols and cols[0] == "TimeUS" and fmt[:1] == "Q":
             timed[t] = ("<u8", 1)
         elif cols and cols[0] == "TimeMS" and fmt[:1] == "I":

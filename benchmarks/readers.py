@@ -2,17 +2,17 @@
 
     python benchmarks/readers.py FILE [FILE ...]        (make big files with make_big_log.py)
 
-For each file: apmcal is run cold (first call in the process: an undamaged file is framed by
-numpy; a damaged one loads numba's cached machine code, or compiles it on the very first run
-after a change) and warm (best of 3); pymavlink reads the IMU messages with mavutil.mavlink_connection + recv_match
-(DFReader for .bin/.log); the IMU values of both are asserted identical (exact float64 equality,
-after the documented unit conversion). For .tlog, fasttlogparser is timed too when importable.
-Peak memory is the tracemalloc peak of Python/numpy allocations during one apmcal read (the
-read-only memory map of the file itself is not an allocation and is not counted; the compiled
+For each file: apmcal is run cold (first call in the process: an undamaged file is framed by numpy;
+a damaged one loads numba's cached machine code, or compiles it on the very first run after a
+change) and warm (best of 3); pymavlink reads the IMU messages with mavutil.mavlink_connection +
+recv_match (DFReader for .bin/.log); the IMU values of both are asserted identical (exact float64
+equality, after the documented unit conversion). For .tlog, fasttlogparser is timed too when
+importable. Peak memory is the tracemalloc peak of Python/numpy allocations during one apmcal read
+(the read-only memory map of the file itself is not an allocation and is not counted; the compiled
 kernels write only into numpy-allocated arrays, so those are traced) and the ru_maxrss growth of
-the process over the cold read (which includes the mapped file pages touched, shared with the
-page cache).
-The last line is ``ratio_vs_pymavlink=N``: the smallest pymavlink/apmcal time ratio over the files.
+the process over the cold read (which includes the mapped file pages touched, shared with the page
+cache). The last line is ``ratio_vs_pymavlink=N``: the smallest pymavlink/apmcal time ratio over
+the files.
 """
 from __future__ import annotations
 
@@ -29,8 +29,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))       # pymavlink_ref: the tests' reference decoder
 
-from apmcal.sources import read_log, sniff_format  # noqa: E402
 import pymavlink_ref as ref  # noqa: E402
+
+from apmcal.sources import read_log, sniff_format  # noqa: E402
 
 
 def _maxrss_mb() -> float:

@@ -22,8 +22,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from apmcal.pipeline import Options, calibrate  # noqa: E402
 from sitl_helpers import session_recording, sigma_z  # noqa: E402
+
+from apmcal.pipeline import Options, calibrate  # noqa: E402
 
 LAT = 5.6037                # sitl's default home (Accra)
 # a clean session: the errors ArduPilot's parameters hold, noise, and the physics apmcal

@@ -20,10 +20,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
+from sitl_helpers import only, still  # noqa: E402
+
 from apmcal.preprocessing.static import find_static_segments  # noqa: E402
 from apmcal.preprocessing.tcal_blocks import still_blocks  # noqa: E402
 from apmcal.solvers.tcal import fit_tcal  # noqa: E402
-from sitl_helpers import only, still  # noqa: E402
 
 BASE = ["temperature_drift", "acc_noise", "gyro_noise", "acc_bias", "gyro_bias",
         "lowpass_filter"]

@@ -27,8 +27,14 @@ Modules: truth (errors + defaults + name mapping), errors_model (sensor pipeline
 generation), params_store, vehicle, mavlink_vehicle (network endpoint), logwriter, makelog,
 geomag (WMM field).
 """
-from sitl.truth import (DIAGNOSIS_EFFECTS, EFFECTS, FULL_THROTTLE_CURRENT_A, NOMINAL_EFFECTS,
-                        SIMULATOR_QUIRKS, Truth)
+from sitl.truth import (
+    DIAGNOSIS_EFFECTS,
+    EFFECTS,
+    FULL_THROTTLE_CURRENT_A,
+    NOMINAL_EFFECTS,
+    SIMULATOR_QUIRKS,
+    Truth,
+)
 
 __all__ = ["EFFECTS", "DIAGNOSIS_EFFECTS", "NOMINAL_EFFECTS", "SIMULATOR_QUIRKS",
            "FULL_THROTTLE_CURRENT_A", "Truth", "SimVehicle"]

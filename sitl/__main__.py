@@ -4,9 +4,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from sitl.errors import SitlError
 from sitl import motion
 from sitl.cli_common import add_firmware_args, add_truth_args, apply_firmware_args, make_truth
+from sitl.errors import SitlError
 
 
 def parse_args(argv=None):

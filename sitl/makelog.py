@@ -18,10 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from sitl.errors import SitlError
 from sitl.cli_common import add_firmware_args, add_truth_args, apply_firmware_args, make_truth
+from sitl.errors import SitlError
 from sitl.logwriter import DataflashWriter, TlogWriter
-from sitl.vehicle import SimVehicle, VERSION_TEXT
+from sitl.vehicle import VERSION_TEXT, SimVehicle
 
 START_UNIX = 1_780_000_000.0     # fixed start time (2026-05-28) so logs are byte-reproducible
 BAT_RATE_HZ = 10.0               # BAT records per second (.bin)

@@ -18,7 +18,6 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from sitl.logwriter import TlogWriter
 from sitl.vehicle import SimVehicle
 
-
 PTY = "pty"        # the connection string for a pseudo-terminal: a simulated serial cable
 
 

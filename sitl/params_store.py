@@ -32,9 +32,11 @@ def default_params(generation: str) -> dict[str, float]:
     """Parameter names and defaults of the simulated firmware (neutral corrections)."""
     p: dict[str, float] = {"SYSID_THISMAV": 1, "SYSID_SW_TYPE": 10, "AHRS_ORIENTATION": 0,
                            "INS_GYR_CAL": 1, "INS_PRODUCT_ID": 88}
-    p.update(_xyz("INS_ACCOFFS", 0.0)); p.update(_xyz("INS_ACCSCAL", 1.0))
+    p.update(_xyz("INS_ACCOFFS", 0.0))
+    p.update(_xyz("INS_ACCSCAL", 1.0))
     p.update(_xyz("INS_GYROFFS", 0.0))
-    p.update(_xyz("COMPASS_OFS", 0.0)); p.update(_xyz("COMPASS_MOT", 0.0))
+    p.update(_xyz("COMPASS_OFS", 0.0))
+    p.update(_xyz("COMPASS_MOT", 0.0))
     p.update({"COMPASS_MOTCT": 0, "COMPASS_DEC": 0.0, "COMPASS_ORIENT": 0,
               "COMPASS_EXTERNAL": 0, "COMPASS_USE": 1, "COMPASS_LEARN": 0, "COMPASS_AUTODEC": 1})
     for sr in ("RAW_SENS", "EXT_STAT", "RC_CHAN", "RAW_CTRL", "POSITION", "EXTRA1", "EXTRA2",
@@ -43,10 +45,13 @@ def default_params(generation: str) -> dict[str, float]:
             p[f"SR{port}_{sr}"] = 0.0 if sr != "PARAMS" else 10.0
     if generation != "3.2":
         # ardupilot-facts.md: DIA/ODI and second/third IMU parameters exist on 3.3+ only
-        p.update(_xyz("COMPASS_DIA", 1.0)); p.update(_xyz("COMPASS_ODI", 0.0))
-        p.update(_xyz("INS_ACC2OFFS", 0.0)); p.update(_xyz("INS_ACC2SCAL", 1.0))
+        p.update(_xyz("COMPASS_DIA", 1.0))
+        p.update(_xyz("COMPASS_ODI", 0.0))
+        p.update(_xyz("INS_ACC2OFFS", 0.0))
+        p.update(_xyz("INS_ACC2SCAL", 1.0))
         p.update(_xyz("INS_GYR2OFFS", 0.0))
-        p.update(_xyz("INS_ACC3OFFS", 0.0)); p.update(_xyz("INS_ACC3SCAL", 1.0))
+        p.update(_xyz("INS_ACC3OFFS", 0.0))
+        p.update(_xyz("INS_ACC3SCAL", 1.0))
         p.update(_xyz("INS_GYR3OFFS", 0.0))
         p.update({"INS_ACCEL_FILTER": 20.0, "INS_GYRO_FILTER": 20.0, "COMPASS_OFFS_MAX": 1800})
         p.update({name: 0 for name in STAT_PARAMS})

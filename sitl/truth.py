@@ -92,14 +92,14 @@ the compass chip's own frame.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field, asdict
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from apmcal.constants import normal_gravity, STANDARD_GRAVITY
-from sitl.errors import SitlError
+from apmcal.constants import STANDARD_GRAVITY, normal_gravity
 from apmcal.solvers.result import SensorCalibration
+from sitl.errors import SitlError
 
 EFFECTS = (
     "acc_bias", "acc_scale", "acc_cross_axis", "acc_misalignment",

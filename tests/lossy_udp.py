@@ -16,9 +16,10 @@ import threading
 import time
 from contextlib import contextmanager
 
+from sitl_helpers import only
+
 from sitl.mavlink_vehicle import MavlinkVehicle
 from sitl.vehicle import SimVehicle
-from sitl_helpers import only
 
 LOOPBACK = "127.0.0.1"
 

@@ -1,7 +1,8 @@
 """Independent reference: the same IMU/MAG/param values decoded by pymavlink's own parsers.
 
-Used by the tests and by benchmarks/readers.py (kept out of the installed package) to check that apmcal's vectorised readers give
-values identical to pymavlink (mavutil.mavlink_connection for .tlog, DFReader for .bin/.log).
+Used by the tests and by benchmarks/readers.py (kept out of the installed package) to check
+that apmcal's vectorised readers give values identical to pymavlink (mavutil.mavlink_connection
+for .tlog, DFReader for .bin/.log).
 Each message is decoded by pymavlink, one at a time; only the unit conversion documented in the
 readers (mG × 9.80665/1000, mrad/s × 1e-3, cdegC × 0.01, Gauss × 1000, µs × 1e-6, ms × 1e-3,
 cA × 0.01) is applied here, written out again so a wrong reader formula is caught too.
@@ -196,7 +197,7 @@ def df_expected(msgs: list) -> dict[tuple[str, int], dict[str, np.ndarray]]:
             continue
         fam, num = mt.groups()
         number = int(num) - 1 if num else 0     # IMU2 → 1, ACC1 → 0, MAG3 → 2
-        inst = getattr(m, "I") if "I" in m._fieldnames else number
+        inst = m.I if "I" in m._fieldnames else number
         groups.setdefault((name, int(inst)), []).append(m)
     out = {}
     for (name, inst), ms in groups.items():

@@ -13,8 +13,13 @@ import pandas as pd
 import pytest
 
 from apmcal.errors import ApmcalError
-from apmcal.sources.csv import (MPU6050_ACC_PER_COUNT, MPU6050_GYR_PER_COUNT, read_csv,
-                                read_imu_tk, sniff_layout)
+from apmcal.sources.csv import (
+    MPU6050_ACC_PER_COUNT,
+    MPU6050_GYR_PER_COUNT,
+    read_csv,
+    read_imu_tk,
+    sniff_layout,
+)
 
 HEADER = "t,acc_x,acc_y,acc_z,gyr_x,gyr_y,gyr_z"
 

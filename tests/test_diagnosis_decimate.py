@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from apmcal.diagnosis.decimate import FINE_EFFECTS, block_factor, block_means, decimated
-from apmcal.diagnosis.session import MagAxis, Pieces, Segment, Session, cut_session
+from apmcal.diagnosis.session import MagAxis, Session, cut_session
 from apmcal.preprocessing.static import find_static_segments
 
 

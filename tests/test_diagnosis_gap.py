@@ -5,8 +5,15 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from apmcal.diagnosis.gap import (LEVEL_MEANS, ResidualBlock, coefficients, compare,
-                                  expected_variance_kl, level_groups, variance_shares)
+from apmcal.diagnosis.gap import (
+    LEVEL_MEANS,
+    ResidualBlock,
+    coefficients,
+    compare,
+    expected_variance_kl,
+    level_groups,
+    variance_shares,
+)
 from apmcal.diagnosis.haar import details, piece_means
 
 RNG = np.random.default_rng(20261123)

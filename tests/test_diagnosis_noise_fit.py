@@ -7,8 +7,7 @@ from scipy.signal import butter, lfilter
 
 from apmcal.diagnosis.gap import ResidualBlock
 from apmcal.diagnosis.haar import details
-from apmcal.diagnosis.noise_fit import (MeanPairs, fit_channels, lattice_step, lowpass_gain,
-                                        random_walk_gain)
+from apmcal.diagnosis.noise_fit import MeanPairs, fit_channels, lattice_step, lowpass_gain, random_walk_gain
 
 RNG = np.random.default_rng(7)
 FS = 100.0

@@ -4,8 +4,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from apmcal.diagnosis.trajectory import (attitude, body_rates, corrected_move,
-                                         integrate_attitude, prefix_products)
+from apmcal.diagnosis.trajectory import (
+    attitude,
+    body_rates,
+    corrected_move,
+    integrate_attitude,
+    prefix_products,
+)
 
 RNG = np.random.default_rng(3)
 

@@ -8,9 +8,15 @@ import pandas as pd
 import pytest
 
 from apmcal.errors import ApmcalError
-from apmcal.solvers.ellipsoid import (ellipsoid_calibration, fit_ellipsoid_analytical,
-                                      fit_ellipsoid_numerical, fit_ellipsoid_robust, gyro_offset,
-                                      relative_mse, verdict)
+from apmcal.solvers.ellipsoid import (
+    ellipsoid_calibration,
+    fit_ellipsoid_analytical,
+    fit_ellipsoid_numerical,
+    fit_ellipsoid_robust,
+    gyro_offset,
+    relative_mse,
+    verdict,
+)
 from apmcal.solvers.result import Calibration
 from apmcal.solvers.uncertainty import bootstrap, covariance_from_jacobian
 

@@ -12,8 +12,15 @@ from scipy.spatial.transform import Rotation as Rot
 from apmcal.constants import EARTH_RATE
 from apmcal.errors import ApmcalError
 from apmcal.preprocessing.static import POSES, make_segment
-from apmcal.solvers.ferraris import (accel_bias, accel_coupling, earth_rate_up, ferraris_calibration,
-                                     gravity_q, gyro_coupling, gyro_g_sensitivity)
+from apmcal.solvers.ferraris import (
+    accel_bias,
+    accel_coupling,
+    earth_rate_up,
+    ferraris_calibration,
+    gravity_q,
+    gyro_coupling,
+    gyro_g_sensitivity,
+)
 
 G = 9.80665
 IMUCAL_G = 9.81            # imucal's default grav
@@ -70,9 +77,13 @@ def _plan():
     return p
 
 
-def simulate(*, fs=100.0, f_mat=np.eye(3), b_a=np.zeros(3), e_mat=np.eye(3), b0=np.zeros(3),
-             b1=np.zeros(3), k_ga=np.zeros((3, 3)), lat_deg=None, acc_noise=0.01, gyr_noise=1e-3,
-             seed=0):
+EYE, ZERO3, ZERO33 = np.eye(3), np.zeros(3), np.zeros((3, 3))   # read-only defaults
+for _default in (EYE, ZERO3, ZERO33):
+    _default.flags.writeable = False
+
+
+def simulate(*, fs=100.0, f_mat=EYE, b_a=ZERO3, e_mat=EYE, b0=ZERO3, b1=ZERO3, k_ga=ZERO33,
+             lat_deg=None, acc_noise=0.01, gyr_noise=1e-3, seed=0):
     """Sensor outputs of a hand-free Ferraris session (world z up, north = world x).
 
     a_s = F f + b_a,  ω_s = E ω + b0 + b1 t + K_ga f  (seed 002 eq. 1, 2, 5), f = specific force.

@@ -18,12 +18,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from sim_operator import TILTED_45, SimOperator, ThreadedSim, arrival_times, pose_error_deg
 
 from apmcal.cli import main
-from apmcal.sources.guided import (FACES, GuideAborted, GuideOptions, TerminalOperator,
-                                   detect_face, record_six_faces)
+from apmcal.sources.guided import (
+    FACES,
+    GuideOptions,
+    TerminalOperator,
+    detect_face,
+    record_six_faces,
+)
 from apmcal.sources.live import VehicleLink
-from sim_operator import TILTED_45, SimOperator, ThreadedSim, arrival_times, pose_error_deg
 from sitl.motion import pose_matrix
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -11,10 +11,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_live_sitl import free_udp_port, wait_for_boot
 
 from apmcal import cli
 from apmcal.cli import main
-from test_live_sitl import free_udp_port, wait_for_boot
 
 ROOT = Path(__file__).resolve().parents[1]
 SITL_QUIET = "motion_contamination,temperature_drift"

@@ -17,8 +17,7 @@ from apmcal.preprocessing import firmware as fw
 from apmcal.preprocessing.orientation import rotation_matrix
 from apmcal.solvers.result import Calibration, SensorCalibration
 from apmcal.vehicle.paramfile import format_value, read_param_file, write_param_file
-from apmcal.vehicle.params import (ParamProposal, cost_of_diagonal_only,
-                                   to_ardupilot_params)
+from apmcal.vehicle.params import ParamProposal, cost_of_diagonal_only, to_ardupilot_params
 
 RIGHT_ANGLE_ROTATIONS = [0, 2, 4, 8, 12, 16, 20, 24, 25, 28, 33, 37]
 

@@ -11,11 +11,11 @@ from __future__ import annotations
 import struct
 
 import numpy as np
+import pymavlink_ref as ref
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
 from apmcal.report import summarize
-import pymavlink_ref as ref
 from apmcal.sources import read_log
 from apmcal.sources.dataflash import read_bin_messages
 from apmcal.sources.tlog import read_tlog_messages

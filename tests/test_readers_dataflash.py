@@ -4,10 +4,10 @@ from __future__ import annotations
 import struct
 
 import numpy as np
+import pymavlink_ref as ref
 import pytest
 
 from apmcal.errors import ApmcalError
-import pymavlink_ref as ref
 from apmcal.sources import read_log
 from apmcal.sources.dataflash import read_bin_messages
 
@@ -112,13 +112,13 @@ def test_every_format_char_equals_dfreader(tmp_path):
         data += _fmt_record(t, name, fmt, cols, struct.calcsize(_struct_of(fmt)) + 3)
     rng = np.random.default_rng(7)
     for _ in range(50):
-        for name, (t, fmt) in types.items():
+        for t, fmt in types.values():
             data += b"\xa3\x95" + bytes([t]) + struct.pack(_struct_of(fmt), *_random_values(rng, fmt))
     p = tmp_path / "all.bin"
     p.write_bytes(data)
     got, skipped, _ = read_bin_messages(p, want=lambda n: n in types)
     assert skipped == 0
-    for name, (t, fmt) in types.items():
+    for name, (_, fmt) in types.items():
         msgs = ref.pymavlink_messages(p, [name])
         assert len(msgs) == 50 == len(got[name]["F0"])
         for i, c in enumerate(fmt):

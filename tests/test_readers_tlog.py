@@ -5,12 +5,12 @@ from __future__ import annotations
 import struct
 
 import numpy as np
+import pymavlink_ref as ref
 import pytest
 from pymavlink.dialects.v10 import ardupilotmega as mav1
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
 from apmcal.errors import ApmcalError
-import pymavlink_ref as ref
 from apmcal.sources import read_log
 from apmcal.sources.tlog import read_tlog_messages
 

@@ -7,7 +7,6 @@ reverse) is a change in behaviour this test must catch.
 import json
 
 import numpy as np
-
 import pytest
 
 from apmcal.cli import main

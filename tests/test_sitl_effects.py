@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 from pygeomag import GeoMag
 from scipy.spatial.transform import Rotation
+from sitl_helpers import G0, only, run
 
 from sitl import EFFECTS
 from sitl.errors_model import ImuErrorModel
 from sitl.truth import Truth
-from sitl_helpers import G0, only, run
 
 
 def test_effect_names_are_the_canonical_list():
@@ -177,8 +177,8 @@ def test_magnetometer_field_hard_soft_iron_interference():
 
 
 def test_truth_json_roundtrip_and_unknown_effect(tmp_path):
-    from sitl.errors import SitlError
     from apmcal.solvers.result import SensorCalibration
+    from sitl.errors import SitlError
     tr = Truth.random(7).with_effects(disable=["acc_noise"])
     tr.save(tmp_path / "t.json")
     back = Truth.load(tmp_path / "t.json")
@@ -430,6 +430,7 @@ def test_lowpass_at_or_above_nyquist_is_skipped(cutoff):
 
 def test_per_axis_and_per_sensor_parameters_roundtrip_and_are_checked(tmp_path):
     import json
+
     from sitl.errors import SitlError
     tr = Truth.random(2)
     tr.acc_noise, tr.mag_noise, tr.gyro_bias_random_walk = [1e-3, 2e-3, 3e-3], [1, 2, 3], [1e-5] * 3

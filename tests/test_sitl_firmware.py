@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from sitl_helpers import messages, only, run
 
 from sitl.vehicle import SimVehicle
-from sitl_helpers import messages, only, run
 
 
 def _set(v, name, value):

@@ -120,7 +120,7 @@ def test_sample_tumble_bin_field_matches_wmm_after_truth():
 
 
 def test_sample_onepos_and_param_variants_readable():
-    for name, n_params in (("onepos.tlog", None), ("ferraris_params32.tlog", None),
+    for name, _n_params in (("onepos.tlog", None), ("ferraris_params32.tlog", None),
                            ("ferraris_params33.tlog", None)):
         path = LOGS / name
         if not path.exists():

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from sitl_helpers import messages, only
 
 from sitl.mavlink_vehicle import MavlinkVehicle
 from sitl.vehicle import SimVehicle, parse_pose_text
-from sitl_helpers import messages, only
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -7,11 +7,11 @@ import json
 import numpy as np
 import pytest
 from scipy.stats import kurtosis
+from sitl_helpers import G0, only, still
 
 from sitl import DIAGNOSIS_EFFECTS, EFFECTS, NOMINAL_EFFECTS, SIMULATOR_QUIRKS
 from sitl.errors import SitlError
 from sitl.truth import Truth
-from sitl_helpers import G0, only, still
 
 QUIRKS = ("uniform_noise", "triangle_drift")
 

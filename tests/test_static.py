@@ -13,8 +13,7 @@ import pytest
 
 from apmcal.errors import ApmcalError
 from apmcal.preprocessing.rotations import find_rotations
-from apmcal.preprocessing.static import (ARDUPILOT_FACE, find_static_segments, label_poses,
-                                         pose_of)
+from apmcal.preprocessing.static import ARDUPILOT_FACE, find_static_segments, label_poses, pose_of
 
 G = 9.80665
 IMUCAL_FS = 102.4   # ../shared/data/README.md

@@ -12,15 +12,15 @@ import time
 
 import numpy as np
 import pytest
+from lossy_udp import ServedVehicle, free_udp_port, vehicle_behind_lossy_link
+from sitl_helpers import only
 
 from apmcal.cli import main
 from apmcal.errors import ApmcalError
 from apmcal.sources.live import VehicleLink
-from apmcal.vehicle.paramfile import read_param_file, write_param_file
+from apmcal.vehicle.paramfile import write_param_file
 from apmcal.vehicle.upload import UploadReport, upload_params
-from lossy_udp import ServedVehicle, free_udp_port, vehicle_behind_lossy_link
 from sitl.vehicle import SimVehicle
-from sitl_helpers import only
 
 NEW = {"INS_ACCOFFS_X": 0.31, "INS_ACCOFFS_Y": -0.27, "INS_ACCOFFS_Z": 0.52,
        "COMPASS_OFS_X": 41.5, "COMPASS_OFS_Y": -63.25, "COMPASS_OFS_Z": 120.0}

@@ -5,11 +5,11 @@ about 0.3 s each) and calibrated as `apmcal log` does.
 """
 import numpy as np
 import pytest
+from sitl_helpers import session_recording, sigma_z
 
 from apmcal.pipeline import Options, calibrate
 from apmcal.solvers.result import Calibration, SensorCalibration
 from apmcal.verdict import compass, judge
-from sitl_helpers import session_recording, sigma_z
 
 LAT = 5.6037
 # clean: the errors ArduPilot's parameters hold, noise, and the physics apmcal models

@@ -11,16 +11,28 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from apmcal.diagnosis.gap import GapEstimate, coefficients, compare
-from apmcal.diagnosis.hold_motion import (amplitudes, confirmed, confirmed_by_accelerometer,
-                                          extract_motion, hold_rotations)
+from apmcal.diagnosis import workers
 from apmcal.diagnosis.dynamics import fit_dynamics, move_residuals
-from apmcal.diagnosis.model import (ModelFit, calibrated_rate, fit_model, hold_residuals,
-                                    hold_vectors, reduce_session, set_acc_terms)
+from apmcal.diagnosis.gap import GapEstimate, coefficients, compare
+from apmcal.diagnosis.hold_motion import (
+    amplitudes,
+    confirmed,
+    confirmed_by_accelerometer,
+    extract_motion,
+    hold_rotations,
+)
+from apmcal.diagnosis.model import (
+    ModelFit,
+    calibrated_rate,
+    fit_model,
+    hold_residuals,
+    hold_vectors,
+    reduce_session,
+    set_acc_terms,
+)
 from apmcal.diagnosis.noise_fit import NoiseModel, fit_noise, lattice_step
 from apmcal.diagnosis.params import effect_params, mean_of_folds
 from apmcal.diagnosis.static_fit import count_orientations
-from apmcal.diagnosis import workers
 from apmcal.diagnosis.twin import motion_of, simulate
 
 FOLDS = (0, 1)

@@ -25,7 +25,7 @@ scale (frequency band), piece (hold or rotation), time and temperature.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.special import digamma

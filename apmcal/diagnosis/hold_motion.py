@@ -28,7 +28,6 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import detrend, welch
 
-
 TREMOR_BAND_HZ = (4.0, 9.0)   # the bands of sitl's motion contamination (sitl.truth defaults)
 SWAY_BAND_HZ = (0.1, 0.5)
 SEGMENT_S = 10.0        # Welch segment of the pooled hold spectrum [s] (sway down to 0.1 Hz)

@@ -19,8 +19,7 @@ from apmcal.diagnosis.blocks import Blocks, make_blocks
 from apmcal.diagnosis.dynamics import Dynamics
 from apmcal.diagnosis.gap import ResidualBlock
 from apmcal.diagnosis.regressors import References, columns, triangle
-from apmcal.diagnosis.static_fit import (GeometryFit, GyroFit, count_orientations, fit_geometry,
-                                         fit_gyro)
+from apmcal.diagnosis.static_fit import GeometryFit, GyroFit, count_orientations, fit_geometry, fit_gyro
 
 AXES = ("x", "y", "z")
 DRIFT_TIMES_MIN = np.arange(0.5, 30.01, 0.25)   # SIM_DRIFT_TIME grid of the triangle drift

@@ -24,7 +24,6 @@ import numpy as np
 from scipy.optimize import nnls
 from scipy.signal import butter, freqz
 
-
 N_FREQ = 4096                      # frequency grid of the Haar gains
 CUTOFF_GRID = 16                   # candidate low-pass cut-offs between fs/8 and 45 % of fs
 # an on-chip filter sits at or above an eighth of the logging rate (MPU-6000 DLPF 20-256 Hz

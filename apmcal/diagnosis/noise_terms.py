@@ -61,8 +61,13 @@ from functools import lru_cache
 import numpy as np
 from scipy.optimize import nnls
 
-from apmcal.diagnosis.allan import (AllanDeviation, WaveletVariance, _raw_pieces,
-                                    allan_deviation, haar_wavelet_variance)
+from apmcal.diagnosis.allan import (
+    AllanDeviation,
+    WaveletVariance,
+    _raw_pieces,
+    allan_deviation,
+    haar_wavelet_variance,
+)
 
 COMPONENTS = ("white", "bias_instability", "random_walk")
 B_FACTOR = float(np.sqrt(2.0 * np.log(2.0) / np.pi))       # σ_A floor = 0.664·B (IEEE 952)

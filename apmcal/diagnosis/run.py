@@ -12,13 +12,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from apmcal.diagnosis.breakdown import gap_summary
-from apmcal.diagnosis.decimate import (FINE_EFFECTS, SHAPES_BLOCK_MEANS, block_factor,
-                                       decimated)
+from apmcal.diagnosis.decimate import FINE_EFFECTS, SHAPES_BLOCK_MEANS, block_factor, decimated
 from apmcal.diagnosis.evaluate import Evaluation, Evaluator
 from apmcal.diagnosis.params import white_noise_of_folds
 from apmcal.diagnosis.result import GapResult
-from apmcal.diagnosis.select import (candidates, forward_selection, merged, rank,
-                                     rank_effects)
+from apmcal.diagnosis.select import candidates, forward_selection, merged, rank, rank_effects
 
 
 @dataclass

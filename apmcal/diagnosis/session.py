@@ -221,8 +221,7 @@ def session_from_log(contents, opts) -> Session:
     The samples are prepared exactly as for a calibration (firmware correction undone, only
     the samples after a calibration-parameter change kept); the holds are the calibration's.
     """
-    from apmcal.pipeline import (has_live_magnetometer, pick_recording, prepare,
-                                 recording_date)
+    from apmcal.pipeline import has_live_magnetometer, pick_recording, prepare, recording_date
     from apmcal.preprocessing.param_changes import split_at_param_changes
     from apmcal.preprocessing.static import find_static_segments
 

@@ -65,7 +65,7 @@ def noise_line(axes: dict) -> str:
     """One sensor's noise terms: the white density real/twin ratio per axis, and where the
     real residuals have a bias instability or random walk (and whether the twin has one)."""
     ratios = []
-    for name, d in axes.items():
+    for _name, d in axes.items():
         real, twin = d["real"].get("white_density"), d["twin"].get("white_density")
         ratios.append(f"{real['value'] / twin['value']:.2f}" if real and twin else "-")
     parts = [f"white noise real/twin {' '.join(ratios)}"]

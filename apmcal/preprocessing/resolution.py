@@ -1,14 +1,14 @@
 """The resolution of integer telemetry, and the bias its truncation leaves.
 
-ardupilot-facts.md "What the telemetry really carries": RAW_IMU and SCALED_IMU/2/3 carry
-int16 values in mG, mrad/s and mGauss, converted from float by C's truncation toward zero.
-A mean of truncated samples is biased toward zero by up to one step when the noise is smaller
-than a step (the gyro at rest: 1 mrad/s step, noise ~0.1 mrad/s), so the samples are moved to
-the middle of the interval they stand for, and the remaining uncertainty (uniform over one step,
-step/√12) is added to the calibration's sigma (:mod:`apmcal.solvers.resolution_floor`). When the noise spans several steps the rounding
-is dithered away: its variance (step²/12 per sample) is already in the residual-based sigma, and
-a floor would only inflate it (5-10× for a 50 Hz accelerometer), so the floor applies only to
-sensors whose noise is below one step (:func:`resolution_limited`).
+ardupilot-facts.md "What the telemetry really carries": RAW_IMU and SCALED_IMU/2/3 carry int16
+values in mG, mrad/s and mGauss, converted from float by C's truncation toward zero. A mean of
+truncated samples is biased toward zero by up to one step when the noise is smaller than a step
+(the gyro at rest: 1 mrad/s step, noise ~0.1 mrad/s), so the samples are moved to the middle of the
+interval they stand for, and the remaining uncertainty (uniform over one step, step/√12) is added
+to the calibration's sigma (:mod:`apmcal.solvers.resolution_floor`). When the noise spans several
+steps the rounding is dithered away: its variance (step²/12 per sample) is already in the
+residual-based sigma, and a floor would only inflate it (5-10× for a 50 Hz accelerometer), so the
+floor applies only to sensors whose noise is below one step (:func:`resolution_limited`).
 """
 from __future__ import annotations
 

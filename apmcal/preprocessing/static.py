@@ -24,10 +24,18 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
 from apmcal.errors import ApmcalError
 from apmcal.preprocessing.hold_merge import MERGE_ANGLE_DEG, merge_holds
-from apmcal.preprocessing.stillness import (GAP_FACTOR, gap_free_blocks, hysteresis_mask,
-                                            moving_std, noise_threshold, slow_mask, true_runs)
+from apmcal.preprocessing.stillness import (
+    GAP_FACTOR,
+    gap_free_blocks,
+    hysteresis_mask,
+    moving_std,
+    noise_threshold,
+    slow_mask,
+    true_runs,
+)
 
 #: Ferraris pose name -> ArduPilot accelerometer-calibration face (ardupilot-facts.md).
 ARDUPILOT_FACE = {"x_p": "noseup", "x_a": "nosedown", "y_p": "left", "y_a": "right",

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import functools
 
-
 _ONE_THREAD_FROM_START = False     # set by one_blas_thread_from_start: nothing left to limit
 
 

@@ -10,10 +10,19 @@ from __future__ import annotations
 import numpy as np
 
 from apmcal.errors import ApmcalError
-from apmcal.solvers.ellipsoid_paper import (fit_ellipsoid_analytical, fit_ellipsoid_numerical,
-                                            gyro_offset, relative_mse, sphere_fit)
-from apmcal.solvers.ellipsoid_robust import (algebraic_ellipsoid, direction_coverage,
-                                             fit_ellipsoid_robust, verdict)
+from apmcal.solvers.ellipsoid_paper import (
+    fit_ellipsoid_analytical,
+    fit_ellipsoid_numerical,
+    gyro_offset,
+    relative_mse,
+    sphere_fit,
+)
+from apmcal.solvers.ellipsoid_robust import (
+    algebraic_ellipsoid,
+    direction_coverage,
+    fit_ellipsoid_robust,
+    verdict,
+)
 from apmcal.solvers.result import Calibration
 
 __all__ = ["fit_ellipsoid_analytical", "fit_ellipsoid_numerical", "fit_ellipsoid_robust",

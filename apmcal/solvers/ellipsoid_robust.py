@@ -27,8 +27,14 @@ import numpy as np
 from apmcal.errors import ApmcalError
 from apmcal.solvers.ellipsoid_lm import Problem, gradient, residual, residual_jacobian
 from apmcal.solvers.ellipsoid_lm import solve as lm_solve
-from apmcal.solvers.ellipsoid_paper import (DIAGONAL_ENTRIES, SYMMETRIC_ENTRIES, UPPER_ENTRIES,
-                                            check_samples, params_to_matrix, sphere_fit)
+from apmcal.solvers.ellipsoid_paper import (
+    DIAGONAL_ENTRIES,
+    SYMMETRIC_ENTRIES,
+    UPPER_ENTRIES,
+    check_samples,
+    params_to_matrix,
+    sphere_fit,
+)
 from apmcal.solvers.result import SensorCalibration
 from apmcal.solvers.uncertainty import bootstrap, covariance_from_normal_equations
 

@@ -53,10 +53,16 @@ import numpy as np
 from apmcal.constants import EARTH_RATE, normal_gravity
 from apmcal.errors import ApmcalError
 from apmcal.preprocessing.rotations import Rotation, find_rotations, integrate_slice, sample_intervals
-from apmcal.preprocessing.static import (ARDUPILOT_FACE, POSES, StaticSegment, find_static_segments,
-                                         label_poses, make_segment)
-from apmcal.solvers.gyro_bias import fit_gyro_bias, integrate_motions, motions_between_holds
+from apmcal.preprocessing.static import (
+    ARDUPILOT_FACE,
+    POSES,
+    StaticSegment,
+    find_static_segments,
+    label_poses,
+    make_segment,
+)
 from apmcal.solvers.blas_threads import single_threaded_blas
+from apmcal.solvers.gyro_bias import fit_gyro_bias, integrate_motions, motions_between_holds
 from apmcal.solvers.misfit import hold_misfit
 from apmcal.solvers.result import Calibration, SensorCalibration
 from apmcal.solvers.uncertainty import jacobian_sigma

@@ -19,15 +19,17 @@ def tilt_from_level_deg(acc_mean: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
 
 
-def longest_level_hold(segments, board_rotation: np.ndarray = np.eye(3)):
+def longest_level_hold(segments, board_rotation: np.ndarray | None = None):
     """The longest hold within :data:`LEVEL_TOLERANCE_DEG` of level, or a clear error.
 
     Level is the vehicle's: the hold means (sensor frame) are rotated into the body frame by
     ``board_rotation`` (AHRS_ORIENTATION, sensor → body), so a board mounted upside down on a
-    level vehicle counts as level.
+    level vehicle counts as level (None: the identity).
     """
+    rotation = np.eye(3) if board_rotation is None else np.asarray(board_rotation, dtype=float)
+
     def tilt(s):
-        return tilt_from_level_deg(board_rotation @ s.acc_mean)
+        return tilt_from_level_deg(rotation @ s.acc_mean)
 
     level = [s for s in segments if tilt(s) <= LEVEL_TOLERANCE_DEG]
     if not level:
@@ -39,7 +41,7 @@ def longest_level_hold(segments, board_rotation: np.ndarray = np.eye(3)):
 
 
 def one_position_on_holds(t, acc, gyr, segments, lat_deg, lon_deg,
-                          board_rotation: np.ndarray = np.eye(3)) -> Calibration:
+                          board_rotation: np.ndarray | None = None) -> Calibration:
     """Seed 002's one-position method on the longest level hold.
 
     The paper's platform is level with x north and z down (seed 002 §3.2): that is the vehicle's
@@ -51,7 +53,7 @@ def one_position_on_holds(t, acc, gyr, segments, lat_deg, lon_deg,
     """
     from apmcal.solvers.one_position import one_position_calibration
 
-    R = np.asarray(board_rotation, dtype=float)
+    R = np.eye(3) if board_rotation is None else np.asarray(board_rotation, dtype=float)
     still = longest_level_hold(segments, R)
     part = still.kept()
     cal = one_position_calibration(t[part], acc[part] @ R.T,

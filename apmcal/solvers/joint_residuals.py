@@ -41,8 +41,9 @@ Simplifications, and why: (1) the still-pose conditions use block means (~1 s) i
 every sample — to first order the same information, a hundred times fewer conditions;
 (2) the observation covariance B·C_l·Bᵀ comes from white sensor noise
 (:mod:`apmcal.solvers.joint_covariance`, which says which correlations it keeps); the variance
-factor of each family is then estimated from its residuals (:mod:`apmcal.solvers.joint`). (3) The magnetometer runs at three window lengths, 0.1 s, 1 s and 5 s, where the paper
-uses two rates (100 Hz and 10 Hz, which 50 Hz telemetry cannot give); the paper notes that
+factor of each family is then estimated from its residuals (:mod:`apmcal.solvers.joint`).
+(3) The magnetometer runs at three window lengths, 0.1 s, 1 s and 5 s, where the paper uses two
+rates (100 Hz and 10 Hz, which 50 Hz telemetry cannot give); the paper notes that
 longer windows drift less in heading and show outliers better, and on short hand-held sessions
 the two short windows alone leave the soft iron weakly determined (a sitl hand-held session
 checked on another one: attitude error 1.6° with 0.1 + 1 s windows, 0.4° with 5 s added, the
@@ -114,7 +115,7 @@ def layout(t, acc, gyr, mag, holds, gravity: float, field_mgauss: float | None) 
                                                       [b.size for b in d.blocks]), (rows, cols)),
                                      shape=(len(d.blocks), d.t.size))
     index = {id(b): k for k, b in enumerate(d.blocks)}
-    for h0, h1, b0, b1 in zip(holds, holds[1:], hold_blocks, hold_blocks[1:]):
+    for _h0, _h1, b0, b1 in zip(holds, holds[1:], hold_blocks, hold_blocks[1:]):
         if not b0 or not b1:
             continue
         # from the centre of pose i's last block to the centre of pose j's first: a block

@@ -32,7 +32,7 @@ import numpy as np
 
 from apmcal.constants import EARTH_RATE, MG_TO_MS2, MRAD_TO_RAD
 from apmcal.errors import ApmcalError
-from apmcal.preprocessing.highpass import highpass   # zero-phase Butterworth (seed 002 §5)
+from apmcal.preprocessing.highpass import highpass  # zero-phase Butterworth (seed 002 §5)
 from apmcal.solvers.identifiability import identifiability
 from apmcal.solvers.result import Calibration, SensorCalibration
 

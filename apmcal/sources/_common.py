@@ -12,7 +12,13 @@ import pandas as pd
 
 from apmcal.errors import ApmcalError
 from apmcal.recording import (
-    ACC, CALIBRATION_PARAM_PREFIXES, GYR, MAG, LogContents, ParamChange, Recording,
+    ACC,
+    CALIBRATION_PARAM_PREFIXES,
+    GYR,
+    MAG,
+    LogContents,
+    ParamChange,
+    Recording,
 )
 
 #: numpy dtype per struct format character (little-endian, packed)

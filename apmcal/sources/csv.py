@@ -2,8 +2,9 @@
 
 Layouts (``layout=``):
 
-``"apmcal"``   (alias ``"si"``) header ``t, acc_x, acc_y, acc_z, gyr_x, gyr_y, gyr_z`` [s, m/s², rad/s], optional
-               ``mag_x..z`` [mGauss] and ``temp`` [°C]. The default layout.
+``"apmcal"``   (alias ``"si"``) header ``t, acc_x, acc_y, acc_z, gyr_x, gyr_y, gyr_z``
+               [s, m/s², rad/s], optional ``mag_x..z`` [mGauss] and ``temp`` [°C]. The default
+               layout.
 ``"imucal"``   imucal's example session (mad-lab-fau/imucal example_data): ``n_samples`` index,
                ``gyr_x..z`` [deg/s], ``acc_x..z`` [m/s²]; no time column, so t = n / rate,
                rate 102.4 Hz unless ``rate_hz`` says otherwise (imucal's example sampling rate).

@@ -1,11 +1,11 @@
 """Fast reader for ArduPilot dataflash binary logs (.bin).
 
-A dataflash log is a stream of records ``0xA3 0x95 type body``; FMT records (type 0x80) give
-each type its name, length, field formats and column names. The record boundaries are found in
-one pass (numpy for an undamaged log, else the compiled ``_framing.scan_dataflash``), then all records of one type are gathered and
-decoded at once with a numpy structured dtype. Format-character multipliers (c, C, e, E: 0.01;
-L: 1e-7) are applied the way pymavlink's DFReader does (division by ``1/mul``), so values are
-identical to DFReader's.
+A dataflash log is a stream of records ``0xA3 0x95 type body``; FMT records (type 0x80) give each
+type its name, length, field formats and column names. The record boundaries are found in one pass
+(numpy for an undamaged log, else the compiled ``_framing.scan_dataflash``), then all records of
+one type are gathered and decoded at once with a numpy structured dtype. Format-character
+multipliers (c, C, e, E: 0.01; L: 1e-7) are applied the way pymavlink's DFReader does (division by
+``1/mul``), so values are identical to DFReader's.
 
 Recordings built (shared with the text reader, :func:`build_contents`):
 IMU / IMU2 / IMU3 (instance 0/1/2, or per ``I`` column) → acc, gyr, temp (T or Temp) columns;
@@ -34,8 +34,17 @@ from apmcal.errors import ApmcalError
 from apmcal.recording import ACC, GYR, MAG, LogContents
 from apmcal.sources import _fastscan
 from apmcal.sources._common import (
-    MAX_DAMAGE_OFFSETS, _params, add_recording, attach_current, cstr, current_series, finish,
-    load_bytes, note_current, param_changes, parse_firmware,
+    MAX_DAMAGE_OFFSETS,
+    _params,
+    add_recording,
+    attach_current,
+    cstr,
+    current_series,
+    finish,
+    load_bytes,
+    note_current,
+    param_changes,
+    parse_firmware,
 )
 from apmcal.sources.gps_time import GPS_TIME_COLUMNS, boot_to_unix_offset
 
@@ -106,7 +115,8 @@ def scan(buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, list[int]]:
         off = np.empty(chunk, np.int64)
         typ = np.empty(chunk, np.uint8)
         k = _framing.scan_dataflash(buf, state, lengths, off, typ, damage)
-        offs.append(off[:k].copy()); types.append(typ[:k].copy())
+        offs.append(off[:k].copy())
+        types.append(typ[:k].copy())
     nd = int(min(state[2], MAX_DAMAGE_OFFSETS))
     return (np.concatenate(offs), np.concatenate(types), int(state[1]), damage[:nd].tolist())
 

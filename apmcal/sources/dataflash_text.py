@@ -17,7 +17,11 @@ from apmcal.errors import ApmcalError
 from apmcal.recording import LogContents
 from apmcal.sources._common import MAX_DAMAGE_OFFSETS, load_bytes
 from apmcal.sources.dataflash import (
-    IMU_RE, OFFSET_COLUMN, build_contents, find_param_changes, wanted_name,
+    IMU_RE,
+    OFFSET_COLUMN,
+    build_contents,
+    find_param_changes,
+    wanted_name,
 )
 
 _INT_CHARS = set("bBhHiIMqQ")

@@ -51,8 +51,18 @@ from apmcal.errors import ApmcalError
 from apmcal.recording import LogContents
 from apmcal.sources import _fastscan
 from apmcal.sources._common import (
-    MAX_DAMAGE_OFFSETS, _params, add_recording, attach_current, cstr, current_series, finish,
-    load_bytes, note_current, param_changes, parse_firmware, struct_dtype,
+    MAX_DAMAGE_OFFSETS,
+    _params,
+    add_recording,
+    attach_current,
+    cstr,
+    current_series,
+    finish,
+    load_bytes,
+    note_current,
+    param_changes,
+    parse_firmware,
+    struct_dtype,
 )
 
 IMU_MESSAGES = ("RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU")
@@ -121,7 +131,9 @@ def _index(buf: np.ndarray, wanted: np.ndarray):
         ln = np.empty(chunk, np.int16)
         mid = np.empty(chunk, np.int32)
         k = _framing.scan_tlog(buf, state, crc, max_len, wanted, off, ln, mid, damage)
-        offs.append(off[:k].copy()); lens.append(ln[:k].copy()); mids.append(mid[:k].copy())
+        offs.append(off[:k].copy())
+        lens.append(ln[:k].copy())
+        mids.append(mid[:k].copy())
     nd = int(min(state[2], MAX_DAMAGE_OFFSETS))
     return (np.concatenate(offs), np.concatenate(lens), np.concatenate(mids), int(state[1]),
             damage[:nd].tolist())

@@ -31,8 +31,13 @@ import numpy as np
 
 from apmcal.constants import STANDARD_GRAVITY
 from apmcal.errors import ApmcalError
-from apmcal.preprocessing.firmware import (GENERATIONS, acc_param_names, compass_rotation,
-                                           gyr_param_names, mag_param_names)
+from apmcal.preprocessing.firmware import (
+    GENERATIONS,
+    acc_param_names,
+    compass_rotation,
+    gyr_param_names,
+    mag_param_names,
+)
 from apmcal.preprocessing.orientation import rotation_matrix
 
 # Firmware limits (ardupilot-facts.md "How the firmware applies the parameters" and

@@ -16,10 +16,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from apmcal.errors import ApmcalError
-from apmcal.preprocessing.firmware import acc_param_names, firmware_generation, mag_param_names
 from apmcal.link.params import ParamProtocol, same_float32
-from apmcal.vehicle.params import acc_violations, offset_violations, soft_iron_violations
+from apmcal.preprocessing.firmware import firmware_generation, mag_param_names
 from apmcal.vehicle.paramfile import read_param_file, read_unrestorable, write_param_file
+from apmcal.vehicle.params import acc_violations, offset_violations, soft_iron_violations
 from apmcal.vehicle.scope import check_scope, may_write
 
 INSTANCES = range(3)        # IMU / compass instances 1..3 (suffix "", "2", "3")
