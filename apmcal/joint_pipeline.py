@@ -57,8 +57,9 @@ def field_magnitude(mag: np.ndarray, opts, report: dict) -> float:
 def joint_on_prepared(prepared, mag_prepared, opts) -> Calibration:
     """Seed 001's joint calibration of a prepared recording and its compass.
 
-    Raises ApmcalError (one line) when the session has no live compass, too few still poses
-    or no turns between them.
+    Without a live compass the accelerometer and gyro are calibrated alone (their 30
+    parameters; the compass conditions are left out, seed 001 §3.2), with a warning. Raises
+    ApmcalError (one line) when there are too few still poses or no turns between them.
     """
     from apmcal.preprocessing.static import find_static_segments
     from apmcal.solvers.joint import joint_calibration
@@ -68,20 +69,24 @@ def joint_on_prepared(prepared, mag_prepared, opts) -> Calibration:
         raise ApmcalError("joint calibration needs gyro samples; this recording has none")
     t = raw.t
     mag = compass_on_imu_times(t, prepared, mag_prepared)
+    report: dict = {}
     if mag is None:
-        raise ApmcalError("joint calibration needs a compass, and this session has none (or "
-                          "it logged only zeros); use --method ferraris, ellipsoid or auto")
-    span = np.all(np.isfinite(mag), axis=1)
-    if span.sum() < 10:
-        raise ApmcalError("joint calibration: the compass and IMU records do not overlap in time")
-    t, acc, gyr, mag = t[span], raw.xyz("acc")[span], raw.xyz("gyr")[span], mag[span]
+        report["warnings"] = ["no compass in this session (or it logged only zeros): the "
+                              "accelerometer and gyro are calibrated without it"]
+        span = np.ones(len(t), bool)
+    else:
+        span = np.all(np.isfinite(mag), axis=1)
+        if span.sum() < 10:
+            raise ApmcalError("joint calibration: the compass and IMU records do not overlap "
+                              "in time")
+        mag = mag[span]
+    t, acc, gyr = t[span], raw.xyz("acc")[span], raw.xyz("gyr")[span]
     holds = find_static_segments(t, acc, gyr, min_duration=opts.min_still_s)
     if len(holds) < MIN_HOLDS:
         raise ApmcalError(f"joint calibration needs at least {MIN_HOLDS} still poses with turns "
                           f"between them; found {len(holds)} still period(s) of "
                           f"{opts.min_still_s:g} s or more")
-    report: dict = {}
-    field = field_magnitude(mag, opts, report)
+    field = field_magnitude(mag, opts, report) if mag is not None else None
     try:
         cal = joint_calibration(t, acc, gyr, mag, holds, gravity=opts.gravity,
                                 field_mgauss=field)

@@ -149,7 +149,7 @@ def joint_calibration_of(prepared: Prepared, mag_recording: Recording | None,
     if mag_prepared is not None:
         cal.report["warnings"].extend(f"mag: {w}" for w in mag_prepared.warnings)
     add_resolution_floor(cal, prepared.floor_steps, {"acc": opts.gravity})
-    if "mag" in prepared.floor_steps:
+    if "mag" in prepared.floor_steps and "mag" in cal.sensors:
         add_resolution_floor(cal, {"mag": prepared.floor_steps["mag"]},
                              {"mag": cal.report["mag_field_mgauss"]})
     return cal

@@ -130,8 +130,8 @@ def test_joint_beats_the_other_methods_out_of_sample(fitted):
     assert errors["joint"] < 0.5 * errors["ellipsoid"] and errors["joint"] < errors["raw"]
 
 
-def test_session_without_compass_is_refused_in_one_line(tmp_path, capsys):
-    """A CSV without magnetometer columns: exit 2, one line naming the file and the reason."""
+def test_session_without_compass_calibrates_accelerometer_and_gyro(tmp_path, capsys):
+    """A CSV without magnetometer columns: the accelerometer and gyro alone, with a warning."""
     from sitl.truth import Truth
     from sitl.vehicle import SimVehicle
     v = SimVehicle(Truth.random(3), "handheld", "3.3", fs=50.0, record=True, seed=3,
@@ -142,10 +142,12 @@ def test_session_without_compass_is_refused_in_one_line(tmp_path, capsys):
     cols = np.column_stack([h["t"], h["raw_acc"], h["raw_gyr"]])
     np.savetxt(path, cols, delimiter=",", comments="",
                header="t,acc_x,acc_y,acc_z,gyr_x,gyr_y,gyr_z")
-    assert main(["log", str(path), "--method", "joint", "--quiet"]) == 2
-    err = capsys.readouterr().err
-    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
-    assert "needs a compass" in err and str(path) in err
+    out = tmp_path / "nocompass.json"
+    assert main(["log", str(path), "--method", "joint", "--quiet", "--json", str(out)]) == 0
+    est = json.loads(out.read_text())
+    assert "acc" in est and "gyr" in est and "mag" not in est
+    assert any("no compass" in w for w in est["report"]["warnings"])
+    assert "Traceback" not in capsys.readouterr().err
 
 
 def test_session_without_motion_is_refused_in_one_line(tmp_path, capsys):
