@@ -106,3 +106,14 @@ def test_sigma_not_inflated_on_a_clean_session():
         assert cal.report["acc_misfit"]["birge_ratio"] < 1.5
         z = np.abs(np.concatenate(list(sigma_z(truth, cal, vehicle).values())))
         assert np.mean(z < 3) >= 0.9
+
+
+def test_chi2_survival_in_closed_form_matches_scipy():
+    """The misfit's χ² test avoids loading scipy.stats; its closed form must agree with it."""
+    from scipy.stats import chi2
+
+    from apmcal.solvers.misfit import chi2_survival
+
+    for dof in range(1, 60):
+        for x in (0.0, 1e-6, 0.5, 3.0, 9.0, 30.0, 80.0, 200.0):
+            assert chi2_survival(x, dof) == pytest.approx(chi2.sf(x, dof), rel=1e-10, abs=1e-300)

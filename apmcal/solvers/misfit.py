@@ -32,6 +32,7 @@ Birge ratio sqrt(χ²/dof) of the checks (1 when the model fits) says how badly 
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -184,6 +185,20 @@ FIT_P_VALUE = 0.01     # χ² beyond its 99th percentile: the checks disagree be
 
 def model_fits(chi2: float, dof: int) -> bool:
     """True when χ² on ``dof`` checks is within what noise alone gives 99 % of the time."""
-    from scipy.stats import chi2 as chi2_dist
+    return dof <= 0 or chi2_survival(chi2, dof) >= FIT_P_VALUE
 
-    return dof <= 0 or bool(chi2_dist.sf(chi2, dof) >= FIT_P_VALUE)
+
+def chi2_survival(x: float, dof: int) -> float:
+    """P(χ²_dof ≥ x) for a whole number of degrees of freedom, in closed form (Abramowitz &
+    Stegun 26.4.4 for even, 26.4.5 for odd ``dof``): finite sums, equal to scipy.stats.chi2.sf
+    to rounding, without loading scipy.stats (1 s of a 2 s `apmcal log`)."""
+    half = 0.5 * max(float(x), 0.0)
+    if dof % 2 == 0:
+        terms = [j * math.log(half) - math.lgamma(j + 1) for j in range(dof // 2)] \
+            if half > 0 else [0.0]
+        return min(1.0, math.exp(-half) * sum(math.exp(t) for t in terms))
+    tail = math.erfc(math.sqrt(half))
+    if half > 0:
+        tail += math.exp(-half) * sum(math.exp((j - 0.5) * math.log(half) - math.lgamma(j + 0.5))
+                                      for j in range(1, (dof - 1) // 2 + 1))
+    return min(1.0, tail)
