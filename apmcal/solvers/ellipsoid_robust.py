@@ -25,7 +25,7 @@ from dataclasses import replace
 import numpy as np
 
 from apmcal.errors import ApmcalError
-from apmcal.solvers.ellipsoid_lm import Problem, gradient, residual, residual_jacobian
+from apmcal.solvers.ellipsoid_lm import Problem, gradient, loss_weights, residual, residual_jacobian
 from apmcal.solvers.ellipsoid_lm import solve as lm_solve
 from apmcal.solvers.ellipsoid_paper import (
     DIAGONAL_ENTRIES,
@@ -127,20 +127,6 @@ def _start(s: np.ndarray, radius: float, use_quadric: bool) -> tuple[np.ndarray,
             return o, radius * (V * np.sqrt(lam)) @ V.T, "algebraic quadric"
     o, S = sphere_fit(s)
     return o, np.eye(3) * radius / S, "sphere (seed 000 step 1)"
-
-
-def _huber_weights(r: np.ndarray, f_scale: float, loss: str) -> np.ndarray:
-    """IRLS weights of the loss at residuals r (for the covariance)."""
-    if loss == "linear":
-        return np.ones_like(r)
-    z = np.abs(r) / f_scale
-    if loss == "huber":
-        return np.minimum(1.0, 1.0 / np.maximum(z, 1e-300))
-    if loss == "soft_l1":
-        return 1.0 / np.sqrt(1 + z * z)
-    if loss == "cauchy":
-        return 1.0 / (1 + z * z)
-    raise ApmcalError(f"unknown loss {loss!r} (linear, huber, soft_l1, cauchy)")
 
 
 def _solve(s, radius, o0, M0, entries, loss, f_scale, w, bounds, prior=None,
@@ -408,7 +394,7 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
         notes.append("POORLY DETERMINED: " + ", ".join(n for n, e in zip(names, at_edge) if e)
                      + " stopped at the physical bound — the samples do not determine it")
     lw = "linear" if reject_sigma else loss
-    irls = _huber_weights(r * np.sqrt(w[keep]), f_scale_n, lw) * w[keep]
+    irls = loss_weights(r * np.sqrt(w[keep]), f_scale_n, lw) * w[keep]
     cov, rank = _covariance(J, r, irls, prior(entries))
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
     sig_M = params_to_matrix(sd[3:], entries)

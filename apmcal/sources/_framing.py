@@ -13,15 +13,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+# the wire constants, shared with the numpy fast path (which must not import numba)
+from apmcal.sources._fastscan import DF_FMT_LEN, DF_FMT_TYPE, DF_HEAD1, DF_HEAD2, MAV1_MAGIC, MAV2_MAGIC
+
 # state vector layout
 POS, SKIPPED, NDAMAGE = 0, 1, 2
-
-MAV1_MAGIC = 0xFE
-MAV2_MAGIC = 0xFD
-DF_HEAD1 = 0xA3
-DF_HEAD2 = 0x95
-DF_FMT_TYPE = 0x80
-DF_FMT_LEN = 89
 
 
 @njit(cache=True, nogil=True)
