@@ -148,10 +148,12 @@ def joint_calibration_of(prepared: Prepared, mag_recording: Recording | None,
     cal.report["warnings"].extend(prepared.warnings)
     if mag_prepared is not None:
         cal.report["warnings"].extend(f"mag: {w}" for w in mag_prepared.warnings)
-    add_resolution_floor(cal, prepared.floor_steps, {"acc": opts.gravity})
-    if "mag" in prepared.floor_steps and "mag" in cal.sensors:
-        add_resolution_floor(cal, {"mag": prepared.floor_steps["mag"]},
-                             {"mag": cal.report["mag_field_mgauss"]})
+    # one call for all sensors: the compass is already in the result, so a second call would
+    # add its floor to the offset twice
+    field = {"acc": opts.gravity}
+    if "mag" in cal.sensors:
+        field["mag"] = cal.report["mag_field_mgauss"]
+    add_resolution_floor(cal, prepared.floor_steps, field)
     return cal
 
 
