@@ -52,3 +52,12 @@ def earth_field_ned(lat_deg: float, lon_deg: float, alt_m: float,
     res = GeoMag(base_year=min(int(used), LAST_EPOCH)).calculate(glat=float(lat_deg), glon=float(lon_deg),
                                                  alt=float(alt_m) / 1000.0, time=used)
     return np.array([res.x, res.y, res.z]) / NT_PER_MGAUSS, note
+
+
+def field_magnitude(lat_deg: float, lon_deg: float,
+                    when: datetime.date | None = None) -> tuple[float, str | None]:
+    """|WMM main field| [mGauss] at ground level at a site on a date (today when None), and
+    :func:`earth_field_ned`'s note when the date lies outside the models' years."""
+    field, note = earth_field_ned(lat_deg, lon_deg, 0.0,
+                                  decimal_year(when or datetime.date.today()))
+    return float(np.linalg.norm(field)), note

@@ -38,15 +38,15 @@ def compass_on_imu_times(t: np.ndarray, prepared, mag_prepared) -> np.ndarray | 
 def field_magnitude(mag: np.ndarray, opts, report: dict) -> float:
     """Field magnitude [mGauss] that fixes the scale of the soft-iron matrix: the World
     Magnetic Model's at --lat/--lon when given, else the samples' sphere fit."""
-    from apmcal.geomag import decimal_year, earth_field_ned
+    from apmcal.geomag import field_magnitude
     from apmcal.solvers.ellipsoid import sphere_fit
 
     if opts.lat_deg is not None and opts.lon_deg is not None:
         when = opts.date or datetime.date.today()
-        field, note = earth_field_ned(opts.lat_deg, opts.lon_deg, 0.0, decimal_year(when))
+        radius, note = field_magnitude(opts.lat_deg, opts.lon_deg, when)
         if note:
             report.setdefault("warnings", []).append(f"mag: {note}")
-        radius, origin = float(np.linalg.norm(field)), f"WMM at {when}"
+        origin = f"WMM at {when}"
     else:
         radius, origin = float(sphere_fit(mag)[1]), "sphere fit (no --lat/--lon)"
     report.setdefault("lines", []).append(f"mag: field magnitude {radius:.1f} mGauss from "

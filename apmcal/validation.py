@@ -76,12 +76,9 @@ def _shift(h, first: int):
 def _field(opts: Options) -> float | None:
     if opts.lat_deg is None or opts.lon_deg is None:
         return None
-    import datetime
+    from apmcal.geomag import field_magnitude
 
-    from apmcal.geomag import decimal_year, earth_field_ned
-    when = opts.date or datetime.date.today()
-    field, _ = earth_field_ned(opts.lat_deg, opts.lon_deg, 0.0, decimal_year(when))
-    return float(np.linalg.norm(field))
+    return field_magnitude(opts.lat_deg, opts.lon_deg, opts.date)[0]
 
 
 def check(cal: Calibration, raw, mag, holds, pairs=None) -> tuple[float, int, str]:

@@ -7,7 +7,7 @@ import datetime
 import numpy as np
 
 from apmcal.errors import ApmcalError
-from apmcal.geomag import decimal_year, earth_field_ned
+from apmcal.geomag import field_magnitude
 from apmcal.solvers.blas_threads import single_threaded_blas
 from apmcal.solvers.ellipsoid import fit_ellipsoid_robust, relative_mse, sphere_fit, verdict
 from apmcal.solvers.ellipsoid_debias import debiased
@@ -45,9 +45,7 @@ def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: floa
     sphere = sphere_fit(mag)           # seed 000 step 1: the field check and the fit's box
     if lat_deg is not None and lon_deg is not None:
         date = f"recording date {when}" if when else f"today's date {datetime.date.today()}"
-        field, note = earth_field_ned(lat_deg, lon_deg, 0.0,
-                                      decimal_year(when or datetime.date.today()))
-        radius = float(np.linalg.norm(field))
+        radius, note = field_magnitude(lat_deg, lon_deg, when)
         origin = f"WMM at {date}"
         if note:
             report.setdefault("warnings", []).append(f"mag: {note}")
