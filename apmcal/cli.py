@@ -274,9 +274,9 @@ def add_session_options(p: argparse.ArgumentParser) -> None:
 def add_calibration_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--method", default="auto",
                    choices=["auto", "ferraris", "static", "ellipsoid", "joint"],
-                   help="calibration method (default auto; joint: seed 001's joint "
-                        "accelerometer-gyro-compass fit of a hand-held session, never chosen "
-                        "by auto)")
+                   help="calibration method (default auto: ferraris for the six faces, "
+                        "joint for hand-held poses with a compass, ellipsoid without one, "
+                        "static for one level hold)")
     p.add_argument("--lat", type=number_type(float, -90, 90, what="latitude [deg]"), default=None,
                    help="latitude [deg], -90 to 90: normal gravity and Earth rate; with --lon "
                         "also the magnetometer's field magnitude (WMM). --lat alone is fine")

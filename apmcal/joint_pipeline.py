@@ -14,6 +14,12 @@ from apmcal.errors import ApmcalError
 from apmcal.solvers.result import Calibration
 
 MIN_HOLDS = 3      # still poses; fewer leave most of the 42 parameters undetermined
+# The fit's cost grows with the samples in the turns (a 120 s hand-held session at 400 Hz took
+# 60 s), while its accuracy does not change with the rate: on sitl hand-held sessions at 200 Hz,
+# fits on block means at 200, 100, 50 and 20 Hz were as close to the injected errors
+# (python benchmarks/joint_auto.py). Faster recordings are averaged down to this rate first;
+# 50 Hz rather than 20 keeps a fast hand turn (360°/s) under 8° per sample.
+JOINT_RATE_HZ = 50.0
 
 
 def compass_on_imu_times(t: np.ndarray, prepared, mag_prepared) -> np.ndarray | None:
@@ -54,6 +60,20 @@ def field_magnitude(mag: np.ndarray, opts, report: dict) -> float:
     return radius
 
 
+def at_joint_rate(t, acc, gyr, mag, report: dict):
+    """The samples averaged down to :data:`JOINT_RATE_HZ` (block means), with a report line
+    saying so; unchanged when the recording is not faster."""
+    from apmcal.preprocessing.decimation import block_means, factor_for_rate
+
+    k = factor_for_rate(t, JOINT_RATE_HZ)
+    if k == 1:
+        return t, acc, gyr, mag
+    fs = 1.0 / float(np.median(np.diff(t)))
+    report.setdefault("lines", []).append(f"joint: samples averaged in blocks of {k} "
+                                          f"({fs:.0f} → {fs / k:.0f} Hz) to bound the fit's cost")
+    return tuple(block_means(x, k) for x in (t, acc, gyr, mag))
+
+
 def joint_on_prepared(prepared, mag_prepared, opts) -> Calibration:
     """Seed 001's joint calibration of a prepared recording and its compass.
 
@@ -81,6 +101,7 @@ def joint_on_prepared(prepared, mag_prepared, opts) -> Calibration:
                               "in time")
         mag = mag[span]
     t, acc, gyr = t[span], raw.xyz("acc")[span], raw.xyz("gyr")[span]
+    t, acc, gyr, mag = at_joint_rate(t, acc, gyr, mag, report)
     holds = find_static_segments(t, acc, gyr, min_duration=opts.min_still_s)
     if len(holds) < MIN_HOLDS:
         raise ApmcalError(f"joint calibration needs at least {MIN_HOLDS} still poses with turns "

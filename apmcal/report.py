@@ -113,7 +113,7 @@ def print_summary(summary: dict, console) -> None:
 TECHNICAL_MARKERS = ("seed 0", "antithetic", "Jacobian", "rank ", "second-order fit bias",
                      "coverage eigenvalues", "condition number", "cannot be separated",
                      "NOT determinable", "not determinable at", "relative MSE", "β, γ, μ",
-                     "τ, ξ, ν", "R_f", "(1σ)", "huber")
+                     "τ, ξ, ν", "R_f", "(1σ)", "huber", "averaged in blocks")
 
 
 def is_technical(line: str) -> bool:

@@ -8,6 +8,7 @@ lower triangular, the "QL" factorisation). Effects the method does not model are
 accelerometer's time offset, the low-pass filter, and quantization: at 50 Hz sitl's gyro noise
 is below its quantization step, so the rounding error is not white).
 """
+import dataclasses
 import json
 from pathlib import Path
 
@@ -130,18 +131,63 @@ def test_joint_beats_the_other_methods_out_of_sample(fitted):
     assert errors["joint"] < 0.5 * errors["ellipsoid"] and errors["joint"] < errors["raw"]
 
 
-def test_session_without_compass_calibrates_accelerometer_and_gyro(tmp_path, capsys):
-    """A CSV without magnetometer columns: the accelerometer and gyro alone, with a warning."""
+def test_auto_picks_the_joint_method_for_hand_held_poses_with_a_compass(fitted):
+    """Issue 11 item 3: without --method the session gets the joint accelerometer and gyro,
+    and the compass from its own ellipsoid fit (closer to the truth: benchmarks/joint_auto.py)."""
+    runs = {}
+    for method in ("auto", "ellipsoid"):
+        out = fitted["tmp"] / f"{method}.json"
+        assert main(["log", str(fitted["log"]), "--method", method, *SITE, "--quiet",
+                     "--json", str(out)]) == 0
+        runs[method] = json.loads(out.read_text())
+    auto, joint = runs["auto"], fitted["est"]
+    assert auto["method"] == "joint"
+    for sensor, reference in (("acc", joint), ("gyr", joint), ("mag", runs["ellipsoid"])):
+        np.testing.assert_allclose(auto[sensor]["offset"], reference[sensor]["offset"])
+        np.testing.assert_allclose(auto[sensor]["matrix"], reference[sensor]["matrix"])
+    assert not np.allclose(joint["mag"]["offset"], runs["ellipsoid"]["mag"]["offset"])
+
+
+def test_auto_falls_back_to_the_ellipsoid_when_the_joint_fit_refuses(fitted):
+    """A gyro that saw no turns (here: its samples replaced by still noise) fails the joint
+    fit's motion check; auto then fits the ellipsoid and says why."""
+    from apmcal.pipeline import Options, calibrate, pick_recording
+    from apmcal.sources import read_log
+
+    rec, mag_rec = pick_recording(read_log(fitted["log"]), None)
+    data = rec.data.copy()
+    data[["gyr_x", "gyr_y", "gyr_z"]] = np.random.default_rng(1).normal(0, 1e-3, (len(data), 3))
+    cal = calibrate(dataclasses.replace(rec, data=data), Options("auto", 5.6037, -0.187, 1.0),
+                    mag_rec)
+    assert cal.method == "ellipsoid"
+    assert any(w.startswith("joint calibration not possible") for w in cal.report["warnings"])
+
+
+def handheld_csv_without_compass(tmp_path: Path, seconds: float) -> Path:
+    """A sitl hand-held session (50 Hz) as a CSV with accelerometer and gyro columns only."""
     from sitl.truth import Truth
     from sitl.vehicle import SimVehicle
     v = SimVehicle(Truth.random(3), "handheld", "3.3", fs=50.0, record=True, seed=3,
-                   duration=20.0)
-    v.run_for(20.0)
+                   duration=seconds)
+    v.run_for(seconds)
     h = v.history()
     path = tmp_path / "nocompass.csv"
     cols = np.column_stack([h["t"], h["raw_acc"], h["raw_gyr"]])
     np.savetxt(path, cols, delimiter=",", comments="",
                header="t,acc_x,acc_y,acc_z,gyr_x,gyr_y,gyr_z")
+    return path
+
+
+def test_auto_keeps_the_ellipsoid_without_a_compass(tmp_path):
+    path = handheld_csv_without_compass(tmp_path, 45.0)
+    out = tmp_path / "auto.json"
+    assert main(["log", str(path), "--quiet", "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["method"] == "ellipsoid"
+
+
+def test_session_without_compass_calibrates_accelerometer_and_gyro(tmp_path, capsys):
+    """A CSV without magnetometer columns: the accelerometer and gyro alone, with a warning."""
+    path = handheld_csv_without_compass(tmp_path, 20.0)
     out = tmp_path / "nocompass.json"
     assert main(["log", str(path), "--method", "joint", "--quiet", "--json", str(out)]) == 0
     est = json.loads(out.read_text())
