@@ -1,3 +1,4 @@
+"""``python -m apmcal``: the command line (:func:`apmcal.cli.main`)."""
 import sys
 
 try:

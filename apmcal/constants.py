@@ -23,6 +23,18 @@ def normal_gravity(lat_deg: float, height_m: float = 0.0) -> float:
 
     Somigliana's formula with the free-air correction of about 3.086e-6 s⁻² per metre
     (ardupilot-facts.md, "Frames and signs").
+
+    Parameters
+    ----------
+    lat_deg : float
+        Geodetic latitude [deg].
+    height_m : float, optional
+        Height above the WGS-84 ellipsoid [m].
+
+    Returns
+    -------
+    float
+        Normal gravity [m/s²].
     """
     s2 = math.sin(math.radians(lat_deg)) ** 2
     g0 = 9.7803253359 * (1 + 0.00193185265241 * s2) / math.sqrt(1 - 0.00669437999013 * s2)
@@ -30,7 +42,18 @@ def normal_gravity(lat_deg: float, height_m: float = 0.0) -> float:
 
 
 def earth_rate_ned(lat_deg: float):
-    """Earth rotation rate [rad/s] in the local NED frame: Ω·(cos φ, 0, −sin φ), (3,) array."""
+    """Earth rotation rate [rad/s] in the local NED frame: Ω·(cos φ, 0, −sin φ), (3,) array.
+
+    Parameters
+    ----------
+    lat_deg : float
+        Geodetic latitude φ [deg].
+
+    Returns
+    -------
+    numpy.ndarray, shape (3,)
+        Earth rotation rate in north, east, down components [rad/s].
+    """
     import numpy as np
 
     phi = np.radians(lat_deg)

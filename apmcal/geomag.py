@@ -19,7 +19,18 @@ LAST_EPOCH = 2025                   # WMM2025 covers 2025.0 to 2030.0 inclusive
 
 def decimal_year(when: datetime.date | datetime.datetime) -> float:
     """A date, or a datetime (UTC; an aware one is converted to UTC), as a decimal year, the
-    WMM's time argument."""
+    WMM's time argument.
+
+    Parameters
+    ----------
+    when : datetime.date or datetime.datetime
+        The date; a naive datetime is taken as UTC.
+
+    Returns
+    -------
+    float
+        Decimal year, e.g. 2026.41.
+    """
     if isinstance(when, datetime.datetime) and when.tzinfo is not None:
         when = when.astimezone(datetime.timezone.utc)
     start = datetime.date(when.year, 1, 1)
@@ -41,6 +52,13 @@ def earth_field_ned(lat_deg: float, lon_deg: float, alt_m: float,
     lat_deg, lon_deg : geodetic latitude / longitude [deg]
     alt_m : height above the WGS-84 ellipsoid [m] (pygeomag takes km)
     year : decimal year, e.g. 2026.41
+
+    Returns
+    -------
+    field : numpy.ndarray, shape (3,)
+        Main field in north, east, down components [mGauss].
+    note : str or None
+        Why another year's field was used, or None when ``year`` lies inside the models'.
     """
     from pygeomag import GeoMag
 
@@ -57,7 +75,22 @@ def earth_field_ned(lat_deg: float, lon_deg: float, alt_m: float,
 def field_magnitude(lat_deg: float, lon_deg: float,
                     when: datetime.date | None = None) -> tuple[float, str | None]:
     """|WMM main field| [mGauss] at ground level at a site on a date (today when None), and
-    :func:`earth_field_ned`'s note when the date lies outside the models' years."""
+    :func:`earth_field_ned`'s note when the date lies outside the models' years.
+
+    Parameters
+    ----------
+    lat_deg, lon_deg : float
+        Geodetic latitude / longitude [deg].
+    when : datetime.date, optional
+        Date of the field; today when None.
+
+    Returns
+    -------
+    magnitude : float
+        Field magnitude at the site [mGauss].
+    note : str or None
+        :func:`earth_field_ned`'s note, or None.
+    """
     field, note = earth_field_ned(lat_deg, lon_deg, 0.0,
                                   decimal_year(when or datetime.date.today()))
     return float(np.linalg.norm(field)), note

@@ -40,7 +40,28 @@ def is_calibration_param(name: str) -> bool:
 
 @dataclass
 class Recording:
-    """Samples of one sensor instance plus what is known about how they were made."""
+    """Samples of one sensor instance plus what is known about how they were made.
+
+    Attributes
+    ----------
+    data : pandas.DataFrame
+        The samples, one row each, in the SI columns listed in the module docstring
+        (t [s], acc_* [m/s²], gyr_* [rad/s], mag_* [mGauss], temp [°C], current [A]).
+    source : str
+        File path or connection string.
+    message : str
+        The message the samples came from, e.g. "RAW_IMU", "IMU", "IMU2", "ACC1", "csv".
+    instance : int
+        Sensor instance (IMU 0, IMU 1, ...).
+    vehicle, firmware : str or None
+        E.g. "ArduCopter" and "ArduCopter V3.2.1", when the source names them.
+    params : dict of str to float
+        Parameters in force while recording.
+    corrected : bool
+        True when the firmware already applied its offsets and scales to the samples.
+    frame : str
+        "sensor", or "body" when AHRS_ORIENTATION was applied.
+    """
 
     data: pd.DataFrame
     source: str = ""                     # file path or connection string
@@ -58,19 +79,32 @@ class Recording:
 
     @property
     def sensors(self) -> list[str]:
+        """The sensors ("acc", "gyr", "mag") whose three columns are all present."""
         return [s for s in SENSOR_COLUMNS if self.has(s)]
 
     @property
     def t(self) -> np.ndarray:
-        """Time [s] as a float64 array."""
+        """Time [s] as a float64 array, shape (n,)."""
         return self.data["t"].to_numpy(dtype=float)
 
     def xyz(self, sensor: str) -> np.ndarray:
-        """(n, 3) float64 array of ``sensor`` ("acc" m/s², "gyr" rad/s, "mag" mGauss)."""
+        """(n, 3) float64 array of ``sensor`` ("acc" m/s², "gyr" rad/s, "mag" mGauss).
+
+        Parameters
+        ----------
+        sensor : str
+            "acc", "gyr" or "mag".
+
+        Returns
+        -------
+        numpy.ndarray, shape (n, 3)
+            x, y, z columns of the sensor in its SI unit.
+        """
         return self.data[SENSOR_COLUMNS[sensor]].to_numpy(dtype=float)
 
     @property
     def duration(self) -> float:
+        """Time [s] from the first to the last sample (0 when fewer than two samples)."""
         t = self.t
         return float(t[-1] - t[0]) if len(t) > 1 else 0.0
 

@@ -26,7 +26,34 @@ from apmcal.solvers.result import Calibration
 
 
 def session(path: Path, layout: str | None = None):
-    """(prepared raw recording, its compass on the same times or None, still poses)."""
+    """(prepared raw recording, its compass on the same times or None, still poses).
+
+    Parameters
+    ----------
+    path : Path
+        A log or CSV file.
+    layout : str, optional
+        CSV layout (:func:`apmcal.sources.csv.read_csv`); the file is sniffed when None.
+
+    Returns
+    -------
+    rec : Recording
+        The IMU recording as read.
+    mag_rec : Recording or None
+        A separate compass recording of the same IMU (dataflash MAG), or None.
+    raw : Recording
+        ``rec`` prepared (:func:`apmcal.pipeline.prepare`): raw sensor-frame samples, n rows.
+    mag : numpy.ndarray, shape (n, 3), or None
+        Raw compass samples [mGauss] on ``raw``'s times, NaN outside the compass's span;
+        None without a live compass.
+    holds : list of StaticSegment
+        Still poses of ``raw`` (at least 1 s each).
+
+    Raises
+    ------
+    ApmcalError
+        From the readers: an unreadable file or no usable IMU data.
+    """
     from apmcal.joint_pipeline import compass_on_imu_times
     from apmcal.sources import read_log
     from apmcal.sources.csv import read_csv
@@ -45,7 +72,24 @@ def fit(method: str, rec, mag_rec, raw, mag, holds, opts: Options, part=None) ->
     """``method`` ("raw", "ferraris", "ellipsoid", "joint") fitted on the samples ``part`` (a
     boolean mask; all when None) of a :func:`session`. The joint method runs its solver
     directly, so that a session without a compass gets its accelerometer + gyro part (the
-    command line refuses such a session)."""
+    command line refuses such a session).
+
+    Parameters
+    ----------
+    method : str
+        "raw", "ferraris", "ellipsoid" or "joint".
+    rec, mag_rec, raw, mag, holds
+        The five items of :func:`session`.
+    opts : Options
+        Latitude, longitude, date and gravity for the fit.
+    part : numpy.ndarray of bool, shape (n,), optional
+        Mask over ``raw``'s samples to fit on; all samples when None.
+
+    Returns
+    -------
+    Calibration
+        Identity for "raw".
+    """
     if method == "raw":
         return Calibration(method="raw")
     if method == "joint":
@@ -82,6 +126,27 @@ def _field(opts: Options) -> float | None:
 
 
 def check(cal: Calibration, raw, mag, holds, pairs=None) -> tuple[float, int, str]:
-    """(RMS orientation error [deg], number of pose pairs, "attitude" or "tilt")."""
+    """(RMS orientation error [deg], number of pose pairs, "attitude" or "tilt").
+
+    Parameters
+    ----------
+    cal : Calibration
+        The calibration scored (from :func:`fit` on another session or part).
+    raw, mag, holds
+        Items of the :func:`session` checked: n samples, compass (n, 3) [mGauss] or None,
+        still poses.
+    pairs : list, optional
+        Pose pairs to score; :func:`apmcal.solvers.orientation_check.pose_pairs` of
+        ``holds`` when None.
+
+    Returns
+    -------
+    rms_deg : float
+        RMS orientation error over the pose pairs [deg].
+    n_pairs : int
+        Number of pose pairs.
+    kind : str
+        "attitude" (with a compass) or "tilt" (without).
+    """
     r = orientation_errors(cal, raw.t, raw.xyz("acc"), raw.xyz("gyr"), mag, holds, pairs)
     return float(np.sqrt(np.mean(r["error_deg"] ** 2))), len(r["error_deg"]), r["kind"]
