@@ -58,7 +58,17 @@ def struct_dtype(names: list[str], fmt: str) -> np.dtype:
 
 
 def load_bytes(path) -> np.ndarray:
-    """The file as a read-only uint8 array (memory-mapped), or ApmcalError when unreadable/empty."""
+    """The file as a read-only uint8 array (memory-mapped), or ApmcalError when unreadable/empty.
+
+    Returns
+    -------
+    numpy.ndarray of uint8, shape (file size,)
+
+    Raises
+    ------
+    ApmcalError
+        Missing, unreadable or empty file, or a directory.
+    """
     p = Path(path)
     try:
         size = os.path.getsize(p)
@@ -178,13 +188,20 @@ def param_changes(names: np.ndarray, values: np.ndarray, positions: np.ndarray,
 
     Parameters
     ----------
-    names, values : one entry per parameter record, in file order (names bytes or str).
-    positions : file position of each record (byte offset), non-decreasing.
-    first_sample : position of the first IMU/MAG sample, None when there is none.
-    describe : callable(record index) → (time_s or None, where).
+    names, values : numpy.ndarray, shape (m,)
+        One entry per parameter record, in file order (names bytes or str).
+    positions : numpy.ndarray of int, shape (m,)
+        File position of each record (byte offset), non-decreasing.
+    first_sample : int or None
+        Position of the first IMU/MAG sample, None when there is none.
+    describe : callable
+        callable(record index) → (time_s or None, where).
 
-    Returns the changes in file order. Cost without changes: one pass over the names; the
-    grouping work is done only when a calibration record follows the first sample.
+    Returns
+    -------
+    list of ParamChange
+        The changes in file order. Cost without changes: one pass over the names; the
+        grouping work is done only when a calibration record follows the first sample.
     """
     if first_sample is None or len(names) == 0:
         return []
@@ -241,10 +258,19 @@ def current_series(t_s, amps, what: str,
 
     Parameters
     ----------
-    t_s : record times [s] on the recordings' time axis, in file order.
-    amps : battery current of each record [A].
-    what : the records' name for the notes, e.g. "BAT Curr".
-    out : receives the notes.
+    t_s : array_like, shape (m,)
+        Record times [s] on the recordings' time axis, in file order.
+    amps : array_like, shape (m,)
+        Battery current of each record [A].
+    what : str
+        The records' name for the notes, e.g. "BAT Curr".
+    out : LogContents
+        Receives the notes.
+
+    Returns
+    -------
+    (t_s, amps) : tuple of numpy.ndarray, shape (k,) each, or None
+        Increasing record times [s] and their current [A], k ≥ 2.
     """
     t_s, amps = np.asarray(t_s, dtype=np.float64), np.asarray(amps, dtype=np.float64)
     ok = np.isfinite(t_s) & np.isfinite(amps)
@@ -271,6 +297,21 @@ def attach_current(out: LogContents, df: pd.DataFrame, t_cur: np.ndarray, amps: 
     NaN outside their span. Nothing is added, with a note, when the samples' clock jumps back
     (a reboot) or no sample lies within the records' span. Returns True when the column was
     added.
+
+    Parameters
+    ----------
+    out : LogContents
+        Receives the notes.
+    df : pandas.DataFrame
+        A recording's samples with column ``t`` [s]; modified in place.
+    t_cur, amps : numpy.ndarray, shape (k,)
+        Record times [s] and current [A] from :func:`current_series`.
+    label, what : str
+        The recording's and the records' names for the notes.
+
+    Returns
+    -------
+    bool
     """
     t = df["t"].to_numpy(dtype=np.float64)
     if np.any(np.diff(t) < 0):
@@ -316,7 +357,13 @@ def add_recording(out: LogContents, df: pd.DataFrame, message: str, instance: in
 
 
 def finish(out: LogContents, found: list[str]) -> LogContents:
-    """Attach vehicle/firmware/params to each recording; ApmcalError when there is no IMU data."""
+    """Attach vehicle/firmware/params to each recording; ApmcalError when there is no IMU data.
+
+    Raises
+    ------
+    ApmcalError
+        When ``out`` has no recording; ``found`` (message names seen) goes into the message.
+    """
     if not out.recordings:
         names = ", ".join(sorted(set(found))[:20]) or "nothing recognisable"
         raise ApmcalError(f"no IMU messages (found: {names})", out.path)

@@ -60,6 +60,19 @@ def read_csv(path: str | Path, layout: str = "auto", *, acc_unit=None, gyr_unit=
              mag_unit=None, rate_hz: float | None = None) -> LogContents:
     """Read one CSV recording (see the module doc for layouts and units).
 
+    Parameters
+    ----------
+    path : str or Path
+        The CSV file (for ``"imu_tk"``: either of its two files).
+    layout : str, optional
+        One of :data:`LAYOUTS` (or the alias ``"si"``); ``"auto"`` sniffs it.
+    acc_unit, gyr_unit, mag_unit : str or float, optional
+        Unit name, ``"counts"`` or SI factor per file unit (m/s², rad/s, mGauss per unit);
+        None: the layout's own unit.
+    rate_hz : float, optional
+        Sample rate [Hz] of layouts without a time column (imucal, imucal_annotated, mpu6050);
+        None: the layout's default rate.
+
     Returns
     -------
     LogContents
@@ -94,6 +107,23 @@ def read_imu_tk(acc_path: str | Path, gyr_path: str | Path, *, acc_unit=None,
 
     Both files must carry the same time stamps. Without ``acc_unit``/``gyr_unit`` the values stay
     raw counts (noted in ``messages``): imu_tk's Xsens test data has no published scale.
+
+    Parameters
+    ----------
+    acc_path, gyr_path : str or Path
+        The accelerometer and the gyroscope file.
+    acc_unit, gyr_unit : str or float, optional
+        Unit name or SI factor per file unit (m/s² resp. rad/s per unit); None: counts.
+
+    Returns
+    -------
+    LogContents
+        ``format="csv"`` with one :class:`Recording` (t [s], acc_*, gyr_*).
+
+    Raises
+    ------
+    ApmcalError
+        Unreadable rows, non-increasing time, different row counts or time stamps.
     """
     acc_path, gyr_path = Path(acc_path), Path(gyr_path)
     acc = _read_table(acc_path, names=["t", *ACC], sep=r"\s+", header=None)
@@ -120,7 +150,18 @@ def read_imu_tk(acc_path: str | Path, gyr_path: str | Path, *, acc_unit=None,
 
 
 def sniff_layout(path: str | Path) -> str:
-    """The layout of ``path`` from its first non-empty line(s), or ApmcalError naming line 1."""
+    """The layout of ``path`` from its first non-empty line(s), or ApmcalError naming line 1.
+
+    Returns
+    -------
+    str
+        One of :data:`LAYOUTS` other than ``"auto"``.
+
+    Raises
+    ------
+    ApmcalError
+        When no layout matches.
+    """
     path = Path(path)
     first = _first_line(path)
     header = [f.strip().lower() for f in first.split(",")]

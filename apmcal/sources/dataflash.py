@@ -82,6 +82,18 @@ def convert_column(values: np.ndarray, fmt_char: str) -> np.ndarray:
 
     Multipliers below 1 are applied as a division by ``1/mul`` (DFReader does the same for
     floating-point accuracy); floats become float64 (Python floats), strings str.
+
+    Parameters
+    ----------
+    values : numpy.ndarray, shape (m,)
+        One column as stored (the record's struct type).
+    fmt_char : str
+        Its dataflash format character (a key of ``DF_FORMATS``).
+
+    Returns
+    -------
+    numpy.ndarray, shape (m,)
+        The values DFReader would return (scaled float64, int, or str objects).
     """
     mul = DF_FORMATS[fmt_char][1]
     if mul is not None:
@@ -99,6 +111,21 @@ def scan(buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, list[int]]:
     An undamaged log up to 32 MB is framed by numpy (:mod:`apmcal.sources._fastscan`), which
     spares the ~2 s numba costs to load; a bigger one or one that needs resynchronising by the
     compiled scan.
+
+    Parameters
+    ----------
+    buf : numpy.ndarray of uint8
+        The whole file (may be a memmap).
+
+    Returns
+    -------
+    off : numpy.ndarray of int64, shape (k,)
+        Byte offset of each accepted record.
+    typ : numpy.ndarray of uint8, shape (k,)
+        Its type.
+    bytes_skipped : int
+    damaged_at : list of int
+        Byte offsets where skipped runs begin (at most ``MAX_DAMAGE_OFFSETS``).
     """
     fast = _fastscan.scan_dataflash(buf)
     if fast is not None:
@@ -122,7 +149,15 @@ def scan(buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, list[int]]:
 
 
 def record_spans(buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(start, end, name) of every record the scan accepts, in file order."""
+    """(start, end, name) of every record the scan accepts, in file order.
+
+    Returns
+    -------
+    start, end : numpy.ndarray of int64, shape (k,)
+        Byte offsets, half-open.
+    name : numpy.ndarray of object, shape (k,)
+        Record name ("FMT", "IMU", ...; "" for a type without FMT record).
+    """
     off, typ, _, _ = scan(buf)
     length = np.zeros(256, np.int64)
     names = np.full(256, "", dtype=object)
@@ -393,6 +428,17 @@ def read_bin_messages(path, want=wanted_name):
     """Decode the messages selected by ``want`` of a .bin file.
 
     Returns (name → column → array (DFReader values), bytes_skipped, damaged_at).
+
+    Parameters
+    ----------
+    path : str or Path
+    want : callable, optional
+        ``want(name)`` → bool selects the messages decoded.
+
+    Raises
+    ------
+    ApmcalError
+        Unreadable or empty file.
     """
     buf = load_bytes(path)
     off, typ, skipped, damaged = scan(buf)

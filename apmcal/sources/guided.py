@@ -52,6 +52,7 @@ ABORT_WORDS = {"q", "quit", "abort", "stop"}
 
 @dataclass(frozen=True)
 class Face:
+    """One of ArduPilot's six accelerometer-calibration poses (see :data:`FACES`)."""
     name: str        # ArduPilot's name of the pose
     words: str       # as the prompt says it ("place the vehicle ...")
     label: str       # the calibration's pose label (apmcal.preprocessing.static)
@@ -94,6 +95,17 @@ class Operator(Protocol):
 
 @dataclass(frozen=True)
 class GuideOptions:
+    """How the guided session runs.
+
+    Attributes
+    ----------
+    hold_s : float
+        Vehicle seconds [s] held still in each pose.
+    auto : bool
+        Wait for the pose instead of a key press.
+    face_timeout_s : float
+        Wall seconds [s] per prompt (key press, stillness, hold).
+    """
     hold_s: float = 10.0             # vehicle seconds held still in each pose
     auto: bool = False               # wait for the pose instead of a key press
     face_timeout_s: float = 120.0    # wall seconds per prompt (key press, stillness, hold)
@@ -109,11 +121,21 @@ class Hold:
 
     @property
     def seconds(self) -> float:
+        """How long the pose was held [s, vehicle clock]."""
         return self.end - self.start
 
 
 @dataclass
 class GuideResult:
+    """What a completed session recorded.
+
+    Attributes
+    ----------
+    holds : dict of str to Hold
+        Face name → accepted hold, all six.
+    n_imu : int
+        IMU messages received.
+    """
     holds: dict[str, Hold] = field(default_factory=dict)     # face name -> accepted hold
     n_imu: int = 0                                           # IMU messages received
 
@@ -124,6 +146,8 @@ class GuideAborted(ApmcalError):
 
 @dataclass
 class ImuSample:
+    """One IMU sample of the stream: vehicle time [s], acc (3,) [m/s², body frame],
+    gyr (3,) [rad/s]."""
     t: float            # vehicle time [s]
     acc: np.ndarray     # m/s², body frame
     gyr: np.ndarray     # rad/s
@@ -131,7 +155,18 @@ class ImuSample:
 
 def imu_sample(msg) -> ImuSample | None:
     """The body-frame sample of a RAW_IMU (mG, mrad/s; ardupilot-facts.md "What the telemetry
-    really carries") or HIGHRES_IMU (SI) message, else None."""
+    really carries") or HIGHRES_IMU (SI) message, else None.
+
+    Parameters
+    ----------
+    msg : pymavlink message
+        Any received message.
+
+    Returns
+    -------
+    ImuSample or None
+        Time [s], acc (3,) [m/s²], gyr (3,) [rad/s].
+    """
     kind = msg.get_type()
     acc = np.array([msg.xacc, msg.yacc, msg.zacc], float)
     gyr = np.array([msg.xgyro, msg.ygyro, msg.zgyro], float)
@@ -155,7 +190,18 @@ class ImuFeed:
         self.last_sample_wall = time.monotonic()
 
     def receive(self, duration_s: float) -> list[ImuSample]:
-        """Everything that arrives within ``duration_s`` (wall); the IMU samples of it."""
+        """Everything that arrives within ``duration_s`` (wall); the IMU samples of it.
+
+        Parameters
+        ----------
+        duration_s : float
+            Wall-clock time to listen [s].
+
+        Returns
+        -------
+        list of ImuSample
+            The autopilot's RAW_IMU/HIGHRES_IMU samples, in arrival order.
+        """
         samples = []
         deadline = time.monotonic() + duration_s
         while (left := deadline - time.monotonic()) > 0:
@@ -172,6 +218,7 @@ class ImuFeed:
         return samples
 
     def silent_for(self) -> float:
+        """Wall seconds [s] since the last batch with an IMU sample (or since the feed began)."""
         return time.monotonic() - self.last_sample_wall
 
 
@@ -182,6 +229,7 @@ class StillWindow:
         self.samples: deque[ImuSample] = deque()
 
     def add(self, s: ImuSample) -> None:
+        """Append a sample and drop those older than the window (all of them when the clock went back)."""
         if self.samples and s.t < self.samples[-1].t:     # clock went back: a reboot
             self.samples.clear()
         self.samples.append(s)
@@ -189,10 +237,14 @@ class StillWindow:
             self.samples.popleft()
 
     def full(self) -> bool:
+        """True when the window spans (nearly) :data:`STILL_WINDOW_S` with enough samples."""
         return (len(self.samples) >= STILL_MIN_SAMPLES
                 and self.samples[-1].t - self.samples[0].t >= 0.9 * STILL_WINDOW_S)
 
     def still(self) -> bool:
+        """True when the window is full and the vehicle still in it: acc std per axis
+        below :data:`STILL_ACC_STD` [m/s²], |mean rate| below :data:`STILL_MEAN_RATE` and every
+        sample's |rate| below :data:`STILL_PEAK_RATE` [rad/s]."""
         if not self.full():
             return False
         acc = np.array([s.acc for s in self.samples])
@@ -202,11 +254,26 @@ class StillWindow:
                     and np.linalg.norm(gyr, axis=1).max() < STILL_PEAK_RATE)
 
     def mean_acc(self) -> np.ndarray:
+        """Mean specific force of the window [m/s²], shape (3,)."""
         return np.mean([s.acc for s in self.samples], axis=0)
 
 
 def detect_face(acc_mean: np.ndarray) -> tuple[Face | None, float, Face]:
-    """(face within the tolerance or None, tilt [deg] from the nearest face, nearest face)."""
+    """(face within the tolerance or None, tilt [deg] from the nearest face, nearest face).
+
+    Parameters
+    ----------
+    acc_mean : numpy.ndarray, shape (3,)
+        Mean specific force of a still window [m/s², body frame].
+
+    Returns
+    -------
+    face : Face or None
+        The face within :data:`MAX_TILT_DEG` of ``acc_mean``, or None.
+    tilt : float
+        Angle [deg] from the nearest face.
+    nearest : Face
+    """
     label, tilt = pose_of(acc_mean, max_tilt_deg=90.0)
     nearest = FACE_BY_LABEL[label]
     return (nearest if tilt <= MAX_TILT_DEG else None), tilt, nearest
@@ -227,6 +294,7 @@ def rejection(wanted: Face, seen: Face | None, tilt: float, nearest: Face,
 
 
 def prompt_text(index: int, face: Face, options: GuideOptions) -> str:
+    """The prompt for pose ``index`` (1..6): where to place the vehicle, how to confirm."""
     how = ("and keep it still: recording starts by itself" if options.auto
            else "keep it still, then press Enter (q and Enter to stop)")
     return (f"pose {index} of 6: place the vehicle {face.words}, {how} "
@@ -244,6 +312,7 @@ class FaceSession:
         self.deadline = 0.0
 
     def run(self) -> Hold:
+        """Prompt until the pose is held; the accepted hold (GuideAborted stops it)."""
         while True:
             self.ask()
             if not self.options.auto:
@@ -253,12 +322,14 @@ class FaceSession:
                 return hold
 
     def ask(self) -> None:
+        """Show the prompt (again) and restart the wait's timeout."""
         self.attempt += 1
         self.deadline = time.monotonic() + self.options.face_timeout_s
         self.operator.ask(FaceRequest(self.index, self.face, self.attempt,
                                       prompt_text(self.index, self.face, self.options)))
 
     def where(self) -> str:
+        """The pose in words for messages, e.g. "pose 2 of 6 (on its LEFT side)"."""
         return f"pose {self.index} of 6 ({self.face.words})"
 
     def check_keys(self) -> str | None:
@@ -272,11 +343,14 @@ class FaceSession:
         return line
 
     def stopped(self, why: str) -> GuideAborted:
+        """The GuideAborted for ``why``, naming the pose and the poses recorded."""
         done = ", ".join(self.done) or "none"
         return GuideAborted(f"guided calibration stopped at {self.where()}: {why}; poses "
                             f"recorded: {done}; nothing calibrated (all six are needed)")
 
     def check_time(self, waiting_for: str) -> None:
+        """Raise GuideAborted when the prompt's wait timed out or the IMU stream
+        has been silent for :data:`NO_DATA_TIMEOUT_S`."""
         if time.monotonic() > self.deadline:
             raise self.stopped(f"no {waiting_for} within {self.options.face_timeout_s:g} s "
                                f"(--face-timeout)")
@@ -372,16 +446,19 @@ class TerminalOperator:
         self.lines.put(self._EOF)
 
     def ask(self, request: FaceRequest) -> None:
+        """See :meth:`Operator.ask`."""
         self._drop_typed_ahead()
         self.tell(request.text)
 
     def tell(self, text: str) -> None:
+        """See :meth:`Operator.tell`."""
         if self._progress_shown:
             self.out.write("\n")
             self._progress_shown = False
         print(text, file=self.out, flush=True)
 
     def progress(self, text: str) -> None:
+        """See :meth:`Operator.progress` (updated in place on a terminal)."""
         if self.out.isatty():      # one line, updated in place
             self.out.write("\r" + text)
             self.out.flush()
@@ -390,6 +467,7 @@ class TerminalOperator:
             print(text, file=self.out, flush=True)
 
     def answer(self, timeout_s: float) -> str | None:
+        """See :meth:`Operator.answer`."""
         try:
             line = self.lines.get(timeout=timeout_s) if timeout_s > 0 else self.lines.get_nowait()
         except queue.Empty:

@@ -149,6 +149,19 @@ def frame_spans(buf: np.ndarray, names=None) -> tuple[np.ndarray, np.ndarray, np
 
     ``start`` is the offset of the 8-byte timestamp, ``end`` one past the last packet byte
     (CRC and, for signed MAVLink 2 packets, the 13-byte signature).
+
+    Parameters
+    ----------
+    buf : numpy.ndarray of uint8
+        The whole file (may be a memmap).
+    names : iterable of str, optional
+        MAVLink message names; all messages when None.
+
+    Returns
+    -------
+    start, end : numpy.ndarray of int64, shape (k,)
+        Byte offsets, half-open.
+    msgid : numpy.ndarray of int32, shape (k,)
     """
     wanted = np.zeros(1 << 16, dtype=np.bool_)
     if names is None:
@@ -168,9 +181,13 @@ def scan(buf: np.ndarray, names) -> tuple[dict[str, np.ndarray], int, list[int]]
 
     Returns
     -------
-    decoded : dict name → structured array of that message's fields (pymavlink field names).
-    bytes_skipped : int, bytes that were not part of a valid frame.
-    damaged_at : list of byte offsets where skipped runs begin (at most MAX_DAMAGE_OFFSETS).
+    decoded : dict of str to numpy.ndarray
+        name → structured array of that message's fields (pymavlink field names), one row per
+        frame.
+    bytes_skipped : int
+        Bytes that were not part of a valid frame.
+    damaged_at : list of int
+        Byte offsets where skipped runs begin (at most MAX_DAMAGE_OFFSETS).
     """
     decoded, skipped, damaged, _ = _scan(buf, names)
     return decoded, skipped, damaged
@@ -478,6 +495,11 @@ def read_tlog_messages(path, names=IMU_MESSAGES) -> tuple[dict[str, np.ndarray],
     """Decode all messages ``names`` of a .tlog into structured arrays (raw MAVLink fields).
 
     Field values are exactly pymavlink's (same wire layout). See :func:`scan` for the return.
+
+    Raises
+    ------
+    ApmcalError
+        Unreadable or empty file.
     """
     buf = load_bytes(path)
     return scan(buf, names)
