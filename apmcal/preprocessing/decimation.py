@@ -12,7 +12,20 @@ import numpy as np
 
 def block_means(x: np.ndarray | None, k: int) -> np.ndarray | None:
     """Means of ``k`` consecutive rows of ``x`` (n, ...) → (n // k, ...); a trailing partial
-    block is dropped. None stays None; ``k`` 1 returns ``x`` itself."""
+    block is dropped. None stays None; ``k`` 1 returns ``x`` itself.
+
+    Parameters
+    ----------
+    x : numpy.ndarray, shape (n, ...), or None
+        Samples, any unit.
+    k : int
+        Samples per block.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n // k, ...), or None
+        Block means, in the unit of ``x``.
+    """
     if x is None or k <= 1:
         return x
     n = len(x) // k
@@ -21,7 +34,20 @@ def block_means(x: np.ndarray | None, k: int) -> np.ndarray | None:
 
 def factor_for_rate(t: np.ndarray, target_hz: float) -> int:
     """Samples per block that bring the rate of times ``t`` [s] down to ``target_hz`` or just
-    above it (1 when it is already at or below it)."""
+    above it (1 when it is already at or below it).
+
+    Parameters
+    ----------
+    t : numpy.ndarray, shape (n,)
+        Sample times [s], increasing.
+    target_hz : float
+        Rate wanted [Hz].
+
+    Returns
+    -------
+    int
+        Block length k ≥ 1 for :func:`block_means`.
+    """
     if len(t) < 2:
         return 1
     fs = 1.0 / float(np.median(np.diff(t)))

@@ -134,6 +134,18 @@ def firmware_generation(params: dict[str, float] | None, firmware_string: str | 
       AVR build, i.e. APM 2.x, which ends at Copter 3.2.1);
     * otherwise the default "3.3+" (every current release). Note that Copter 3.1/3.2 on PX4
       boards do have INS_ACC2OFFS_X: pass the firmware string for those.
+
+    Parameters
+    ----------
+    params : dict of str to float, or None
+        The log's parameters.
+    firmware_string : str, optional
+        E.g. "ArduCopter V3.2.1".
+
+    Returns
+    -------
+    str
+        "3.2" or "3.3+".
     """
     if firmware_string:
         m = _VERSION.search(firmware_string)
@@ -162,6 +174,29 @@ def correct_acc(raw: np.ndarray, params: dict[str, float], generation: str, inst
     """What the firmware outputs [m/s², body frame] for sensor-frame ``raw`` (n, 3) [m/s²].
 
     ``rotate=False`` leaves out AHRS_ORIENTATION (3.3+ only: its correction is in sensor frame).
+
+    Parameters
+    ----------
+    raw : numpy.ndarray, shape (n, 3)
+        Raw sensor-frame accelerometer samples [m/s²].
+    params : dict of str to float
+        The parameters in force (offsets, scales, AHRS_ORIENTATION, ...).
+    generation : str
+        "3.2" or "3.3+" (:func:`firmware_generation`).
+    instance : int, optional
+        Sensor instance 0..2 (selects the parameter names).
+    rotate : bool, optional
+        Include AHRS_ORIENTATION; False only for generation "3.3+".
+
+    Returns
+    -------
+    numpy.ndarray, shape (n, 3)
+        Corrected body-frame samples [m/s²] (sensor frame when ``rotate`` is False).
+
+    Raises
+    ------
+    ApmcalError
+        A parameter needed is missing or not finite; an unknown generation or rotation code.
     """
     _check_generation(generation)
     offs_names, scal_names = acc_param_names(instance)
@@ -179,7 +214,32 @@ def correct_acc(raw: np.ndarray, params: dict[str, float], generation: str, inst
 def uncorrect_acc(acc_body: np.ndarray, params: dict[str, float], generation: str,
                   instance: int = 0, rotate: bool = True) -> np.ndarray:
     """Sensor-frame raw accelerometer samples [m/s²] that :func:`correct_acc` maps to
-    ``acc_body``."""
+    ``acc_body``.
+
+    Parameters
+    ----------
+    acc_body : numpy.ndarray, shape (n, 3)
+        Firmware output [m/s²], body frame (sensor frame when ``rotate`` is False).
+    params : dict of str to float
+        The parameters in force (offsets, scales, AHRS_ORIENTATION, ...).
+    generation : str
+        "3.2" or "3.3+" (:func:`firmware_generation`).
+    instance : int, optional
+        Sensor instance 0..2 (selects the parameter names).
+    rotate : bool, optional
+        Include AHRS_ORIENTATION; False only for generation "3.3+".
+
+    Returns
+    -------
+    numpy.ndarray, shape (n, 3)
+        Raw sensor-frame samples [m/s²].
+
+    Raises
+    ------
+    ApmcalError
+        A parameter needed is missing or not finite, or a scale is zero; an unknown generation
+        or rotation code; ``rotate=False`` with generation "3.2".
+    """
     _check_generation(generation)
     offs_names, scal_names = acc_param_names(instance)
     o, s = _vector(params, offs_names), _vector(params, scal_names)
@@ -195,7 +255,31 @@ def uncorrect_acc(acc_body: np.ndarray, params: dict[str, float], generation: st
 # ----------------------------------------------------------------------------- gyroscope
 def correct_gyr(raw: np.ndarray, params: dict[str, float], generation: str, instance: int = 0,
                 rotate: bool = True) -> np.ndarray:
-    """Firmware gyro output [rad/s, body frame] for sensor-frame ``raw`` (n, 3) [rad/s]."""
+    """Firmware gyro output [rad/s, body frame] for sensor-frame ``raw`` (n, 3) [rad/s].
+
+    Parameters
+    ----------
+    raw : numpy.ndarray, shape (n, 3)
+        Raw sensor-frame gyro samples [rad/s].
+    params : dict of str to float
+        The parameters in force (offsets, scales, AHRS_ORIENTATION, ...).
+    generation : str
+        "3.2" or "3.3+" (:func:`firmware_generation`).
+    instance : int, optional
+        Sensor instance 0..2 (selects the parameter names).
+    rotate : bool, optional
+        Include AHRS_ORIENTATION; False only for generation "3.3+".
+
+    Returns
+    -------
+    numpy.ndarray, shape (n, 3)
+        Corrected body-frame samples [rad/s] (sensor frame when ``rotate`` is False).
+
+    Raises
+    ------
+    ApmcalError
+        A parameter needed is missing or not finite; an unknown generation or rotation code.
+    """
     _check_generation(generation)
     o = _vector(params, gyr_param_names(instance))
     raw = np.asarray(raw, dtype=float)
@@ -208,7 +292,31 @@ def correct_gyr(raw: np.ndarray, params: dict[str, float], generation: str, inst
 
 def uncorrect_gyr(gyr_body: np.ndarray, params: dict[str, float], generation: str,
                   instance: int = 0, rotate: bool = True) -> np.ndarray:
-    """Sensor-frame raw gyro samples [rad/s] that :func:`correct_gyr` maps to ``gyr_body``."""
+    """Sensor-frame raw gyro samples [rad/s] that :func:`correct_gyr` maps to ``gyr_body``.
+
+    Parameters
+    ----------
+    gyr_body : numpy.ndarray, shape (n, 3)
+        Firmware output [rad/s], body frame (sensor frame when ``rotate`` is False).
+    params : dict of str to float
+        The parameters in force (offsets, scales, AHRS_ORIENTATION, ...).
+    generation : str
+        "3.2" or "3.3+" (:func:`firmware_generation`).
+    instance : int, optional
+        Sensor instance 0..2 (selects the parameter names).
+    rotate : bool, optional
+        Include AHRS_ORIENTATION; False only for generation "3.3+".
+
+    Returns
+    -------
+    numpy.ndarray, shape (n, 3)
+        Raw sensor-frame samples [rad/s].
+
+    Raises
+    ------
+    ApmcalError
+        A parameter needed is missing or not finite; an unknown generation or rotation code.
+    """
     _check_generation(generation)
     o = _vector(params, gyr_param_names(instance))
     gyr = np.asarray(gyr_body, dtype=float)
@@ -225,6 +333,11 @@ def compass_matrix(params: dict[str, float], instance: int = 0) -> np.ndarray:
     An all-zero DIA counts as (1, 1, 1) with ODI still applied: Copter 3.3's
     ``AP_Compass_Backend::apply_corrections`` (and ``correct_field`` later) resets zero diagonals
     to 1 before building the matrix (not in ardupilot-facts.md; see sitl/firmware.py).
+
+    Returns
+    -------
+    numpy.ndarray, shape (3, 3)
+        Symmetric, dimensionless.
     """
     names = mag_param_names(instance)
     if not all(n in params for n in names["dia"]):
@@ -239,7 +352,19 @@ def compass_matrix(params: dict[str, float], instance: int = 0) -> np.ndarray:
 
 
 def compass_rotation(params: dict[str, float], generation: str, instance: int = 0) -> np.ndarray:
-    """Sensor → body rotation the firmware applies to compass ``instance`` (see module doc)."""
+    """Sensor → body rotation the firmware applies to compass ``instance`` (see module doc).
+
+    Returns
+    -------
+    numpy.ndarray, shape (3, 3)
+        ``R`` with ``v_body = R @ v_sensor``.
+
+    Raises
+    ------
+    ApmcalError
+        An external compass without COMPASS_ORIENTn, no AHRS_ORIENTATION for an internal
+        one, or an unknown generation or rotation.
+    """
     _check_generation(generation)
     names = mag_param_names(instance)
     external = bool(params.get(names["external"], 0))
@@ -257,7 +382,29 @@ def compass_rotation(params: dict[str, float], generation: str, instance: int = 
 
 def correct_mag(raw: np.ndarray, params: dict[str, float], generation: str,
                 instance: int = 0) -> np.ndarray:
-    """Firmware compass output [mGauss, body frame] for sensor-frame ``raw`` (n, 3) [mGauss]."""
+    """Firmware compass output [mGauss, body frame] for sensor-frame ``raw`` (n, 3) [mGauss].
+
+    Parameters
+    ----------
+    raw : numpy.ndarray, shape (n, 3)
+        Raw sensor-frame compass samples [mGauss].
+    params : dict of str to float
+        The parameters in force (offsets, scales, AHRS_ORIENTATION, ...).
+    generation : str
+        "3.2" or "3.3+" (:func:`firmware_generation`).
+    instance : int, optional
+        Sensor instance 0..2 (selects the parameter names).
+
+    Returns
+    -------
+    numpy.ndarray, shape (n, 3)
+        Corrected body-frame samples [mGauss].
+
+    Raises
+    ------
+    ApmcalError
+        A parameter needed is missing or not finite; an unknown generation or rotation code.
+    """
     ofs = _vector(params, mag_param_names(instance)["ofs"])
     r = compass_rotation(params, generation, instance)
     m = compass_matrix(params, instance)
@@ -267,7 +414,30 @@ def correct_mag(raw: np.ndarray, params: dict[str, float], generation: str,
 
 def uncorrect_mag(mag_body: np.ndarray, params: dict[str, float], generation: str,
                   instance: int = 0) -> np.ndarray:
-    """Sensor-frame raw compass samples [mGauss] that :func:`correct_mag` maps to ``mag_body``."""
+    """Sensor-frame raw compass samples [mGauss] that :func:`correct_mag` maps to ``mag_body``.
+
+    Parameters
+    ----------
+    mag_body : numpy.ndarray, shape (n, 3)
+        Firmware output [mGauss], body frame.
+    params : dict of str to float
+        The parameters in force (offsets, scales, AHRS_ORIENTATION, ...).
+    generation : str
+        "3.2" or "3.3+" (:func:`firmware_generation`).
+    instance : int, optional
+        Sensor instance 0..2 (selects the parameter names).
+
+    Returns
+    -------
+    numpy.ndarray, shape (n, 3)
+        Raw sensor-frame samples [mGauss].
+
+    Raises
+    ------
+    ApmcalError
+        A parameter needed is missing or not finite, or the soft-iron matrix is singular; an
+        unknown generation or rotation code.
+    """
     ofs = _vector(params, mag_param_names(instance)["ofs"])
     r = compass_rotation(params, generation, instance)
     m = compass_matrix(params, instance)
@@ -326,7 +496,27 @@ def uncorrect(recording: Recording, params: dict[str, float] | None = None,
 
 
 def correct(recording: Recording, params: dict[str, float], generation: str) -> Recording:
-    """What the firmware would output for raw sensor-frame ``recording``: corrected, body frame."""
+    """What the firmware would output for raw sensor-frame ``recording``: corrected, body frame.
+
+    Parameters
+    ----------
+    recording : Recording
+        Raw samples (corrected=False, frame="sensor").
+    params : dict of str to float
+        The parameters to apply.
+    generation : str
+        "3.2" or "3.3+".
+
+    Returns
+    -------
+    Recording
+        corrected=True, frame="body", ``params`` attached.
+
+    Raises
+    ------
+    ApmcalError
+        A recording that is not raw, or a parameter needed is missing or not finite.
+    """
     if recording.corrected or recording.frame != "sensor":
         raise ApmcalError("correct() needs raw sensor-frame samples (use uncorrect() first)",
                           recording.source)

@@ -30,7 +30,28 @@ PAD_PERIODS = 3.0           # padding length in cut-off periods
 
 
 def design(fs: float, cutoff: float = DEFAULT_CUTOFF_HZ, order: int = DEFAULT_ORDER) -> np.ndarray:
-    """Second-order sections of a Butterworth high-pass (cutoff [Hz] at sampling rate fs [Hz])."""
+    """Second-order sections of a Butterworth high-pass (cutoff [Hz] at sampling rate fs [Hz]).
+
+    Parameters
+    ----------
+    fs : float
+        Sampling rate [Hz].
+    cutoff : float, optional
+        Cut-off frequency [Hz].
+    order : int, optional
+        Butterworth order of one pass.
+
+    Returns
+    -------
+    numpy.ndarray, shape (n_sections, 6)
+        ``scipy.signal`` second-order sections.
+
+    Raises
+    ------
+    ApmcalError
+        Non-positive rate, cutoff not inside (0, fs/2), or an order that is not a positive
+        integer.
+    """
     if not (fs > 0 and math.isfinite(fs)):
         raise ApmcalError(f"high-pass: sampling rate must be positive, got {fs}")
     if not 0 < cutoff < fs / 2:
@@ -42,7 +63,19 @@ def design(fs: float, cutoff: float = DEFAULT_CUTOFF_HZ, order: int = DEFAULT_OR
 
 
 def pad_length(fs: float, cutoff: float = DEFAULT_CUTOFF_HZ) -> int:
-    """Samples of odd-reflection padding on each side: three cut-off periods."""
+    """Samples of odd-reflection padding on each side: three cut-off periods.
+
+    Parameters
+    ----------
+    fs : float
+        Sampling rate [Hz].
+    cutoff : float, optional
+        Cut-off frequency [Hz].
+
+    Returns
+    -------
+    int
+    """
     return int(math.ceil(PAD_PERIODS * fs / cutoff))
 
 
@@ -59,6 +92,11 @@ def highpass(x, fs: float, cutoff: float = DEFAULT_CUTOFF_HZ, order: int = DEFAU
         Cut-off frequency [Hz]; |H|² = 1/2 there after forward-backward filtering.
     order : int
         Butterworth order of one pass.
+
+    Returns
+    -------
+    numpy.ndarray, shape of ``x``
+        The filtered samples.
 
     Raises
     ------
@@ -82,6 +120,23 @@ def sampling_rate(t, max_jitter: float = MAX_JITTER) -> float:
 
     Raises ApmcalError when a step differs from the median step by more than ``max_jitter``
     (relative): a digital filter designed for one rate is wrong on irregular samples (resample first).
+
+    Parameters
+    ----------
+    t : array_like, shape (n,)
+        Sample times [s].
+    max_jitter : float, optional
+        Largest accepted |Δt − median Δt| / median Δt.
+
+    Returns
+    -------
+    float
+        1 / median step [Hz].
+
+    Raises
+    ------
+    ApmcalError
+        Fewer than two times, times not strictly increasing, or irregular steps.
     """
     t = np.asarray(t, dtype=float)
     if t.ndim != 1 or t.size < 2:
@@ -102,5 +157,26 @@ def sampling_rate(t, max_jitter: float = MAX_JITTER) -> float:
 
 def highpass_t(t, x, cutoff: float = DEFAULT_CUTOFF_HZ, order: int = DEFAULT_ORDER,
                max_jitter: float = MAX_JITTER) -> np.ndarray:
-    """:func:`highpass` with the sampling rate taken from sample times ``t`` [s] (checked regular)."""
+    """:func:`highpass` with the sampling rate taken from sample times ``t`` [s] (checked regular).
+
+    Parameters
+    ----------
+    t : array_like, shape (n,)
+        Sample times [s].
+    x : array_like, shape (n,) or (n, k)
+        Samples, any unit (output in the same unit).
+    cutoff, order
+        As for :func:`highpass`.
+    max_jitter : float, optional
+        As for :func:`sampling_rate`.
+
+    Returns
+    -------
+    numpy.ndarray, shape of ``x``
+
+    Raises
+    ------
+    ApmcalError
+        From :func:`sampling_rate` and :func:`highpass`.
+    """
     return highpass(x, sampling_rate(t, max_jitter), cutoff, order)

@@ -12,6 +12,7 @@ MERGE_ANGLE_DEG = 2.0   # runs of one hold: mean specific forces and gap turn wi
 
 
 def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle [deg] between the vectors ``a`` and ``b`` (each shape (3,), any common unit)."""
     c = np.dot(a, b) / (np.linalg.norm(a) * np.linalg.norm(b))
     return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
 
@@ -23,6 +24,23 @@ def same_hold(t, acc, gyr, a, b, *, max_angle_deg, gyr_tol, gyr_unit_rad, max_st
     within ``gyr_tol`` (the gyro noise threshold), and the bias-corrected gyro integrated over
     the gap turns less than ``max_angle_deg`` — a quarter turn about the vertical (seed 002 §3.1)
     leaves the accelerometer unchanged and must still split the holds.
+
+    Parameters
+    ----------
+    t : numpy.ndarray, shape (n,)
+        Sample times [s].
+    acc : numpy.ndarray, shape (n, 3)
+        Accelerometer, any unit.
+    gyr : numpy.ndarray, shape (n, 3), or None
+        Gyroscope in units of ``gyr_unit_rad`` rad/s.
+    a, b : tuple of int
+        Half-open index ranges (i0, i1) of the two runs, ``a`` first.
+    max_angle_deg, gyr_tol, gyr_unit_rad, max_step
+        See :func:`merge_holds`.
+
+    Returns
+    -------
+    bool
     """
     if angle_deg(acc[a[0]:a[1]].mean(axis=0), acc[b[0]:b[1]].mean(axis=0)) >= max_angle_deg:
         return False
@@ -38,7 +56,22 @@ def same_hold(t, acc, gyr, a, b, *, max_angle_deg, gyr_tol, gyr_unit_rad, max_st
 
 def integrate_rate(t: np.ndarray, rate: np.ndarray, max_step: float = np.inf) -> np.ndarray:
     """Trapezoidal integral of (n, 3) ``rate`` over ``t`` [rate unit × s], skipping steps longer
-    than ``max_step`` [s] (a logging hole: the turn inside it is unknown, not rate × hole)."""
+    than ``max_step`` [s] (a logging hole: the turn inside it is unknown, not rate × hole).
+
+    Parameters
+    ----------
+    t : numpy.ndarray, shape (n,)
+        Sample times [s].
+    rate : numpy.ndarray, shape (n, 3)
+        Angular rate, any unit (e.g. rad/s).
+    max_step : float, optional
+        Longest step integrated over [s].
+
+    Returns
+    -------
+    numpy.ndarray, shape (3,)
+        Integrated turn [rate unit × s], e.g. rad.
+    """
     if t.size < 2:
         return np.zeros(rate.shape[1])
     h = np.diff(t)
@@ -52,6 +85,12 @@ def merge_holds(t, acc, gyr, runs, *, merge_gap: float, max_angle_deg: float = M
 
     Parameters
     ----------
+    t : numpy.ndarray, shape (n,)
+        Sample times [s].
+    acc : numpy.ndarray, shape (n, 3)
+        Accelerometer, any unit.
+    gyr : numpy.ndarray, shape (n, 3), or None
+        Gyroscope in units of ``gyr_unit_rad`` rad/s.
     runs : list of (i0, i1)
         Half-open still runs in time order.
     merge_gap : float
@@ -63,8 +102,9 @@ def merge_holds(t, acc, gyr, runs, *, merge_gap: float, max_angle_deg: float = M
 
     Returns
     -------
-    list of (i0, i1, excluded): ``excluded`` are the half-open gap ranges inside [i0, i1) whose
-    samples are left out of the segment's statistics.
+    list of (i0, i1, excluded)
+        ``excluded`` are the half-open gap ranges inside [i0, i1) whose samples are left out
+        of the segment's statistics.
     """
     out: list[tuple[int, int, list[tuple[int, int]]]] = []
     for r in runs:

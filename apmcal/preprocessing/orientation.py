@@ -84,6 +84,15 @@ def euler_to_matrix(roll_deg: float, pitch_deg: float, yaw_deg: float) -> np.nda
 
     Angles in degrees. Entries within 1e-15 of 0 or ±1 are snapped so that the 90° rotations
     are exact signed permutations (no 6e-17 residue from cos(90°)).
+
+    Parameters
+    ----------
+    roll_deg, pitch_deg, yaw_deg : float
+        Euler 321 angles [deg].
+
+    Returns
+    -------
+    numpy.ndarray, shape (3, 3)
     """
     r, p, y = (math.radians(a) for a in (roll_deg, pitch_deg, yaw_deg))
     cr, sr, cp, sp = math.cos(r), math.sin(r), math.cos(p), math.sin(p)
@@ -109,6 +118,11 @@ def rotation_matrix(code: float | int, params: dict[str, float] | None = None,
         Needed only for the custom rotations 100..102 (CUSTOM_ROTn_ROLL/PITCH/YAW, degrees).
     param_name : str
         Name used in error messages ("AHRS_ORIENTATION", "COMPASS_ORIENT", ...).
+
+    Returns
+    -------
+    numpy.ndarray, shape (3, 3)
+        ``R`` with ``v_body = R @ v_sensor``.
 
     Raises
     ------

@@ -28,6 +28,22 @@ def split_at_param_changes(imu: Recording, mag: Recording | None, changes: list[
     accelerometer its samples, nor an accelerometer calibration the compass. A compass that
     cannot be kept loses only itself (a warning); an IMU that cannot be kept is an
     :class:`ApmcalError`.
+
+    Parameters
+    ----------
+    imu : Recording
+        The IMU recording (acc, gyr, and the compass when its message carries one).
+    mag : Recording or None
+        A separate compass recording of the same IMU.
+    changes : list of ParamChange
+        The log's calibration-parameter changes (``LogContents.param_changes``).
+    path : str
+        The log, for error messages.
+
+    Raises
+    ------
+    ApmcalError
+        When the IMU's samples cannot be kept (see :func:`after_param_changes`).
     """
     if not _relevant(changes, imu, ("acc", "gyr", "mag")) and (
             mag is None or not _relevant(changes, mag, ("mag",))):
@@ -52,6 +68,19 @@ def after_param_changes(recording: Recording, changes: list[ParamChange],
                         path: str) -> tuple[Recording, list[str]]:
     """The samples of ``recording`` after the last change of a parameter its correction uses
     (:func:`enters_correction_of`), and warnings.
+
+    Parameters
+    ----------
+    recording : Recording
+    changes : list of ParamChange
+    path : str
+        The log, for error messages.
+
+    Returns
+    -------
+    recording : Recording
+        The samples after the last relevant change (``recording`` itself when none is).
+    warnings : list of str
 
     Raises
     ------

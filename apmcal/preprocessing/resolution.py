@@ -25,7 +25,13 @@ ONE_SIGMA_OF_UNIFORM_STEP = 1.0 / np.sqrt(12.0)
 
 
 def telemetry_steps(recording: Recording) -> dict[str, float]:
-    """Quantisation step per sensor in SI units; empty for floating-point sources."""
+    """Quantisation step per sensor in SI units; empty for floating-point sources.
+
+    Returns
+    -------
+    dict of str to float
+        Sensor → step: acc [m/s²], gyr [rad/s], mag [mGauss].
+    """
     if recording.message not in INT16_TELEMETRY:
         return {}
     return {s: STEP_SI[s] for s in recording.sensors}
@@ -36,6 +42,16 @@ def noise_std(x: np.ndarray) -> float:
 
     Differences cancel slow motion and the median ignores the turns between holds, so a mostly
     still recording gives its resting noise without finding the holds first.
+
+    Parameters
+    ----------
+    x : numpy.ndarray, shape (n,) or (n, k)
+        Samples, any unit.
+
+    Returns
+    -------
+    float
+        The largest of the k axes' noise σ, in the unit of ``x``.
     """
     d = np.diff(np.asarray(x, dtype=float), axis=0)
     if len(d) == 0:
@@ -49,6 +65,16 @@ def resolution_limited(recording: Recording, steps: dict[str, float]) -> dict[st
 
     Only there does truncation leave a systematic error in a hold mean (up to half a step)
     that averaging cannot remove.
+
+    Parameters
+    ----------
+    recording : Recording
+    steps : dict of str to float
+        From :func:`telemetry_steps` (SI units).
+
+    Returns
+    -------
+    dict of str to float
     """
     return {s: step for s, step in steps.items() if noise_std(recording.xyz(s)) < step}
 

@@ -56,6 +56,7 @@ class Rotation:
 
     @property
     def axis_name(self) -> str:
+        """"x", "y" or "z"."""
         return "xyz"[self.axis]
 
     def is_full_turn(self, full_turn_deg: float = 360.0, tol_deg: float = FULL_TURN_TOL_DEG) -> bool:
@@ -74,6 +75,16 @@ def sample_intervals(t: np.ndarray) -> np.ndarray:
 
     This rectangle rule is imucal's (sum / sampling rate) on regular data and still right on
     irregular telemetry.
+
+    Parameters
+    ----------
+    t : numpy.ndarray, shape (n,)
+        Sample times [s].
+
+    Returns
+    -------
+    numpy.ndarray, shape (n,)
+        Δ_i [s].
     """
     d = np.diff(t)
     return np.append(d, d[-1] if d.size else 0.0)
@@ -84,12 +95,38 @@ def integrate(t: np.ndarray, x: np.ndarray, i0: int, i1: int) -> np.ndarray:
 
     The intervals are taken inside the range, so ranges cut out of a longer recording (imucal's
     annotated sections) integrate the same as contiguous data.
+
+    Parameters
+    ----------
+    t : numpy.ndarray, shape (n,)
+        Sample times [s].
+    x : numpy.ndarray, shape (n, 3)
+        Samples, e.g. rate [rad/s].
+    i0, i1 : int
+        Half-open sample range.
+
+    Returns
+    -------
+    numpy.ndarray, shape (3,)
+        The integral [x unit × s], e.g. rad.
     """
     return integrate_slice(t[i0:i1], x[i0:i1])
 
 
 def integrate_slice(t: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Rectangle-rule integral of (m, 3) ``x`` sampled at ``t`` (already sliced) [x unit × s]."""
+    """Rectangle-rule integral of (m, 3) ``x`` sampled at ``t`` (already sliced) [x unit × s].
+
+    Parameters
+    ----------
+    t : numpy.ndarray, shape (m,)
+        Sample times [s].
+    x : numpy.ndarray, shape (m, 3)
+        Samples, e.g. rate [rad/s].
+
+    Returns
+    -------
+    numpy.ndarray, shape (3,)
+    """
     return (x * sample_intervals(t)[:, None]).sum(axis=0)
 
 
@@ -108,11 +145,28 @@ def find_steps(t, gyr, segments: list[StaticSegment], *, bias=None,
 
     Parameters
     ----------
-    t : (n,) array, s
-    gyr : (n, 3) array, rad/s (the angle test uses radians)
-    segments : static segments with ``gyr_mean`` (from :func:`find_static_segments` with gyr)
+    t : (n,) array
+        Sample times [s].
+    gyr : (n, 3) array
+        Gyroscope [rad/s] (the angle test uses radians).
+    segments : list of StaticSegment
+        Static segments with ``gyr_mean`` (from :func:`find_static_segments` with gyr).
     bias : callable t -> (m, 3) bias, optional
-        Gyro bias model; default: mean of the two holds around each motion.
+        Gyro bias model [rad/s]; default: mean of the two holds around each motion.
+    min_step_deg : float, optional
+        Smaller motions [deg] are not steps.
+    max_off_axis_deg : float, optional
+        Largest angle [deg] between the integrated rotation vector and the nearest sensor axis.
+
+    Returns
+    -------
+    list of Rotation
+        In time order, ``n_steps`` 1 each.
+
+    Raises
+    ------
+    ApmcalError
+        Segments computed without the gyroscope.
     """
     t = np.asarray(t, dtype=float)
     gyr = np.asarray(gyr, dtype=float)
@@ -166,14 +220,28 @@ def find_rotations(t, gyr, segments: list[StaticSegment], *, bias=None,
 
     Parameters
     ----------
-    t : (n,) array, s
-    gyr : (n, 3) array, rad/s
-    segments : list of StaticSegment in time order, computed with the gyroscope.
-    bias : callable t -> (m, 3) gyro bias, optional (default: mean of the neighbouring holds).
+    t : (n,) array
+        Sample times [s].
+    gyr : (n, 3) array
+        Gyroscope [rad/s].
+    segments : list of StaticSegment
+        In time order, computed with the gyroscope.
+    bias : callable t -> (m, 3) gyro bias, optional
+        Gyro bias model [rad/s] (default: mean of the neighbouring holds).
+    full_turn_deg : float, optional
+        The turn [deg] a group closes at.
+    min_step_deg, max_off_axis_deg : float, optional
+        As for :func:`find_steps`.
 
     Returns
     -------
-    list of Rotation in time order.
+    list of Rotation
+        In time order.
+
+    Raises
+    ------
+    ApmcalError
+        Segments computed without the gyroscope.
     """
     t = np.asarray(t, dtype=float)
     gyr = np.asarray(gyr, dtype=float)

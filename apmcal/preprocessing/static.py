@@ -117,7 +117,22 @@ class StaticSegment:
 
 
 def pose_of(acc_mean: np.ndarray, max_tilt_deg: float = MAX_TILT_DEG) -> tuple[str | None, float]:
-    """Ferraris pose name of a mean specific-force vector and its tilt [deg] from the nearest axis."""
+    """Ferraris pose name of a mean specific-force vector and its tilt [deg] from the nearest axis.
+
+    Parameters
+    ----------
+    acc_mean : numpy.ndarray, shape (3,)
+        Mean specific force, sensor frame, any unit.
+    max_tilt_deg : float, optional
+        Largest tilt [deg] from an axis that still earns a pose name.
+
+    Returns
+    -------
+    pose : str or None
+        "x_p" … "z_a", or None when tilted more than ``max_tilt_deg``.
+    tilt : float
+        Angle [deg] between "up" and the nearest sensor axis.
+    """
     up = np.asarray(acc_mean, dtype=float) / np.linalg.norm(acc_mean)
     axis = int(np.argmax(np.abs(up)))
     tilt = float(np.degrees(np.arccos(min(1.0, abs(up[axis])))))
@@ -138,6 +153,23 @@ def make_segment(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray | None, i0: int
     """Statistics of samples ``i0 .. i1-1`` as a :class:`StaticSegment` (also for hand-set ranges).
 
     ``exclude`` lists half-open index ranges inside ``[i0, i1)`` left out of the statistics.
+
+    Parameters
+    ----------
+    t : numpy.ndarray, shape (n,)
+        Sample times [s].
+    acc : numpy.ndarray, shape (n, 3)
+        Accelerometer, sensor frame, any unit.
+    gyr : numpy.ndarray, shape (n, 3), or None
+        Gyroscope, sensor frame, any unit.
+    i0, i1 : int
+        Half-open sample range.
+    max_tilt_deg : float, optional
+        See :func:`pose_of`.
+
+    Returns
+    -------
+    StaticSegment
     """
     exclude = tuple((int(a), int(b)) for a, b in exclude)
     idx = _kept_index(int(i0), int(i1), exclude) if exclude else slice(i0, i1)
@@ -223,7 +255,14 @@ def find_static_segments(t, acc, gyr=None, *, min_duration: float = 2.0, window:
 
     Returns
     -------
-    list of StaticSegment, in time order; merged ones list their excluded gaps in ``excluded``.
+    list of StaticSegment
+        In time order; merged ones list their excluded gaps in ``excluded``.
+
+    Raises
+    ------
+    ApmcalError
+        ``t`` and ``acc`` (and ``gyr``) of mismatched shapes, fewer than 3 samples, or times
+        not finite and strictly increasing.
     """
     t, acc, gyr = _check_inputs(t, acc, gyr)
     dt = float(np.median(np.diff(t)))
@@ -261,7 +300,14 @@ def label_poses(segments: list[StaticSegment], how: str = "longest") -> dict[str
 
     Returns
     -------
-    dict pose name -> StaticSegment, only for the poses present. Use ``ARDUPILOT_FACE`` to rename.
+    dict of str to StaticSegment
+        Pose name -> StaticSegment, only for the poses present. Use ``ARDUPILOT_FACE`` to
+        rename.
+
+    Raises
+    ------
+    ApmcalError
+        An unknown ``how``.
     """
     if how != "longest":
         raise ApmcalError(f"unknown pose selection {how!r} (only 'longest')")

@@ -21,6 +21,22 @@ def uniform_filter1d(x: np.ndarray, w: int, axis: int = 0, mode: str = "reflect"
 
     Why not scipy's: it imports ``scipy.ndimage`` (~0.3 s, and with it scipy's array-API layer),
     a tenth of an ``apmcal log`` run, for a cumulative sum. Same values to ~1e-13 relative.
+
+    Parameters
+    ----------
+    x : numpy.ndarray, shape (n, k)
+        Samples, any unit.
+    w : int
+        Window length [samples].
+    axis : int, optional
+        Must be 0.
+    mode : str, optional
+        "reflect" or "nearest".
+
+    Returns
+    -------
+    numpy.ndarray, shape (n, k)
+        Moving mean, in the unit of ``x``.
     """
     assert axis == 0
     left = w // 2
@@ -39,6 +55,20 @@ def moving_std(x: np.ndarray, w: int, blocks: list[tuple[int, int]] | None = Non
     The window never reaches across a logging gap: each of ``blocks`` (half-open index ranges,
     default the whole record) is filtered on its own, mirrored at its ends. Blocks shorter than
     3 samples get ``inf`` (never still).
+
+    Parameters
+    ----------
+    x : numpy.ndarray, shape (n, 3)
+        Samples, any unit (e.g. m/s², rad/s).
+    w : int
+        Window length [samples].
+    blocks : list of (int, int), optional
+        Gap-free half-open index ranges (:func:`gap_free_blocks`).
+
+    Returns
+    -------
+    numpy.ndarray, shape (n,)
+        Moving std, in the unit of ``x``.
     """
     x = np.asarray(x, dtype=float)
     out = np.full(x.shape[0], np.inf)
@@ -58,6 +88,18 @@ def otsu_log(s: np.ndarray, bins: int = 128) -> float:
 
     Otsu (1979): maximise the between-class variance w0·w1·(μ0 − μ1)² over the histogram.
     On a log axis the still mode (noise) and the motion mode (10-1000 × noise) are well apart.
+
+    Parameters
+    ----------
+    s : numpy.ndarray, shape (n,)
+        Moving std (non-positive and non-finite values are ignored).
+    bins : int, optional
+        Histogram bins.
+
+    Returns
+    -------
+    float
+        The split level, in the unit of ``s``.
     """
     ls = np.log(s[(s > 0) & np.isfinite(s)])
     if ls.size < 2 or np.ptp(ls) == 0:
@@ -82,6 +124,20 @@ def noise_threshold(s: np.ndarray, x: np.ndarray, factor: float = NOISE_FACTOR,
     record with no motion at all has no second mode and gets ``factor`` × floor. A floor of
     1.5 quantisation steps keeps integer telemetry (RAW_IMU, 1 mG steps, ardupilot-facts.md)
     from giving a zero threshold.
+
+    Parameters
+    ----------
+    s : numpy.ndarray, shape (n,)
+        Moving std of ``x`` (:func:`moving_std`).
+    x : numpy.ndarray, shape (n, 3)
+        The signal, any unit.
+    factor, max_factor : float, optional
+        Bounds on the threshold, in multiples of the noise floor.
+
+    Returns
+    -------
+    float
+        Threshold (> 0), in the unit of ``x``.
     """
     finite = s[np.isfinite(s)]
     floor = float(np.percentile(finite, NOISE_QUANTILE)) if finite.size else 0.0
@@ -99,6 +155,17 @@ def hysteresis_mask(s: np.ndarray, enter: float, leave: float) -> np.ndarray:
     The higher ``leave`` level only bridges short noisy stretches inside a hold; the edges stay
     where the stricter ``enter`` level puts them, so a hold does not creep into the slow start
     or end of the next motion.
+
+    Parameters
+    ----------
+    s : numpy.ndarray, shape (n,)
+        Moving std.
+    enter, leave : float
+        The two levels (``enter`` ≤ ``leave``), in the unit of ``s``.
+
+    Returns
+    -------
+    numpy.ndarray of bool, shape (n,)
     """
     low = s < leave
     run = np.cumsum(low & ~np.concatenate([[False], low[:-1]]))   # run number of each sample
@@ -122,6 +189,23 @@ def slow_mask(gyr: np.ndarray, w: int, still: np.ndarray, max_rate: float,
     A turn at constant rate (a turntable, or a steady hand) has a small moving std; only its
     mean betrays it. The bias is the median rate over the samples the std test kept, which
     are mostly true holds.
+
+    Parameters
+    ----------
+    gyr : numpy.ndarray, shape (n, 3)
+        Gyroscope, any unit.
+    w : int
+        Window length [samples].
+    still : numpy.ndarray of bool, shape (n,)
+        Samples the std test kept.
+    max_rate : float
+        Largest |moving-mean rate − bias|, in the unit of ``gyr``.
+    blocks : list of (int, int)
+        Gap-free half-open index ranges.
+
+    Returns
+    -------
+    numpy.ndarray of bool, shape (n,)
     """
     if not np.any(still):
         return still
@@ -143,6 +227,17 @@ def gap_free_blocks(t: np.ndarray, dt: float) -> list[tuple[int, int]]:
 
     Dataflash logs stop writing IMU while disarmed (pxf_copter_mag.BIN: 13 gaps of 5-363 s);
     a window or a segment must not reach across such a hole.
+
+    Parameters
+    ----------
+    t : numpy.ndarray, shape (n,)
+        Sample times [s].
+    dt : float
+        Median sample interval [s].
+
+    Returns
+    -------
+    list of (int, int)
     """
     cut = np.flatnonzero(np.diff(t) > GAP_FACTOR * dt) + 1
     b = np.concatenate(([0], cut, [t.size]))

@@ -53,7 +53,20 @@ class Blocks:
 def orientation_groups(segments: list[StaticSegment],
                        max_angle_deg: float = GROUP_ANGLE_DEG) -> list[int]:
     """Group index of each segment: segments whose up axes are within ``max_angle_deg`` of the
-    first segment of a group join it (greedy, in time order)."""
+    first segment of a group join it (greedy, in time order).
+
+    Parameters
+    ----------
+    segments : list of StaticSegment
+        In time order.
+    max_angle_deg : float, optional
+        Largest angle [deg] between a segment's up axis and its group's first.
+
+    Returns
+    -------
+    list of int
+        One group index per segment.
+    """
     heads: list[np.ndarray] = []
     out = []
     cos_max = np.cos(np.radians(max_angle_deg))
@@ -87,6 +100,12 @@ def still_blocks(t: np.ndarray, temp_c: np.ndarray, acc: np.ndarray, gyr: np.nda
         Block length [s].
     min_samples : int
         Shorter blocks (a segment's tail) are dropped.
+
+    Returns
+    -------
+    Blocks
+        m blocks in time order (m = 0 when no block has ``min_samples`` samples; the
+        temperatures are then NaN).
     """
     groups = orientation_groups(segments)
     rows = []

@@ -15,7 +15,17 @@ from apmcal.recording import Recording
 
 
 def longest_increasing_run(t: np.ndarray) -> slice:
-    """Index range of the longest run of non-decreasing times (a run ends at a backward jump)."""
+    """Index range of the longest run of non-decreasing times (a run ends at a backward jump).
+
+    Parameters
+    ----------
+    t : numpy.ndarray, shape (n,)
+        Sample times [s].
+
+    Returns
+    -------
+    slice
+    """
     breaks = np.flatnonzero(np.diff(t) < 0) + 1
     starts = np.concatenate([[0], breaks])
     ends = np.concatenate([breaks, [len(t)]])
@@ -24,7 +34,13 @@ def longest_increasing_run(t: np.ndarray) -> slice:
 
 
 def monotonic(recording: Recording) -> tuple[Recording, list[str]]:
-    """The recording with strictly increasing, finite time, and warnings saying what was cut."""
+    """The recording with strictly increasing, finite time, and warnings saying what was cut.
+
+    Raises
+    ------
+    ApmcalError
+        Fewer than two samples with a finite time.
+    """
     t = recording.t
     finite = np.isfinite(t)
     if finite.sum() < 2:
