@@ -55,7 +55,15 @@ class Connection:
 
     # -- receiving --------------------------------------------------------------------------
     def recv(self, types=None, timeout_s: float = 1.0):
-        """Next message of ``types`` (or any), recorded to the tlog; None on timeout."""
+        """Next message of ``types`` (or any), recorded to the tlog; None on timeout.
+
+        Parameters
+        ----------
+        types : set of str, optional
+            MAVLink message names; any message when None.
+        timeout_s : float, optional
+            How long to wait [s].
+        """
         deadline = time.monotonic() + timeout_s
         while True:
             remaining = deadline - time.monotonic()
@@ -78,6 +86,16 @@ class Connection:
 
         Ground stations, gimbals and companion computers send HEARTBEAT too, with autopilot
         MAV_AUTOPILOT_INVALID: their parameters are not the vehicle's, so they are passed over.
+
+        Parameters
+        ----------
+        timeout_s : float
+            How long to wait [s].
+
+        Raises
+        ------
+        ApmcalError
+            No autopilot HEARTBEAT within ``timeout_s``.
         """
         deadline = time.monotonic() + timeout_s
         while True:
@@ -97,6 +115,7 @@ class Connection:
                 and msg.get_srcComponent() == self.target_component)
 
     def close(self) -> None:
+        """Close the tlog (when recording) and the link."""
         if self._tlog is not None:
             self._tlog.close()
             self._tlog = None
@@ -114,6 +133,19 @@ def open_connection(connection: str, baud: int = DEFAULT_BAUD):
 
     pymavlink prints its tcp retries ("[Errno 111] Connection refused sleeping") on stdout, where
     the report goes: they are swallowed, and a refusal after TCP_ATTEMPTS ends in one error.
+
+    Parameters
+    ----------
+    connection : str
+        A pymavlink connection string ("udp:...", "tcp:...", a serial port).
+    baud : int, optional
+        Serial links only.
+
+    Raises
+    ------
+    ApmcalError
+        A file given, a missing serial module, a refused tcp connection, or any other
+        failure to open.
     """
     from pymavlink import mavutil
 

@@ -48,6 +48,27 @@ class ParamProtocol:
         arrives for that long. The result is the backup and the correction to undo
         (ardupilot-facts.md "What the telemetry really carries"), so a set still incomplete
         then raises :class:`ApmcalError` rather than being returned partial.
+
+        Parameters
+        ----------
+        timeout_s : float, optional
+            Time allowed for the list, and again for the reads by index [s].
+        idle_s : float, optional
+            Silence [s] that ends the wait for the list.
+        retries : int, optional
+            List requests sent again when unanswered.
+        reads_per_index : int, optional
+            PARAM_REQUEST_READ rounds for the missing indices.
+
+        Returns
+        -------
+        dict of str to float
+            Every parameter by name.
+
+        Raises
+        ------
+        ApmcalError
+            No parameter at all, or some index still missing at the end.
         """
         idle_s = idle_s or 2 * self.answer_timeout_s
         got = _ParamList()
@@ -105,6 +126,16 @@ class ParamProtocol:
         With ``expect``, an answer of another value does not end the wait (it may be a stale
         echo of an earlier write, see :meth:`set_param`): the first answer equal to ``expect``
         at float32 is returned, else the last value the vehicle reported.
+
+        Parameters
+        ----------
+        name : str
+        timeout_s : float, optional
+            Wait per request [s] (default ``answer_timeout_s``).
+        retries : int, optional
+            Requests sent.
+        expect : float, optional
+            The value hoped for.
         """
         timeout_s = timeout_s or self.answer_timeout_s
         reported = None
@@ -131,6 +162,21 @@ class ParamProtocol:
         so the echo of an earlier write can arrive first carrying this name's old value. A
         different value keeps us listening until ``timeout_s``; a doubtful write (no matching
         echo) is checked by PARAM_REQUEST_READ and sent again, ``attempts`` times in all.
+
+        Parameters
+        ----------
+        name : str
+        value : float
+            Finite.
+        timeout_s : float, optional
+            Wait per request [s] (default ``answer_timeout_s``).
+        attempts : int, optional
+            PARAM_SETs sent at most.
+
+        Raises
+        ------
+        ApmcalError
+            A non-finite ``value`` (nothing is sent).
         """
         if not math.isfinite(value):
             raise ApmcalError(f"refusing to send non-finite value {value!r}", self.connection,
