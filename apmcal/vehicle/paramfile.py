@@ -35,6 +35,16 @@ def write_param_file(path: str | Path, values: dict[str, float], header_comment:
     ``comment_non_finite`` (for backups of what a vehicle holds): a NaN/inf value becomes the
     line ``# NAME nan (not finite on the vehicle; not restorable)`` instead of an error.
 
+    Parameters
+    ----------
+    path : str or Path
+    values : dict of str to float
+        Parameter name → value (in the parameter's own unit).
+    header_comment : str, optional
+        Text for the leading ``#`` lines.
+    comment_non_finite : bool, optional
+        See above.
+
     Raises
     ------
     ApmcalError

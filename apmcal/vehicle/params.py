@@ -60,11 +60,16 @@ class ParamProposal:
 
     Attributes
     ----------
-    values : name -> value (float32-representable) the firmware would accept
-    rejected : name -> reason, for values out of the firmware's limits (whole sensor withheld)
-    notes : human-readable remarks (what could not be represented, and what that costs)
-    generation : "3.2" or "3.3+"
-    costs : name -> worst-case error of the per-axis representation (m/s², rad/s, mGauss, deg)
+    values : dict of str to float
+        name -> value (float32-representable) the firmware would accept
+    rejected : dict of str to str
+        name -> reason, for values out of the firmware's limits (whole sensor withheld)
+    notes : list of str
+        human-readable remarks (what could not be represented, and what that costs)
+    generation : str
+        "3.2" or "3.3+"
+    costs : dict of str to float
+        name -> worst-case error of the per-axis representation (m/s², rad/s, mGauss, deg)
     """
 
     values: dict[str, float] = field(default_factory=dict)
@@ -80,6 +85,20 @@ def cost_of_approximation(matrix: np.ndarray, used: np.ndarray, magnitude: float
     A true quantity v (|v| = ``magnitude``) is seen, offset removed, as x = A⁻¹ v; the
     approximation outputs ``used`` @ x, so the error is (used A⁻¹ − I) v, whose maximum over
     the sphere is ``magnitude`` times the largest singular value of (used A⁻¹ − I).
+
+    Parameters
+    ----------
+    matrix : numpy.ndarray, shape (3, 3)
+        The true calibration matrix A (invertible, dimensionless).
+    used : numpy.ndarray, shape (3, 3)
+        What replaces it.
+    magnitude : float
+        |v|, in the quantity's unit (m/s², rad/s, mGauss).
+
+    Returns
+    -------
+    float
+        Worst-case error, in the unit of ``magnitude``.
     """
     a = np.asarray(matrix, dtype=float)
     e = np.asarray(used, dtype=float) @ np.linalg.inv(a) - np.eye(3)
@@ -91,6 +110,15 @@ def cost_of_diagonal_only(matrix: np.ndarray, magnitude: float) -> float:
 
     E.g. ``cost_of_diagonal_only(A, 9.80665)`` is the largest accelerometer error [m/s²] over
     every gravity direction between the full-matrix and the per-axis calibration.
+
+    Parameters
+    ----------
+    matrix : numpy.ndarray, shape (3, 3)
+    magnitude : float
+
+    Returns
+    -------
+    float
     """
     a = np.asarray(matrix, dtype=float)
     return cost_of_approximation(a, np.diag(np.diag(a)), magnitude)
@@ -105,11 +133,25 @@ def to_ardupilot_params(calibration, generation: str, instance: int = 0,
     ----------
     calibration : apmcal.solvers.result.Calibration
         Sensors "acc" [m/s²], "gyr" [rad/s], "mag" [mGauss], sensor frame, raw-sample corrections.
-    generation : "3.2" or "3.3+"
-    instance : IMU / compass instance (0..2; 3.2 has only 0)
-    current_params : the vehicle's parameters (AHRS_ORIENTATION, COMPASS_ORIENT/EXTERNAL,
+    generation : str
+        "3.2" or "3.3+"
+    instance : int
+        IMU / compass instance (0..2; 3.2 has only 0)
+    current_params : dict of str to float, optional
+        The vehicle's parameters (AHRS_ORIENTATION, COMPASS_ORIENT/EXTERNAL,
         COMPASS_OFFS_MAX; also used to refuse names the vehicle does not have)
-    field_mgauss : field strength used for the compass cost figures [mGauss]
+    field_mgauss : float
+        Field strength used for the compass cost figures [mGauss]
+
+    Returns
+    -------
+    ParamProposal
+
+    Raises
+    ------
+    ApmcalError
+        An unknown generation, an instance other than 0 on 3.2, or an unknown or incomplete
+        board/compass rotation.
     """
     if generation not in GENERATIONS:
         raise ApmcalError(f"unknown firmware generation {generation!r}; use '3.2' or '3.3+'")
@@ -179,7 +221,16 @@ def polar(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Right polar decomposition ``a = u @ p`` (u orthogonal, p symmetric positive
     semi-definite) from the SVD ``a = W·S·Vᵀ``: u = W·Vᵀ, p = V·S·Vᵀ (what
     ``scipy.linalg.polar(a, side="right")`` computes; here without importing scipy.linalg,
-    ~0.3 s of every ``apmcal log`` run)."""
+    ~0.3 s of every ``apmcal log`` run).
+
+    Parameters
+    ----------
+    a : numpy.ndarray, shape (3, 3)
+
+    Returns
+    -------
+    u, p : numpy.ndarray, shape (3, 3) each
+    """
     w, s, vh = np.linalg.svd(a)
     return w @ vh, (vh.T * s) @ vh
 
@@ -224,7 +275,22 @@ def _compass(cal, params, generation, instance, prop: ParamProposal, field_mgaus
 # The firmware stores any finite value; these are its parameter ranges, its own calibrators'
 # acceptance limits and its pre-arm checks. Each checks the names present in ``values``.
 def acc_violations(values: dict[str, float], instance: int, generation: str) -> dict[str, str]:
-    """name -> reason for INS_ACC*OFFS / INS_ACC*SCAL values of one IMU instance."""
+    """name -> reason for INS_ACC*OFFS / INS_ACC*SCAL values of one IMU instance.
+
+    Parameters
+    ----------
+    values : dict of str to float
+        Offsets [m/s²] and scales (dimensionless) by parameter name; other names ignored.
+    instance : int
+        IMU instance 0..2.
+    generation : str
+        "3.2" or "3.3+".
+
+    Returns
+    -------
+    dict of str to str
+        Empty when every value is within the limits.
+    """
     offs_names, scal_names = acc_param_names(instance)
     reasons = {}
     for n in [n for n in offs_names if n in values]:
@@ -258,6 +324,21 @@ def offset_violations(offsets, names: list[str], params: dict[str, float],
     The pre-arm check compares the length of the offset vector with COMPASS_OFFS_MAX, or, on
     firmware without that parameter, with config.h's COMPASS_OFFSETS_MAX (600); 3.2 also bounds
     each axis to ±400 (ardupilot-facts.md "How the firmware applies the parameters").
+
+    Parameters
+    ----------
+    offsets : array_like, shape (3,)
+        COMPASS_OFS X, Y, Z [mGauss].
+    names : list of str
+        Their parameter names.
+    params : dict of str to float
+        The vehicle's parameters (COMPASS_OFFS_MAX when it has one).
+    generation : str
+        "3.2" or "3.3+".
+
+    Returns
+    -------
+    dict of str to str
     """
     reasons = {}
     if generation == "3.2":

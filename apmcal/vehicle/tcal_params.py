@@ -81,6 +81,18 @@ class TcalSet:
 
         AP_InertialSensor_tempcal.cpp ``correct_sensor`` (issue 11): both temperatures clamped
         to [TMIN, TMAX], the polynomial evaluated at their difference from TEMP_REFERENCE.
+
+        Parameters
+        ----------
+        sensor : str
+            "acc" or "gyr".
+        temp_c : numpy.ndarray, shape (n,)
+            IMU temperature [°C].
+
+        Returns
+        -------
+        numpy.ndarray, shape (n, 3)
+            [m/s²] for "acc", [rad/s] for "gyr".
         """
         temp_c = np.asarray(temp_c, dtype=float)
         if self.enable != 1:
@@ -104,7 +116,8 @@ def polynomial(coeffs: np.ndarray, d_k: np.ndarray) -> np.ndarray:
 
     Returns
     -------
-    (n, 3) array in the sensor's unit (m/s² or rad/s).
+    (n, 3) array
+        In the sensor's unit (m/s² or rad/s).
     """
     c = np.asarray(coeffs, dtype=float)
     d = np.asarray(d_k, dtype=float)[:, None]
@@ -117,6 +130,16 @@ def tcal_from_params(params: dict[str, float], instance: int) -> TcalSet | None:
 
     Raises ApmcalError naming the parameter when ENABLE = 1 but a value it needs is missing or
     not finite.
+
+    Parameters
+    ----------
+    params : dict of str to float
+    instance : int
+        IMU instance, 0-based.
+
+    Returns
+    -------
+    TcalSet or None
     """
     n = _number(instance)
     enable_name = f"INS_TCAL{n}_ENABLE"
@@ -153,6 +176,16 @@ def tcal_param_values(instance: int, coeffs: dict, tmin_c: float, tmax_c: float
         "acc" / "gyr" → (3, 3) array, row k−1 = c_k (X, Y, Z) in parameter units (×1e6).
     tmin_c, tmax_c : float
         Temperature range of the data [°C]; refused outside the parameters' range −70..80 °C.
+
+    Returns
+    -------
+    dict of str to float
+        Parameter name → value (coefficients ×1e6, temperatures [°C]).
+
+    Raises
+    ------
+    ApmcalError
+        An instance other than 0..2, or TMIN/TMAX outside −70..80 °C.
     """
     n = _number(instance)
     lo, hi = TEMP_PARAM_RANGE_C

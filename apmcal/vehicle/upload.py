@@ -27,6 +27,23 @@ ROLLBACK_ATTEMPTS = 5       # a put-back matters more than a write: more tries b
 
 @dataclass
 class UploadReport:
+    """What an upload or a restore did.
+
+    Attributes
+    ----------
+    written : dict of str to float
+        Name → value read back.
+    previous : dict of str to float
+        Name → value before.
+    backup_path : str
+        The backup file of all parameters.
+    skipped : list of str
+        Restore: names the vehicle lacks.
+    unrestorable : list of str
+        Restore: NaN/inf in the backup.
+    left_out : list of str
+        Restore: differ, but not written (out of scope).
+    """
     written: dict[str, float] = field(default_factory=dict)    # name -> value read back
     previous: dict[str, float] = field(default_factory=dict)   # name -> value before
     backup_path: str = ""
@@ -39,7 +56,13 @@ class UploadReport:
 def check_before_writing(values: dict[str, float], vehicle_params: dict[str, float],
                          where: str, all_params: bool = False) -> None:
     """Refuse the whole upload (nothing written) for names out of scope (:func:`check_scope`),
-    unknown names, non-finite values, or values outside the firmware's limits."""
+    unknown names, non-finite values, or values outside the firmware's limits.
+
+    Raises
+    ------
+    ApmcalError
+        The first reason found; nothing is written.
+    """
     check_scope(values, where, all_params)
     for name, value in values.items():
         if not math.isfinite(value):
@@ -98,6 +121,29 @@ def upload_params(link: ParamProtocol, values: dict[str, float], backup_path: st
     not confirmed, or the user presses Ctrl-C, every parameter already changed is put back to
     its backed-up value (and that is verified too) before :class:`ApmcalError` is raised: the
     vehicle is never left half-calibrated.
+
+    Parameters
+    ----------
+    link : ParamProtocol
+        The vehicle's link.
+    values : dict of str to float
+        Parameter name → value to write.
+    backup_path : str or Path
+        Where the backup of every parameter goes (written before any change).
+    vehicle_params : dict of str to float, optional
+        The vehicle's parameters, fetched when None.
+    all_params : bool, optional
+        Allow parameters other than calibration ones.
+
+    Returns
+    -------
+    UploadReport
+
+    Raises
+    ------
+    ApmcalError
+        A value refused before writing (:func:`check_before_writing`), a write not
+        confirmed, or Ctrl-C (all changes rolled back), or a rollback not confirmed.
     """
     check_scope(values, link.connection, all_params)     # before the (slow) parameter list
     if vehicle_params is None:
@@ -193,6 +239,27 @@ def restore_params(link: ParamProtocol, backup_path: str | Path,
     restorable" comments to ``unrestorable``. Every other name is tried, even after a failure,
     so the vehicle ends as close to the backup as possible; then one :class:`ApmcalError` lists
     every name that could not be confirmed.
+
+    Parameters
+    ----------
+    link : ParamProtocol
+        The vehicle's link.
+    backup_path : str or Path
+        A backup written by :func:`upload_params` (or any parameter file).
+    names : list of str, optional
+        Only these names; all when None.
+    all_params : bool, optional
+        Allow parameters other than calibration ones.
+
+    Returns
+    -------
+    UploadReport
+
+    Raises
+    ------
+    ApmcalError
+        An unreadable backup, a name it lacks or that is out of scope, or writes not
+        confirmed.
     """
     backup = read_param_file(backup_path)
     unrestorable = [n for n in read_unrestorable(backup_path) if n not in backup]
