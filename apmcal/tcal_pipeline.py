@@ -28,6 +28,19 @@ class TcalResult:
     ``fits``: "acc" / "gyr" → :class:`TcalFit`; ``source``: the records fitted ("IMU", "IMU2",
     "RAW_IMU", ..., or "TCLR"); ``tmin_c`` / ``tmax_c``: the temperature range of the data
     [°C] (written as INS_TCALn_TMIN / TMAX, as the firmware's learner does).
+
+    Attributes
+    ----------
+    instance : int
+        IMU instance, 0-based.
+    source : str
+    fits : dict of str to TcalFit
+    tmin_c, tmax_c : float
+        Temperature range [°C].
+    still_s : float or None
+        Total still time fitted [s]; None for TCLR records.
+    notes : list of str
+        What was undone, and caveats of the fit.
     """
 
     instance: int
@@ -39,10 +52,13 @@ class TcalResult:
     notes: list[str] = field(default_factory=list)
 
     def params(self) -> dict[str, float]:
+        """The INS_TCALn_* parameter values of this result
+        (:func:`apmcal.vehicle.tcal_params.tcal_param_values`)."""
         return tcal_param_values(self.instance, {s: f.coeffs for s, f in self.fits.items()},
                                  self.tmin_c, self.tmax_c)
 
     def to_dict(self) -> dict:
+        """The result as plain data (JSON report)."""
         return {"instance": self.instance, "source": self.source, "tmin_c": self.tmin_c,
                 "tmax_c": self.tmax_c, "still_s": self.still_s, "notes": self.notes,
                 **{s: f.to_dict() for s, f in self.fits.items()}}
@@ -54,6 +70,24 @@ def calibrate_temperature(contents, records: str = "auto", instance: int | None 
 
     ``records``: "tclr" the learner's TCLR records, "imu" the IMU samples with temperature,
     "auto" TCLR when the log has them, else IMU samples.
+
+    Parameters
+    ----------
+    contents : LogContents
+        What :func:`apmcal.sources.read_log` read.
+    records : str, optional
+        "auto", "imu" or "tclr".
+    instance : int, optional
+        Only this IMU instance (0-based); all when None.
+    min_still_s : float, optional
+        Shortest still period used [s].
+    block_s : float, optional
+        Block length of the block means [s].
+
+    Returns
+    -------
+    list of TcalResult
+        One per IMU instance, by instance.
 
     Raises
     ------
