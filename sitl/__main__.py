@@ -10,6 +10,7 @@ from sitl.errors import SitlError
 
 
 def parse_args(argv=None):
+    """The command line of ``python -m sitl`` (``argv``: sys.argv[1:] when None)."""
     ap = argparse.ArgumentParser(prog="python -m sitl",
                                  description="Simulated APM 2.8 (ArduCopter 3.2/3.3) on MAVLink.")
     ap.add_argument("connection", nargs="?", default="udpout:127.0.0.1:14550",
@@ -29,6 +30,7 @@ def parse_args(argv=None):
 
 
 def main(argv=None) -> int:
+    """Run the simulated vehicle; the exit status (0, or 2 after a one-line error)."""
     args = parse_args(argv)
     try:
         from sitl.mavlink_vehicle import MavlinkVehicle

@@ -5,6 +5,7 @@ from sitl.truth import DEFAULT_SITE, Truth
 
 
 def add_truth_args(ap) -> None:
+    """Options choosing the injected errors: seed, truth or twin file, effect switches, home site."""
     ap.add_argument("--seed", type=int, default=0, help="error draw and noise seed")
     src = ap.add_mutually_exclusive_group()
     src.add_argument("--truth", help="LOAD the injected errors from this JSON (else drawn by seed)")
@@ -45,6 +46,7 @@ def add_firmware_args(ap) -> None:
 
 
 def apply_firmware_args(vehicle, args) -> None:
+    """Set the firmware faults chosen by :func:`add_firmware_args` on ``vehicle``."""
     from sitl.vehicle import FAULTY_HIGHRES_MAG_PER_MGAUSS
 
     if args.highres_mag_bug:

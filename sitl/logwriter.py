@@ -45,9 +45,11 @@ class TlogWriter:
         self.f = open(Path(path), "wb")
 
     def write(self, unix_s: float, packed: bytes) -> None:
+        """One record: ``packed`` MAVLink bytes stamped with Unix time ``unix_s`` [s] (µs resolution)."""
         self.f.write(struct.pack(">Q", int(round(unix_s * 1e6))) + packed)
 
     def close(self) -> None:
+        """Close the file."""
         self.f.close()
 
     def __enter__(self):
@@ -82,9 +84,11 @@ class DataflashWriter:
         self.f.write(HEAD + bytes([self._messages[name][0]]) + self._structs[name].pack(*values))
 
     def parm(self, time_us: int, name: str, value: float) -> None:
+        """One PARM record: parameter ``name`` = ``value`` at ``time_us`` [µs since boot]."""
         self._record("PARM", time_us, name.encode(), float(value))
 
     def msg(self, time_us: int, text: str) -> None:
+        """One MSG record (text cut to 64 bytes) at ``time_us`` [µs since boot]."""
         self._record("MSG", time_us, text.encode()[:64])
 
     def imu(self, time_us: int, gyr, acc, temp_c: float) -> None:
@@ -112,6 +116,7 @@ class DataflashWriter:
         self._record("BAT", time_us, float(volt), float(curr_a))
 
     def close(self) -> None:
+        """Close the file."""
         self.f.close()
 
     def __enter__(self):

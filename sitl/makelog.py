@@ -29,6 +29,8 @@ BAT_VOLT = 12.6                  # constant battery voltage [V] (a full 3S pack)
 
 
 def make_vehicle(args) -> SimVehicle:
+    """The simulated vehicle for ``python -m sitl.makelog``: neutral parameters (``--set`` ones
+    applied), no boot-time gyro offsets, a fixed start time."""
     truth = make_truth(args)
     v = SimVehicle(truth, args.script, args.firmware, None, fs=args.fs, seed=args.seed,
                    duration=args.duration, gyro_boot_s=1.0, start_unix=START_UNIX)
@@ -45,6 +47,8 @@ def make_vehicle(args) -> SimVehicle:
 
 def write_tlog(v: SimVehicle, out: Path, rate: float, seconds: float,
                highres: bool = False) -> None:
+    """Write ``seconds`` of the vehicle's telemetry to the .tlog ``out``: the parameters, then
+    RAW_IMU (and HIGHRES_IMU with ``highres``) at ``rate`` [Hz] with the other streams."""
     from pymavlink.dialects.v20 import ardupilotmega as mavlink
     v.set_interval("RAW_IMU", rate)
     if highres:
@@ -61,6 +65,8 @@ def write_tlog(v: SimVehicle, out: Path, rate: float, seconds: float,
 
 def write_bin(v: SimVehicle, out: Path, rate: float, seconds: float,
               imu_instance: bool = False) -> None:
+    """Write ``seconds`` of the vehicle to the dataflash .bin ``out``: PARM, MSG, then IMU and MAG
+    at ``rate`` [Hz], GPS at 1 Hz and BAT at 10 Hz."""
     v.set_interval("HIGHRES_IMU", rate)
     with DataflashWriter(out, imu_instance=imu_instance) as w:
         for name in v.params.names:
@@ -106,6 +112,7 @@ def _drain_chunks(v: SimVehicle, seconds: float, emit_chunk) -> None:
 
 
 def main(argv=None) -> int:
+    """Write one simulated log (``python -m sitl.makelog``); the exit status."""
     ap = argparse.ArgumentParser(prog="python -m sitl.makelog", description=__doc__.split("\n")[0])
     ap.add_argument("--script", default="ferraris")
     ap.add_argument("--out", required=True, help="output .tlog or .bin")

@@ -41,6 +41,7 @@ class PtyLink:
         self._pending: list = []
 
     def write(self, buf: bytes) -> None:
+        """Send bytes to the ground station (dropped when its buffer is full)."""
         try:
             os.write(self.master_fd, buf)
         except BlockingIOError:
@@ -57,6 +58,7 @@ class PtyLink:
         return self._pending.pop(0) if self._pending else None
 
     def close(self) -> None:
+        """Close both ends of the pseudo-terminal."""
         os.close(self.master_fd)
         os.close(self._slave_fd)
 
@@ -135,6 +137,7 @@ class MavlinkVehicle:
             time.sleep(tick_s)
 
     def close(self) -> None:
+        """Close the connection and the .tlog."""
         self.conn.close()
         if self.tlog:
             self.tlog.close()

@@ -48,6 +48,10 @@ def pose_matrix(name: str, yaw_deg: float = 0.0) -> np.ndarray:
 
 @dataclass
 class Segment:
+    """One piece of a motion: a hold, or a turn about a fixed body axis (smooth rate profile).
+
+    Times in s from the start of the motion, attitudes as body → NED rotation matrices (3, 3).
+    """
     t0: float
     duration: float
     r0: np.ndarray                   # attitude at the start (body → NED)
@@ -59,9 +63,11 @@ class Segment:
 
     @property
     def t1(self) -> float:
+        """End time [s]."""
         return self.t0 + self.duration
 
     def end_pose(self) -> np.ndarray:
+        """Attitude at the end (body → NED), shape (3, 3)."""
         if self.r1 is not None:
             return self.r1
         return self.r0 @ Rotation.from_rotvec(self.axis * self.angle).as_matrix()
@@ -76,9 +82,11 @@ class Motion:
 
     @property
     def duration(self) -> float:
+        """Length [s] of all segments."""
         return self.segments[-1].t1 if self.segments else 0.0
 
     def end_pose(self) -> np.ndarray:
+        """Attitude after the last segment (body → NED), shape (3, 3)."""
         return self.segments[-1].end_pose() if self.segments else self.start_pose
 
     def hold(self, seconds: float, label: str, throttle: float | tuple = 0.0) -> "Motion":
@@ -89,6 +97,8 @@ class Motion:
 
     def rotate(self, axis, angle_deg: float, seconds: float, label: str,
                throttle: float | tuple = 0.0) -> "Motion":
+        """Turn by ``angle_deg`` [deg] about the body ``axis`` (3,) in ``seconds`` [s] (the module's
+        smooth rate profile); ``throttle`` a level or a (start, end) ramp."""
         axis = np.asarray(axis, float) / np.linalg.norm(axis)
         self.segments.append(Segment(self.duration, seconds, self.end_pose(), axis,
                                      np.radians(angle_deg), label, throttle=_ramp(throttle)))
@@ -256,6 +266,7 @@ def onepos(seconds: float = 60.0) -> Motion:
 
 
 def warmup(seconds: float = 600.0) -> Motion:
+    """A board warming up at rest: one hold of ``seconds`` [s]."""
     return Motion().hold(seconds, "warmup")
 
 

@@ -151,9 +151,11 @@ class ParamStore:
         return [name]
 
     def get(self, name: str, default: float | None = None) -> float | None:
+        """The value of ``name``, or ``default`` when there is no such parameter."""
         return self._values.get(name, default)
 
     def index(self, name: str) -> int:
+        """``name``'s param_index (its position in :attr:`names`)."""
         return self.names.index(name)
 
     def __contains__(self, name: str) -> bool:
@@ -166,6 +168,7 @@ class ParamStore:
         return len(self._values)
 
     def as_dict(self) -> dict[str, float]:
+        """A copy of all parameters, name → value."""
         return dict(self._values)
 
 

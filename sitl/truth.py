@@ -280,6 +280,7 @@ class Truth:
         return self
 
     def on(self, effect: str) -> bool:
+        """True when ``effect`` is switched on."""
         return bool(self.enabled.get(effect, False))
 
     # ---- derived quantities ---------------------------------------------------------------
@@ -327,6 +328,7 @@ class Truth:
         return k @ np.linalg.inv(t_g)
 
     def mag_forward(self) -> np.ndarray:
+        """Soft-iron matrix S with m_s = S·m + h [mGauss]; identity when mag_soft_iron is off."""
         return np.asarray(self.mag_soft_iron, float) if self.on("mag_soft_iron") else np.eye(3)
 
     def sensor_calibrations(self) -> dict[str, SensorCalibration]:
@@ -343,12 +345,14 @@ class Truth:
 
     # ---- JSON -----------------------------------------------------------------------------
     def to_dict(self) -> dict:
+        """The truth as JSON-ready data: each sensor's calibration, the effects, gravity [m/s²]."""
         d = {k: v.to_dict() for k, v in self.sensor_calibrations().items()}
         d["effects"] = asdict(self)
         d["gravity_ms2"] = self.gravity()
         return d
 
     def save(self, path: str | Path, extra: dict | None = None) -> None:
+        """Write :meth:`to_dict` (plus ``extra`` keys) as JSON to ``path``."""
         d = self.to_dict()
         d.update(extra or {})
         Path(path).write_text(json.dumps(d, indent=1) + "\n")

@@ -256,6 +256,7 @@ class SimVehicle:
 
     # ---- messages out ---------------------------------------------------------------------
     def queue(self, t: float, msg) -> None:
+        """Queue ``msg`` to be sent at simulated time ``t`` [s]."""
         self.outbox.append((t, msg))
 
     def pop_messages(self) -> list:
@@ -269,6 +270,7 @@ class SimVehicle:
         return bytes(msg.pack(self.mav))
 
     def send_text(self, text: str, severity: int = 6) -> None:
+        """Queue a STATUSTEXT (cut to 50 bytes) at the current time."""
         self.queue(self.t, mavlink.MAVLink_statustext_message(severity, text.encode()[:50]))
 
     def _emit(self, t: np.ndarray, s: dict) -> None:
