@@ -22,7 +22,18 @@ GPS_TIME_COLUMNS = {"Status", "TimeUS", "GWk", "GMS", "TimeMS", "Week", "T"}
 
 def boot_to_unix_offset(gps: dict[str, np.ndarray]) -> float | None:
     """Unix time [s] of the log's boot (time 0 of its clock), from the first GPS record with a
-    3D fix and a week number; None when the log has none (no GPS, or never a fix)."""
+    3D fix and a week number; None when the log has none (no GPS, or never a fix).
+
+    Parameters
+    ----------
+    gps : dict of str to numpy.ndarray
+        The GPS record's columns (:data:`GPS_TIME_COLUMNS`), one entry per record.
+
+    Returns
+    -------
+    float or None
+        Unix time [s] at boot time 0.
+    """
     layout = _layout(gps)
     if layout is None:
         return None

@@ -24,7 +24,13 @@ class VehicleLink(ParamProtocol, Connection):
     """
 
     def request_imu_stream(self, rate_hz: int) -> None:
-        """Ask for RAW_SENSORS at ``rate_hz`` both ways (old firmware and MAVLink 2 intervals)."""
+        """Ask for RAW_SENSORS at ``rate_hz`` both ways (old firmware and MAVLink 2 intervals).
+
+        Parameters
+        ----------
+        rate_hz : int
+            Messages per second [Hz].
+        """
         mav, mavlink = self.master.mav, self._mavutil.mavlink
         mav.request_data_stream_send(self.target_system, self.target_component,
                                      mavlink.MAV_DATA_STREAM_RAW_SENSORS, int(rate_hz), 1)
@@ -34,7 +40,19 @@ class VehicleLink(ParamProtocol, Connection):
                                   msg_id, 1e6 / rate_hz, 0, 0, 0, 0, 0)
 
     def collect(self, duration_s: float, progress=None) -> int:
-        """Receive (and record) for ``duration_s``; returns the number of IMU messages seen."""
+        """Receive (and record) for ``duration_s``; returns the number of IMU messages seen.
+
+        Parameters
+        ----------
+        duration_s : float
+            How long to receive [s].
+        progress : callable, optional
+            Called with the seconds [s] received so far.
+
+        Returns
+        -------
+        int
+        """
         n_imu = 0
         end = time.monotonic() + duration_s
         while (now := time.monotonic()) < end:

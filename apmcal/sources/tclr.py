@@ -19,10 +19,24 @@ STYPE = {0: "acc", 1: "gyr"}
 def read_tclr(path, fmt: str) -> dict[int, dict[str, dict[str, np.ndarray]]]:
     """TCLR records of a dataflash log (``fmt`` "bin" or "log"; anything else has none).
 
+    Parameters
+    ----------
+    path : str or Path
+        The dataflash log.
+    fmt : str
+        Its format (:func:`apmcal.sources.sniff_format`).
+
     Returns
     -------
-    dict instance → {"acc"/"gyr" → {"temp_c": (m,) [°C], "values": (m, 3), "n": (m,),
-    "t_s": (m,) [s]}}; empty when the log has no TCLR record.
+    dict
+        instance → {"acc"/"gyr" → {"temp_c": (m,) [°C], "values": (m, 3), "n": (m,),
+        "t_s": (m,) [s]}}; empty when the log has no TCLR record. ``values`` are in m/s²
+        (accelerometer, first mean subtracted) or rad/s (gyro), sensor frame.
+
+    Raises
+    ------
+    ApmcalError
+        TCLR records without one of :data:`TCLR_COLUMNS`.
     """
     if fmt == "bin":
         from apmcal.sources.dataflash import read_bin_messages

@@ -49,7 +49,19 @@ HIGHRES_MAG_FAULT_FACTOR = 1e6
 
 def sensor_magnitude(recording: Recording, sensor: str) -> float:
     """The statistic checked for ``sensor``: median |vector| (acc [m/s²], mag [mGauss]) or the
-    10th percentile of |vector| (gyr [rad/s], its stillest samples). NaN without finite rows."""
+    10th percentile of |vector| (gyr [rad/s], its stillest samples). NaN without finite rows.
+
+    Parameters
+    ----------
+    recording : Recording
+    sensor : str
+        "acc", "gyr" or "mag".
+
+    Returns
+    -------
+    float
+        In the sensor's unit: m/s², rad/s or mGauss.
+    """
     xyz = recording.xyz(sensor)
     norm = np.linalg.norm(xyz[np.isfinite(xyz).all(axis=1)], axis=1)
     if len(norm) == 0:
@@ -113,7 +125,13 @@ def drop_implausible_sensors(out: LogContents) -> list[str]:
 
 def require_plausible_units(contents: LogContents) -> None:
     """:func:`drop_implausible_sensors` on an ArduPilot log (not a CSV file); ApmcalError naming
-    every reason when no recording is left."""
+    every reason when no recording is left.
+
+    Raises
+    ------
+    ApmcalError
+        No recording left with a sensor in plausible units.
+    """
     if contents.format == "csv" or not contents.recordings:
         return
     reasons = drop_implausible_sensors(contents)
