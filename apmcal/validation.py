@@ -26,7 +26,8 @@ from apmcal.solvers.result import Calibration
 
 
 def session(path: Path, layout: str | None = None):
-    """(prepared raw recording, its compass on the same times or None, still poses).
+    """(IMU recording, its separate compass recording or None, prepared raw recording, compass
+    samples on the same times or None, still poses) of the session in ``path``.
 
     Parameters
     ----------
