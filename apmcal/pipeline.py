@@ -221,6 +221,7 @@ def inertial_calibration(prepared: Prepared, opts: Options, segments: list) -> C
     """Accelerometer and gyro calibration of the prepared samples by the chosen method, on the
     still periods ``segments`` (:func:`find_holds`); auto here never means joint (the caller
     has tried it)."""
+    from apmcal.preprocessing.ferraris_regions import ferraris_regions
     from apmcal.solvers.ferraris import ferraris_calibration
     from apmcal.solvers.holds import ellipsoid_on_holds, one_position_on_holds
 
@@ -232,9 +233,9 @@ def inertial_calibration(prepared: Prepared, opts: Options, segments: list) -> C
                           "vehicle still (or lower --min-still)")
     method = choose_method(segments) if opts.method == "auto" else opts.method
     if method == "ferraris":
-        return ferraris_calibration(t, acc, gyr, segments=segments, lat_deg=opts.lat_deg,
-                                    gravity=opts.gravity, min_duration=opts.min_still_s,
-                                    gyro_step=prepared.steps.get("gyr", 0.0))
+        regions = ferraris_regions(t, acc, gyr, segments=segments)
+        return ferraris_calibration(t, acc, gyr, regions, lat_deg=opts.lat_deg,
+                                    gravity=opts.gravity, gyro_step=prepared.steps.get("gyr", 0.0))
     if method == "ellipsoid":
         return ellipsoid_on_holds(gyr, segments, opts.gravity)
     return one_position_on_holds(t, acc, gyr, segments, opts.lat_deg, opts.lon_deg,

@@ -61,6 +61,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from apmcal.constants import EARTH_RATE, MG_TO_MS2, MRAD_TO_RAD  # noqa: E402
+from apmcal.preprocessing.ferraris_regions import ferraris_regions  # noqa: E402
 from apmcal.solvers.ferraris import ferraris_calibration  # noqa: E402
 from apmcal.solvers.one_position import one_position_calibration  # noqa: E402
 
@@ -218,7 +219,8 @@ def estimators(d: Design) -> dict:
     tref = t_ref(d)
 
     def ferraris(**kw):
-        return lambda t, a, g, s: _vector(ferraris_calibration(t, a, g, sections=s, **kw), tref)
+        return lambda t, a, g, s: _vector(ferraris_calibration(
+            t, a, g, ferraris_regions(t, a, g, sections=s), **kw), tref)
 
     def one_position(t, a, g, s):
         i0, i1 = s["z_a"]                                  # the level hold (z down reads −g)

@@ -47,6 +47,7 @@ STAGES = [
     ("apmcal.preprocessing.param_changes", "split_at_param_changes", "prepare"),
     ("apmcal.pipeline", "prepare", "prepare"),
     ("apmcal.preprocessing.static", "find_static_segments", "static holds"),
+    ("apmcal.preprocessing.ferraris_regions", "ferraris_regions", "static holds"),
     ("apmcal.solvers.ferraris", "ferraris_calibration", "solver: ferraris"),
     ("apmcal.solvers.holds", "ellipsoid_on_holds", "solver: ellipsoid"),
     ("apmcal.solvers.holds", "one_position_on_holds", "solver: one-position"),

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from apmcal.preprocessing.ferraris_regions import ferraris_regions
 from apmcal.solvers.ferraris import ferraris_calibration
 
 _PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "accuracy_ferraris.py"
@@ -43,7 +44,8 @@ def test_noise_free_session_gives_the_truth_exactly():
 
 def test_reference_time_is_the_one_ferraris_uses():
     t, acc, gyr, sections = bench.simulate(DESIGN, TRUTH, np.random.default_rng(0))
-    cal = ferraris_calibration(t, acc, gyr, sections=sections, gravity=bench.G, lat_deg=90.0)
+    cal = ferraris_calibration(t, acc, gyr, ferraris_regions(t, acc, gyr, sections=sections),
+                               gravity=bench.G, lat_deg=90.0)
     assert cal.sensors["gyr"].t_ref == pytest.approx(bench.t_ref(DESIGN), abs=1e-9)
 
 

@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation as Rot
 
 from apmcal.constants import EARTH_RATE
 from apmcal.errors import ApmcalError
+from apmcal.preprocessing.ferraris_regions import ferraris_regions
 from apmcal.preprocessing.static import POSES, make_segment
 from apmcal.solvers.ferraris import (
     accel_bias,
@@ -26,6 +27,12 @@ G = 9.80665
 IMUCAL_G = 9.81            # imucal's default grav
 IMUCAL_FS = 102.4          # example session rate (../shared/data/README.md)
 IMUCAL_EXAMPLE_FS = 204.8  # rate imucal's snapshot test passes to compute() for annotated_session
+
+
+def ferraris(t, acc, gyr=None, *, segments=None, sections=None, **options):
+    """Find the faces and turns (or take the given ones), then solve: as apmcal's pipeline does."""
+    regions = ferraris_regions(t, acc, gyr, segments=segments, sections=sections)
+    return ferraris_calibration(t, acc, gyr, regions, **options)
 
 
 # ----------------------------------------------------------------------------- hand-worked
@@ -126,7 +133,7 @@ KGA_TRUE = np.array([[1e-3, 0.0, 2e-4], [0.0, -5e-4, 0.0], [3e-4, 0.0, 8e-4]])
 def test_simulated_session_recovered_with_drift_and_earth_rate():
     t, acc, gyr = simulate(f_mat=F_TRUE, b_a=BA_TRUE, e_mat=E_TRUE, b0=B0_TRUE, b1=B1_TRUE,
                            k_ga=KGA_TRUE, lat_deg=90.0)     # pole: no horizontal Earth rate
-    cal = ferraris_calibration(t, acc, gyr, lat_deg=90.0, gravity=G)
+    cal = ferraris(t, acc, gyr, lat_deg=90.0, gravity=G)
     a, g = cal.sensors["acc"], cal.sensors["gyr"]
     assert sorted(cal.report["poses"]) == sorted(POSES)
     np.testing.assert_allclose(a.matrix, np.linalg.inv(F_TRUE), atol=3e-4)
@@ -145,8 +152,8 @@ def test_simulated_session_recovered_with_drift_and_earth_rate():
 def test_drift_ignored_biases_the_classic_ferraris():
     """Where imucal-style (constant bias) and ours differ: an injected drift."""
     t, acc, gyr = simulate(f_mat=F_TRUE, b_a=BA_TRUE, e_mat=E_TRUE, b0=B0_TRUE, b1=B1_TRUE)
-    ours = ferraris_calibration(t, acc, gyr, gravity=G, g_sensitivity=False)
-    classic = ferraris_calibration(t, acc, gyr, gravity=G, g_sensitivity=False,
+    ours = ferraris(t, acc, gyr, gravity=G, g_sensitivity=False)
+    classic = ferraris(t, acc, gyr, gravity=G, g_sensitivity=False,
                                    bias_drift=False, earth_rate=False)
     e_inv = np.linalg.inv(E_TRUE)
     err_ours = np.abs(ours.sensors["gyr"].matrix - e_inv).max()
@@ -157,12 +164,12 @@ def test_drift_ignored_biases_the_classic_ferraris():
 def test_vertical_earth_rate_is_indistinguishable_from_g_sensitivity():
     """Ω sin φ along up is parallel to f: without the Earth-rate term it lands in K_ga as Ω sin φ / g."""
     t, acc, gyr = simulate(lat_deg=90.0, gyr_noise=3e-5, acc_noise=1e-3)   # effect: Ω/g = 7.4e-6
-    with_er = ferraris_calibration(t, acc, gyr, lat_deg=90.0, gravity=G, bias_drift=False)
-    without = ferraris_calibration(t, acc, gyr, gravity=G, bias_drift=False, earth_rate=False)
+    with_er = ferraris(t, acc, gyr, lat_deg=90.0, gravity=G, bias_drift=False)
+    without = ferraris(t, acc, gyr, gravity=G, bias_drift=False, earth_rate=False)
     np.testing.assert_allclose(with_er.report["gyr_g_sensitivity"], 0, atol=3e-7)
     np.testing.assert_allclose(without.report["gyr_g_sensitivity"], EARTH_RATE / G * np.eye(3),
                                atol=3e-7)
-    assert any("latitude unknown" in w for w in ferraris_calibration(t, acc, gyr).report["warnings"])
+    assert any("latitude unknown" in w for w in ferraris(t, acc, gyr).report["warnings"])
 
 
 def test_sigma_matches_monte_carlo():
@@ -178,7 +185,7 @@ def test_sigma_matches_monte_carlo():
         for name, f in ups.items():
             acc = np.asarray(f) @ F_TRUE.T + BA_TRUE + rng.normal(0, noise, (n, 3))
             segs[name] = make_segment(t, acc, None, 0, n)
-        cal = ferraris_calibration(t, np.zeros((n, 3)), None, segments=segs).sensors["acc"]
+        cal = ferraris(t, np.zeros((n, 3)), None, segments=segs).sensors["acc"]
         offs.append(cal.offset)
         mats.append(cal.matrix)
         sig = cal.sigma
@@ -190,13 +197,13 @@ def test_missing_pose_raises():
     t, acc, gyr = simulate()
     keep = t < 20.0                      # only z_p, z_a, one y hold
     with pytest.raises(ApmcalError, match="missing"):
-        ferraris_calibration(t[keep], acc[keep], gyr[keep])
+        ferraris(t[keep], acc[keep], gyr[keep])
 
 
 def test_missing_rotation_is_reported():
     t, acc, gyr = simulate()
     keep = t < 48.0                      # six faces, no full turn yet
-    cal = ferraris_calibration(t[keep], acc[keep], gyr[keep], gravity=G)
+    cal = ferraris(t[keep], acc[keep], gyr[keep], gravity=G)
     assert np.array_equal(cal.sensors["gyr"].matrix, np.eye(3))
     assert any("no 360° rotation" in w for w in cal.report["warnings"])
 
@@ -204,14 +211,14 @@ def test_missing_rotation_is_reported():
 def test_motion_during_hold_is_flagged():
     t, acc, gyr = simulate(f_mat=F_TRUE)
     segs = {}
-    cal = ferraris_calibration(t, acc, gyr, gravity=G)
+    cal = ferraris(t, acc, gyr, gravity=G)
     for name, (start, end, _) in cal.report["poses"].items():
         i0, i1 = np.searchsorted(t, [start, end + 1e-9])
         a = acc.copy()
         if name == "y_a":
             a[i0:i1] += np.random.default_rng(1).normal(0, 0.2, (i1 - i0, 3))
         segs[name] = make_segment(t, a, gyr, i0, i1)
-    noisy = ferraris_calibration(t, acc, gyr, segments=segs, gravity=G)
+    noisy = ferraris(t, acc, gyr, segments=segs, gravity=G)
     assert any(w.startswith("hold y_a noisy") for w in noisy.report["warnings"])
 
 
@@ -248,7 +255,7 @@ def _run_imucal(d, sections, fs):
 
 def _ours_classic(d, acc, gyr_deg, sections, fs):
     t = d["n_samples"].to_numpy() / fs
-    return ferraris_calibration(t, acc, np.radians(gyr_deg), sections=sections, gravity=IMUCAL_G,
+    return ferraris(t, acc, np.radians(gyr_deg), sections=sections, gravity=IMUCAL_G,
                                 bias_drift=False, earth_rate=False, expected_angle_deg=-360)
 
 
@@ -275,7 +282,7 @@ def test_matches_imucal_snapshot(shared_data):
         assert np.all(np.diff(idx) == 1)
         sections[p] = (int(idx[0]), int(idx[-1]) + 1)
     t = np.arange(len(a)) / IMUCAL_EXAMPLE_FS
-    cal = ferraris_calibration(t, a[["acc_x", "acc_y", "acc_z"]].to_numpy(float),
+    cal = ferraris(t, a[["acc_x", "acc_y", "acc_z"]].to_numpy(float),
                                np.radians(a[["gyr_x", "gyr_y", "gyr_z"]].to_numpy(float)),
                                sections=sections, gravity=IMUCAL_G, bias_drift=False,
                                earth_rate=False, expected_angle_deg=-360)
@@ -312,7 +319,7 @@ def test_drift_and_auto_sections_versus_imucal(imucal_session):
     t = d["n_samples"].to_numpy() / IMUCAL_FS
     gyr = np.radians(gyr_deg)
     ref = _imucal_info_matrices(_run_imucal(d, sections, IMUCAL_FS))
-    drift = ferraris_calibration(t, acc, gyr, sections=sections, gravity=IMUCAL_G,
+    drift = ferraris(t, acc, gyr, sections=sections, gravity=IMUCAL_G,
                                  expected_angle_deg=-360)
     g = drift.sensors["gyr"]
     assert np.all(np.isfinite(g.drift)) and np.all(g.sigma["drift"] > 0)
@@ -320,10 +327,10 @@ def test_drift_and_auto_sections_versus_imucal(imucal_session):
     # from imucal, but far less than the hand-rotation scale error itself (~3 %)
     assert 1e-7 < _rel(g.matrix, ref[2]) < 1e-3
     assert _rel(drift.sensors["acc"].matrix, ref[0]) < 1e-12     # acc part is unchanged
-    auto = ferraris_calibration(t, acc, gyr, gravity=IMUCAL_G)
+    auto = ferraris(t, acc, gyr, gravity=IMUCAL_G)
     # automatic holds/rotations differ from the hand-annotated ones by a few samples
     # (measured: 1.8e-3, 9.5e-4, 1.7e-4)
     assert _rel(auto.sensors["acc"].matrix, ref[0]) < 3e-3
     assert _rel(auto.sensors["acc"].offset, ref[1]) < 3e-3
     assert _rel(auto.sensors["gyr"].matrix, ref[2]) < 1e-3
-    assert any("Q" in w for w in ferraris_calibration(t, acc, gyr).report["warnings"])
+    assert any("Q" in w for w in ferraris(t, acc, gyr).report["warnings"])

@@ -20,7 +20,7 @@ Convention: ``calibrated = M @ (measured − o)`` (apmcal/solvers/result.py), ``
 """
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -306,6 +306,53 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
     SensorCalibration
         with ``sigma = {"offset": (3,), "matrix": (3, 3)}`` (sensor units / dimensionless).
     """
+    s, w, radius = _checked_inputs(samples, weights, radius, parameterisation)
+    notes: list[str] = []
+    o_sph, S_sph = sphere_fit(s) if sphere is None else sphere
+    # the fraction is for info only (the verdict scores the calibrated samples): from ≤ 40 000
+    cov0 = direction_coverage(s, o_sph, fraction=info is not None,
+                              fraction_samples=2 * PRESOLVE_SAMPLES)
+    flat = min(cov0["scatter_eig"][0], cov0["spread_eig"][0])
+    mode = _parameterisation_for(parameterisation, flat, len(s), notes)
+    if start is None:
+        o0, M0, start_name = _start(s[::max(1, len(s) // PRESOLVE_SAMPLES)], radius,
+                                    use_quadric=flat >= MIN_SCATTER_FULL)
+    else:
+        o0, M0, start_name = start.offset, start.matrix, "given"
+    if mode == "diagonal":
+        M0 = np.diag(np.abs(np.diag(M0)))
+    f_scale_n = (_default_f_scale(s, radius, o0, M0, ENTRIES[mode]) if f_scale is None
+                 else float(f_scale) / radius)
+    fit = _Fit(s, w, radius, o_sph, S_sph, f_scale_n, prior_sigma)
+    finish_ls = loss != "linear" and bool(reject_sigma)
+    x, r, J, cond, mode = _robust_stage(fit, o0, M0, mode, loss, finish_ls,
+                                        presolve=start is None, notes=notes)
+    entries = ENTRIES[mode]
+    keep = np.ones(len(s), dtype=bool)
+    if finish_ls:
+        x, r, J, cond, keep = _inlier_stage(fit, x, r, entries, loss, reject_sigma, notes)
+    notes += _edge_notes(x, fit.bounds(entries), entries)
+    lw = "linear" if reject_sigma else loss
+    irls = loss_weights(r * np.sqrt(w[keep]), f_scale_n, lw) * w[keep]
+    cov, rank = _covariance(J, r, irls, fit.prior(entries))
+    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    cal = SensorCalibration(offset=x[:3] * radius, matrix=params_to_matrix(x[3:], entries),
+                            sigma={"offset": sd[:3] * radius,
+                                   "matrix": params_to_matrix(sd[3:], entries)})
+    if info is not None:
+        info.update({"rms": float(np.sqrt(np.mean(r * r))) * radius, "cond": cond, "rank": rank,
+                     "n_params": J.shape[0], "start": start_name, "parameterisation": mode,
+                     "coverage": cov0, "notes": notes, "f_scale": f_scale_n * radius,
+                     "outlier_fraction": float(np.mean(~keep)), "inliers": keep,
+                     "cov": cov, "method": f"robust geometric ({loss} + LS on inliers)",
+                     "prior": fit.prior(entries)})
+    if n_bootstrap > 0:
+        _bootstrap_sigma(fit, loss, mode, reject_sigma, n_bootstrap, rng, info)
+    return cal
+
+
+def _checked_inputs(samples, weights, radius, parameterisation):
+    """(finite samples (n, 3), their weights (n,), radius) or a one-line ApmcalError."""
     raw = np.asarray(samples, dtype=float)
     if weights is not None:
         weights = np.asarray(weights, dtype=float).ravel()
@@ -319,110 +366,125 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
         raise ApmcalError(f"ellipsoid fit: radius must be positive, got {radius}")
     if parameterisation not in ENTRIES:
         raise ApmcalError(f"unknown parameterisation {parameterisation!r}")
-    w = np.ones(len(s)) if weights is None else weights
-    notes = []
-    o_sph, S_sph = sphere_fit(s) if sphere is None else sphere
-    # the fraction is for info only (the verdict scores the calibrated samples): from ≤ 40 000
-    cov0 = direction_coverage(s, o_sph, fraction=info is not None,
-                              fraction_samples=2 * PRESOLVE_SAMPLES)
-    mode = parameterisation
-    flat = min(cov0["scatter_eig"][0], cov0["spread_eig"][0])
-    if mode != "diagonal" and (flat < MIN_SCATTER_FULL or len(s) < 18):
-        why = (f"samples do not span the sphere (min scatter/spread eigenvalue {flat:.3f})"
-               if flat < MIN_SCATTER_FULL else f"only {len(s)} samples (< 18 = 2 per unknown)")
-        notes.append(f"{why}: off-diagonal terms not determinable, fitted a diagonal matrix")
-        mode = "diagonal"
-    if start is None:
-        o0, M0, start_name = _start(s[::max(1, len(s) // PRESOLVE_SAMPLES)], radius,
-                                    use_quadric=flat >= MIN_SCATTER_FULL)
-    else:
-        o0, M0, start_name = start.offset, start.matrix, "given"
-    if mode == "diagonal":
-        M0 = np.diag(np.abs(np.diag(M0)))
-    f_scale_n = (_default_f_scale(s, radius, o0, M0, ENTRIES[mode]) if f_scale is None
-                 else float(f_scale) / radius)
+    return s, (np.ones(len(s)) if weights is None else weights), radius
 
-    def prior(entries):
+
+def _parameterisation_for(asked: str, flat: float, n: int, notes: list[str]) -> str:
+    """``asked``, or "diagonal" (with a note) when the directions do not span the sphere
+    (smallest scatter/spread eigenvalue ``flat``) or there are fewer than 18 samples."""
+    if asked == "diagonal" or (flat >= MIN_SCATTER_FULL and n >= 18):
+        return asked
+    why = (f"samples do not span the sphere (min scatter/spread eigenvalue {flat:.3f})"
+           if flat < MIN_SCATTER_FULL else f"only {n} samples (< 18 = 2 per unknown)")
+    notes.append(f"{why}: off-diagonal terms not determinable, fitted a diagonal matrix")
+    return "diagonal"
+
+
+@dataclass
+class _Fit:
+    """What every stage of one fit shares: the samples, their weights, the radius, the sphere
+    fit (offset, radius) that sets the box and the prior, the loss scale [radius units] and
+    the prior's σ per matrix term (None: no prior)."""
+
+    s: np.ndarray
+    w: np.ndarray
+    radius: float
+    o_sph: np.ndarray
+    S_sph: float
+    f_scale_n: float
+    prior_sigma: float | None
+
+    def bounds(self, entries):
+        return _bounds(self.o_sph, self.S_sph, self.radius, entries)
+
+    def prior(self, entries):
         """Pull toward the sphere solution M = (r/S)·I, σ_prior per matrix term (None: off)."""
-        if prior_sigma is None:
+        if self.prior_sigma is None:
             return None
-        m_p = np.array([radius / S_sph if len(c) == 1 and c[0][0] == c[0][1] else 0.0
+        m_p = np.array([self.radius / self.S_sph if len(c) == 1 and c[0][0] == c[0][1] else 0.0
                         for c in entries])
-        return m_p, (f_scale_n / 1.345) / prior_sigma
+        return m_p, (self.f_scale_n / 1.345) / self.prior_sigma
 
-    finish_ls = loss != "linear" and bool(reject_sigma)
-    # with an LS stage to follow, the robust stage only has to find the outliers: on many
-    # samples it runs on every k-th one (≤ 2·PRESOLVE_SAMPLES) and every sample is then judged
-    # by its residual at that fit; the estimate is the LS stage on all inliers
-    k = len(s) // PRESOLVE_SAMPLES if finish_ls and len(s) > 2 * PRESOLVE_SAMPLES else 1
-    x, r, J = _solve(s[::k], radius, o0, M0, ENTRIES[mode], loss, f_scale_n, w[::k],
-                     _bounds(o_sph, S_sph, radius, ENTRIES[mode]), prior(ENTRIES[mode]),
-                     presolve=start is None)
+    def solve(self, keep, o0, M0, entries, loss, presolve=False):
+        """:func:`_solve` on the samples ``keep`` (an index or slice)."""
+        return _solve(self.s[keep], self.radius, o0, M0, entries, loss, self.f_scale_n,
+                      self.w[keep], self.bounds(entries), self.prior(entries), presolve=presolve)
+
+
+def _robust_stage(fit: _Fit, o0, M0, mode: str, loss: str, finish_ls: bool, *, presolve: bool,
+                  notes: list[str]):
+    """The robust-loss fit; (x, r over all samples, J, condition number, parameterisation).
+
+    With an LS stage to follow, it only has to find the outliers: on many samples it runs on
+    every k-th one (≤ 2·PRESOLVE_SAMPLES) and every sample is then judged by its residual at
+    that fit; the estimate is the LS stage on all inliers. A full matrix whose Jacobian is
+    ill-conditioned is refitted diagonal.
+    """
+    n = len(fit.s)
+    k = n // PRESOLVE_SAMPLES if finish_ls and n > 2 * PRESOLVE_SAMPLES else 1
+    x, r, J = fit.solve(slice(None, None, k), o0, M0, ENTRIES[mode], loss, presolve)
     cond = _cond(J)                                    # data rows only
     if mode != "diagonal" and not cond < MAX_COND:
         notes.append(f"Jacobian condition number {cond:.2g} > {MAX_COND:.0g}: full matrix not "
                      "determinable from these samples, fitted a diagonal matrix")
         mode = "diagonal"
-        x, r, J = _solve(s[::k], radius, o0, np.diag(np.abs(np.diag(M0))), ENTRIES[mode], loss,
-                         f_scale_n, w[::k], _bounds(o_sph, S_sph, radius, ENTRIES[mode]),
-                         prior(ENTRIES[mode]), presolve=start is None)
+        x, r, J = fit.solve(slice(None, None, k), o0, np.diag(np.abs(np.diag(M0))),
+                            ENTRIES[mode], loss, presolve)
         cond = _cond(J)
     if k > 1:
-        r = residual(x, np.ascontiguousarray(s.T / radius), ENTRIES[mode])
-    if prior_sigma is not None and not cond < MAX_COND:
+        r = residual(x, np.ascontiguousarray(fit.s.T / fit.radius), ENTRIES[mode])
+    if fit.prior_sigma is not None and not cond < MAX_COND:
         notes.append(f"still ill-conditioned (condition number {cond:.2g}): the result leans on "
-                     f"the prior toward a sphere (σ_prior = {prior_sigma}) — poorly determined")
-    entries = ENTRIES[mode]
-    bounds = _bounds(o_sph, S_sph, radius, entries)
-    keep = np.ones(len(s), dtype=bool)
-    if finish_ls:
-        # final stage: plain LS on the samples the robust fit calls inliers — Gaussian
-        # efficiency of the ML fit (Huber alone: ≈ 0.95) and no pull from gross outliers
-        dev = np.abs(r - np.median(r))
-        keep = dev <= reject_sigma * max(1.4826 * np.median(dev), 1e-12)
-        x, r, J = _solve(s[keep], radius, x[:3] * radius, params_to_matrix(x[3:], entries),
-                         entries, "linear", f_scale_n, w[keep], bounds, prior(entries))
-        cond = _cond(J)
-        if not keep.all():
-            notes.append(f"{np.sum(~keep)} of {len(s)} samples rejected as outliers "
-                         f"(> {reject_sigma}σ after the {loss} fit)")
+                     f"the prior toward a sphere (σ_prior = {fit.prior_sigma}) — poorly "
+                     "determined")
+    return x, r, J, cond, mode
+
+
+def _inlier_stage(fit: _Fit, x, r, entries, loss: str, reject_sigma: float, notes: list[str]):
+    """Plain LS on the samples the robust fit calls inliers (within ``reject_sigma`` robust σ):
+    the ML fit's Gaussian efficiency (Huber alone: ≈ 0.95) without the pull of gross outliers.
+    Returns (x, r, J, condition number, inlier mask)."""
+    dev = np.abs(r - np.median(r))
+    keep = dev <= reject_sigma * max(1.4826 * np.median(dev), 1e-12)
+    x, r, J = fit.solve(keep, x[:3] * fit.radius, params_to_matrix(x[3:], entries), entries,
+                        "linear")
+    if not keep.all():
+        notes.append(f"{np.sum(~keep)} of {len(fit.s)} samples rejected as outliers "
+                     f"(> {reject_sigma}σ after the {loss} fit)")
+    return x, r, J, _cond(J), keep
+
+
+def _edge_notes(x, bounds, entries) -> list[str]:
+    """A note naming the parameters that stopped on the physical box (not determined)."""
     lo, hi = bounds
     at_edge = np.isclose(x, lo, rtol=0, atol=1e-6) | np.isclose(x, hi, rtol=0, atol=1e-6)
-    if np.any(at_edge):
-        names = [f"offset_{a}" for a in "xyz"] + [f"M_{'xyz'[c[0][0]]}{'xyz'[c[0][1]]}"
-                                                  for c in entries]
-        notes.append("POORLY DETERMINED: " + ", ".join(n for n, e in zip(names, at_edge) if e)
-                     + " stopped at the physical bound — the samples do not determine it")
-    lw = "linear" if reject_sigma else loss
-    irls = loss_weights(r * np.sqrt(w[keep]), f_scale_n, lw) * w[keep]
-    cov, rank = _covariance(J, r, irls, prior(entries))
-    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
-    sig_M = params_to_matrix(sd[3:], entries)
-    cal = SensorCalibration(offset=x[:3] * radius, matrix=params_to_matrix(x[3:], entries),
-                            sigma={"offset": sd[:3] * radius, "matrix": sig_M})
-    if info is not None:
-        info.update({"rms": float(np.sqrt(np.mean(r * r))) * radius, "cond": cond, "rank": rank,
-                     "n_params": J.shape[0], "start": start_name, "parameterisation": mode,
-                     "coverage": cov0, "notes": notes, "f_scale": f_scale_n * radius,
-                     "outlier_fraction": float(np.mean(~keep)), "inliers": keep,
-                     "cov": cov, "method": f"robust geometric ({loss} + LS on inliers)",
-                     "prior": prior(entries)})
-    if n_bootstrap > 0:
-        bs = bootstrap(lambda d: fit_ellipsoid_robust(d, radius, loss=loss, f_scale=f_scale_n *
-                                                      radius, parameterisation=mode,
-                                                      prior_sigma=prior_sigma,
-                                                      reject_sigma=reject_sigma),
-                       s, n=n_bootstrap, rng=rng)
-        if info is not None:
-            info["bootstrap_failed"] = bs["failed"]
-            if "sigma" in bs:
-                info["bootstrap_sigma"] = bs["sigma"]
-            if bs["failed"]:
-                # a resample the fit cannot handle says the data barely determine the ellipsoid
-                info.setdefault("notes", []).append(
-                    f"{bs['failed']} of {n_bootstrap} bootstrap refits failed: the bootstrap "
-                    "sigma describes only the resamples that could be fitted")
-    return cal
+    if not np.any(at_edge):
+        return []
+    names = [f"offset_{a}" for a in "xyz"] + [f"M_{'xyz'[c[0][0]]}{'xyz'[c[0][1]]}"
+                                              for c in entries]
+    return ["POORLY DETERMINED: " + ", ".join(n for n, e in zip(names, at_edge) if e)
+            + " stopped at the physical bound — the samples do not determine it"]
+
+
+def _bootstrap_sigma(fit: _Fit, loss, mode, reject_sigma, n_bootstrap: int, rng,
+                     info: dict | None) -> None:
+    """Resample and refit ``n_bootstrap`` times; σ (and failures) into ``info``."""
+    bs = bootstrap(lambda d: fit_ellipsoid_robust(d, fit.radius, loss=loss,
+                                                  f_scale=fit.f_scale_n * fit.radius,
+                                                  parameterisation=mode,
+                                                  prior_sigma=fit.prior_sigma,
+                                                  reject_sigma=reject_sigma),
+                   fit.s, n=n_bootstrap, rng=rng)
+    if info is None:
+        return
+    info["bootstrap_failed"] = bs["failed"]
+    if "sigma" in bs:
+        info["bootstrap_sigma"] = bs["sigma"]
+    if bs["failed"]:
+        # a resample the fit cannot handle says the data barely determine the ellipsoid
+        info.setdefault("notes", []).append(
+            f"{bs['failed']} of {n_bootstrap} bootstrap refits failed: the bootstrap "
+            "sigma describes only the resamples that could be fitted")
 
 
 def verdict(samples, cal: SensorCalibration, radius: float, *, sensor: str = "sensor",

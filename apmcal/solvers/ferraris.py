@@ -48,26 +48,21 @@ warning says so.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from apmcal.constants import EARTH_RATE, normal_gravity
 from apmcal.errors import ApmcalError
-from apmcal.preprocessing.rotations import Rotation, find_rotations, integrate_slice, sample_intervals
-from apmcal.preprocessing.static import (
-    ARDUPILOT_FACE,
-    POSES,
-    StaticSegment,
-    find_static_segments,
-    label_poses,
-    make_segment,
-)
+from apmcal.preprocessing.ferraris_regions import AXES, FerrarisRegions
+from apmcal.preprocessing.rotations import Rotation, integrate_slice, sample_intervals
+from apmcal.preprocessing.static import ARDUPILOT_FACE, POSES, StaticSegment
 from apmcal.solvers.blas_threads import single_threaded_blas
 from apmcal.solvers.gyro_bias import fit_gyro_bias, integrate_motions, motions_between_holds
 from apmcal.solvers.misfit import hold_misfit
 from apmcal.solvers.result import Calibration, SensorCalibration
 from apmcal.solvers.uncertainty import jacobian_sigma
 
-AXES = "xyz"
 MOTION_FACTOR = 3.0          # a hold noisier than 3 × the median hold is flagged
 ANGLE_WARN_DEG = 20.0        # rotation integral further than this from ±360° is flagged (>5 % scale)
 
@@ -112,43 +107,6 @@ def earth_rate_up(up_axes: np.ndarray, lat_deg: float) -> np.ndarray:
     the horizontal part depends on the heading and is not included.
     """
     return EARTH_RATE * np.sin(np.radians(lat_deg)) * np.atleast_2d(up_axes)
-
-
-# --------------------------------------------------------------------------- sections
-def regions_from_sections(t, acc, gyr, sections: dict) -> tuple[dict, dict]:
-    """Hand-annotated sample ranges (imucal's section list) → pose segments and rotations.
-
-    ``sections`` maps "x_p" … "z_a", "x_rot", "y_rot", "z_rot" to ``{"start": i0, "end": i1}``
-    or ``(i0, i1)`` (half-open, as imucal slices ``iloc[start:end]``).
-    """
-    t, acc = np.asarray(t, float), np.asarray(acc, float)
-    gyr = None if gyr is None else np.asarray(gyr, float)
-    poses, rots = {}, {}
-    for name, rng in sections.items():
-        i0, i1 = (rng["start"], rng["end"]) if isinstance(rng, dict) else rng
-        if not 0 <= i0 < i1 <= t.size:
-            raise ApmcalError(f"section {name} [{i0}, {i1}) outside the {t.size} samples")
-        if name in POSES:
-            poses[name] = make_segment(t, acc, gyr, i0, i1, max_tilt_deg=90.0)
-        elif name.endswith("_rot") and name[0] in AXES and gyr is not None:
-            ax = AXES.index(name[0])
-            v = integrate_slice(t[i0:i1], gyr[i0:i1])
-            rots[name[0]] = Rotation(axis=ax, angle_deg=float(np.degrees(v[ax])), integrated=v,
-                                     start=float(t[i0]), end=float(t[i1 - 1]), i0=i0, i1=i1,
-                                     n_steps=1, pose=None)
-    return poses, rots
-
-
-def _pick_rotations(rotations) -> dict[str, Rotation]:
-    """The full turn closest to ±360° about each axis."""
-    if isinstance(rotations, dict):
-        return {k[0]: v for k, v in rotations.items()}
-    best: dict[str, Rotation] = {}
-    for r in rotations:
-        if r.is_full_turn() and (r.axis_name not in best or
-                                 abs(abs(r.angle_deg) - 360) < abs(abs(best[r.axis_name].angle_deg) - 360)):
-            best[r.axis_name] = r
-    return best
 
 
 # --------------------------------------------------------------------------- accelerometer
@@ -210,75 +168,130 @@ def _static_rows(t, gyr, segs, acc_cal, lat_deg, earth_rate):
     return np.concatenate(ts), np.vstack(ys), np.vstack(fs)
 
 
-def _gyro_part(t, gyr, acc_cal, poses, segs, rots, g, *, bias_drift, earth_rate, lat_deg,
-               g_sensitivity, expected_angle_deg, warnings, gyro_step=0.0):
-    info: dict = {}
-    classic = not bias_drift and not (earth_rate and lat_deg is not None)
-    if classic:
+@dataclass(frozen=True)
+class GyroModel:
+    """What the gyro model of :func:`ferraris_calibration` includes.
+
+    Attributes
+    ----------
+    bias_drift : bool
+        Bias b0 + b1·(t − t_ref) (seed 002 eq. 5) instead of a constant.
+    earth_rate : bool
+        Remove the vertical Earth rate from the static means (needs the latitude).
+    g_sensitivity : bool
+        Estimate and remove the g-sensitivity K_ga [rad/s per m/s²].
+    expected_angle_deg : float or None
+        Turned angle of each rotation (imucal: −360); None: ±360 with the integral's sign.
+    gyro_step : float
+        Quantisation step of integer telemetry [rad/s] (RAW_IMU: 1 mrad/s), counted in the
+        matrix σ.
+    """
+
+    bias_drift: bool = True
+    earth_rate: bool = True
+    g_sensitivity: bool = True
+    expected_angle_deg: float | None = None
+    gyro_step: float = 0.0
+
+    def removes_earth_rate(self, lat_deg: float | None) -> bool:
+        return self.earth_rate and lat_deg is not None
+
+    def is_classic(self, lat_deg: float | None) -> bool:
+        """imucal's model: a constant bias, no Earth rate."""
+        return not self.bias_drift and not self.removes_earth_rate(lat_deg)
+
+
+def _gyro_bias(t, gyr, acc_cal, regions, g, lat_deg, model: GyroModel):
+    """Gyro bias [rad/s] (and drift [rad/s²], g-sensitivity) from the still holds.
+
+    Returns (SensorCalibration with offset, drift, t_ref and their σ; info dict)."""
+    if model.is_classic(lat_deg):
         # imucal: plain mean of all samples of the six holds; K_ga from the hold differences
-        used = [poses[p] for p in POSES]
-        allg = np.vstack([gyr[s.kept()] for s in used])
+        allg = np.vstack([gyr[regions.poses[p].kept()] for p in POSES])
         b0, b1 = allg.mean(axis=0), np.zeros(3)
         sb0, sb1 = allg.std(axis=0, ddof=1) / np.sqrt(len(allg)), np.zeros(3)
-        ugp, uga = u_matrices({k: s.gyr_mean for k, s in poses.items()})
-        kga = gyro_g_sensitivity(ugp, uga, g) if g_sensitivity else None
+        ugp, uga = u_matrices({k: s.gyr_mean for k, s in regions.poses.items()})
+        kga = gyro_g_sensitivity(ugp, uga, g) if model.g_sensitivity else None
         t_ref = 0.0
     else:
-        ts, ys, fs = _static_rows(t, gyr, segs, acc_cal, lat_deg, earth_rate)
+        ts, ys, fs = _static_rows(t, gyr, regions.bias_holds(), acc_cal, lat_deg,
+                                  model.earth_rate)
         t_ref = float(ts.mean())
-        b0, b1, kga, sb0, sb1 = fit_gyro_bias(ts, ys, fs if g_sensitivity else None,
-                                              drift=bias_drift, t_ref=t_ref)
-    info.update(t_ref=t_ref, bias_drift=b1, gyr_g_sensitivity=kga)
+        b0, b1, kga, sb0, sb1 = fit_gyro_bias(ts, ys, fs if model.g_sensitivity else None,
+                                              drift=model.bias_drift, t_ref=t_ref)
     # The Earth rate left in the bias (its horizontal part Ω cos φ, or all of Ω when it was not
     # removed) is a vector of known length and unknown heading: σ of one axis = length/√3.
     # On a clean simulated session it was 2-6σ of the noise-only σ (benchmarks/sigma_coverage.py).
-    left = EARTH_RATE * (np.cos(np.radians(lat_deg)) if earth_rate and lat_deg is not None
+    left = EARTH_RATE * (np.cos(np.radians(lat_deg)) if model.removes_earth_rate(lat_deg)
                          else 1.0)
     sb0 = np.hypot(sb0, left / np.sqrt(3.0))
-    cal = SensorCalibration(offset=b0, drift=b1, t_ref=t_ref,
-                            sigma={"offset": sb0, "drift": sb1} if bias_drift else {"offset": sb0})
-    missing = [a for a in AXES if a not in rots]
+    sigma = {"offset": sb0, "drift": sb1} if model.bias_drift else {"offset": sb0}
+    cal = SensorCalibration(offset=b0, drift=b1, t_ref=t_ref, sigma=sigma)
+    return cal, {"t_ref": t_ref, "bias_drift": b1, "gyr_g_sensitivity": kga}
+
+
+def _rotation_integral(t, gyr, acc_cal, r: Rotation, regions, bias: SensorCalibration, kga,
+                       lat_deg, model: GyroModel, noise: np.ndarray):
+    """The bias-corrected gyro integral over rotation ``r`` [rad] (3,) and its σ (3,)."""
+    moves = [] if model.is_classic(lat_deg) else motions_between_holds(r, regions.bias_holds())
+    if moves:
+        # Our improvement: only the motions are integrated, each against the bias of the
+        # holds around it. Those holds carry everything static the bias model misses (the
+        # horizontal Earth rate, whose body projection changes with every step, and the
+        # bias random walk), which the global b0 + b1·t leaves in the integral over the
+        # pauses (~Ω·cos φ·T ≈ 5e-3 rad for a 70 s turn, 8e-4 in the matrix).
+        return integrate_motions(t, gyr, moves, model.gyro_step)
+    sl = slice(r.i0, r.i1)
+    cor = gyr[sl] - bias.offset - np.outer(t[sl] - bias.t_ref, bias.drift)
+    if kga is not None:
+        cor = cor - acc_cal[sl] @ kga.T
+    if model.removes_earth_rate(lat_deg):
+        f = acc_cal[sl].mean(axis=0)
+        cor = cor - earth_rate_up(f / np.linalg.norm(f), lat_deg)
+    dur = t[r.i1 - 1] - t[r.i0]
+    sigma = np.hypot(bias.sigma["offset"] * dur,
+                     noise * np.sqrt((sample_intervals(t[sl]) ** 2).sum()))
+    return integrate_slice(t[sl], cor), sigma
+
+
+def _gyro_matrix(t, gyr, acc_cal, regions, bias: SensorCalibration, kga, lat_deg,
+                 model: GyroModel, warnings: list[str]):
+    """Gyro coupling matrix and its σ from the three turns (seed 002 eq. 22), or None (with a
+    warning) when a turn is missing; and the integrals/angles for the report."""
+    missing = [a for a in AXES if a not in regions.rotations]
     if missing:
         warnings.append(f"no 360° rotation about {', '.join(missing)}: gyro matrix not estimated (identity)")
-        return cal, info
-    w = np.zeros((3, 3))
-    angles = np.zeros(3)
-    noise = np.median([s.gyr_std for s in poses.values()], axis=0)
-    sw = np.zeros((3, 3))
+        return None, None, {}
+    w, sw, angles = np.zeros((3, 3)), np.zeros((3, 3)), np.zeros(3)
+    noise = np.median([s.gyr_std for s in regions.poses.values()], axis=0)
     for j, a in enumerate(AXES):
-        r = rots[a]
-        sl = slice(r.i0, r.i1)
-        moves = [] if classic else motions_between_holds(r, segs)
-        if moves:
-            # Our improvement: only the motions are integrated, each against the bias of the
-            # holds around it. Those holds carry everything static the bias model misses (the
-            # horizontal Earth rate, whose body projection changes with every step, and the
-            # bias random walk), which the global b0 + b1·t leaves in the integral over the
-            # pauses (~Ω·cos φ·T ≈ 5e-3 rad for a 70 s turn, 8e-4 in the matrix).
-            w[:, j], sw[:, j] = integrate_motions(t, gyr, moves, gyro_step)
-        else:
-            cor = gyr[sl] - b0 - np.outer(t[sl] - t_ref, b1)
-            if kga is not None:
-                cor = cor - acc_cal[sl] @ kga.T
-            if earth_rate and lat_deg is not None:
-                f = acc_cal[sl].mean(axis=0)
-                cor = cor - earth_rate_up(f / np.linalg.norm(f), lat_deg)
-            w[:, j] = integrate_slice(t[sl], cor)
-            dur = t[r.i1 - 1] - t[r.i0]
-            sw[:, j] = np.hypot(sb0 * dur, noise * np.sqrt((sample_intervals(t[sl]) ** 2).sum()))
-        sign = np.sign(w[j, j]) if expected_angle_deg is None else np.sign(expected_angle_deg)
-        angles[j] = np.radians(360.0 if expected_angle_deg is None else abs(expected_angle_deg)) * sign
+        w[:, j], sw[:, j] = _rotation_integral(t, gyr, acc_cal, regions.rotations[a], regions,
+                                               bias, kga, lat_deg, model, noise)
+        expected = model.expected_angle_deg
+        sign = np.sign(w[j, j]) if expected is None else np.sign(expected)
+        angles[j] = np.radians(360.0 if expected is None else abs(expected)) * sign
         err = abs(abs(np.degrees(w[j, j])) - 360.0)
         if err > ANGLE_WARN_DEG:
             warnings.append(f"rotation about {a} integrates to {np.degrees(w[j, j]):.1f}°, "
                             f"{err:.1f}° from a full turn")
-    info.update(rotation_integrals=w, rotation_angles_deg=np.degrees(angles))
 
     def solve(x):
         return np.linalg.inv(gyro_coupling(x.reshape(3, 3), angles)).ravel()
 
-    cal.matrix = solve(w.ravel()).reshape(3, 3)
-    cal.sigma["matrix"] = jacobian_sigma(solve, w.ravel(), sw.ravel()).reshape(3, 3)
+    matrix = solve(w.ravel()).reshape(3, 3)
+    sigma = jacobian_sigma(solve, w.ravel(), sw.ravel()).reshape(3, 3)
+    return matrix, sigma, {"rotation_integrals": w, "rotation_angles_deg": np.degrees(angles)}
+
+
+def _gyro_part(t, gyr, acc_cal, regions, g, lat_deg, model: GyroModel, warnings: list[str]):
+    """Gyro bias (seed 002 eq. 5) then coupling matrix (eq. 22): (SensorCalibration, info)."""
+    cal, info = _gyro_bias(t, gyr, acc_cal, regions, g, lat_deg, model)
+    matrix, sigma, turn_info = _gyro_matrix(t, gyr, acc_cal, regions, cal,
+                                            info["gyr_g_sensitivity"], lat_deg, model, warnings)
+    if matrix is not None:
+        cal.matrix = matrix
+        cal.sigma["matrix"] = sigma
+    info.update(turn_info)
     return cal, info
 
 
@@ -295,39 +308,31 @@ def _quality_warnings(poses: dict[str, StaticSegment], warnings: list[str]) -> N
 
 
 @single_threaded_blas
-def ferraris_calibration(t, acc, gyr=None, *, segments=None, rotations=None, sections=None,
-                         lat_deg: float | None = None, gravity: float | None = None,
-                         bias_drift: bool = True, earth_rate: bool = True,
-                         g_sensitivity: bool = True, expected_angle_deg: float | None = None,
-                         min_duration: float = 2.0, gyro_step: float = 0.0) -> Calibration:
+def ferraris_calibration(t, acc, gyr, regions: FerrarisRegions, *, lat_deg: float | None = None,
+                         gravity: float | None = None, bias_drift: bool = True,
+                         earth_rate: bool = True, g_sensitivity: bool = True,
+                         expected_angle_deg: float | None = None,
+                         gyro_step: float = 0.0) -> Calibration:
     """Ferraris calibration of accelerometer (m/s²) and gyroscope (rad/s), seed 002 §4.
-
-    ``gyro_step`` [rad/s] is the quantisation step of integer telemetry (RAW_IMU: 1 mrad/s); the
-    error it leaves in the rotation integrals is counted in the gyro matrix sigma.
 
     Parameters
     ----------
     t : (n,) array, s
     acc : (n, 3) array, sensor frame (m/s² for a calibrated output in m/s² when gravity is known)
-    gyr : (n, 3) array, rad/s, optional (accelerometer only when absent)
-    segments : list of StaticSegment or dict pose -> StaticSegment, optional
-        Default: :func:`find_static_segments` then :func:`label_poses` (longest hold per pose).
-    rotations : list of Rotation or dict axis -> Rotation, optional
-        Default: :func:`find_rotations`, the full turn closest to 360° about each axis.
-    sections : dict, optional
-        imucal-style section list (name -> start/end sample); overrides ``segments``/``rotations``.
+    gyr : (n, 3) array, rad/s, or None (accelerometer only)
+    regions : FerrarisRegions
+        The six faces, the turns and the holds
+        (:func:`apmcal.preprocessing.ferraris_regions.ferraris_regions`).
     lat_deg : float, optional
         Latitude [deg]: normal gravity for the accelerometer scale, vertical Earth rate for the gyro.
     gravity : float, optional
         Local gravity [m/s²]; default normal_gravity(lat) or Q (eq. 4) when lat is unknown.
-    bias_drift : bool
-        Fit the gyro bias as b0 + b1 (t − t_ref) (seed 002 eq. 5) instead of a constant.
-    earth_rate : bool
-        Remove the vertical Earth rate from the static gyro means (needs ``lat_deg``).
-    g_sensitivity : bool
-        Estimate and remove the gyro g-sensitivity K_ga (reported, not part of SensorCalibration).
-    expected_angle_deg : float, optional
-        Turned angle of each rotation (imucal: −360); default ±360 with the sign of the integral.
+    bias_drift, earth_rate, g_sensitivity, expected_angle_deg, gyro_step
+        The gyro model (:class:`GyroModel`): bias b0 + b1 (t − t_ref) (seed 002 eq. 5) or
+        constant; vertical Earth rate removed from the still means (needs ``lat_deg``); gyro
+        g-sensitivity K_ga estimated and removed; turned angle of each rotation (imucal: −360;
+        default ±360 with the integral's sign); quantisation step of integer telemetry [rad/s]
+        (RAW_IMU: 1 mrad/s), whose error in the rotation integrals is counted in the matrix σ.
 
     Returns
     -------
@@ -337,37 +342,19 @@ def ferraris_calibration(t, acc, gyr=None, *, segments=None, rotations=None, sec
     Raises
     ------
     ApmcalError
-        When a pose is missing, the gyro bias is not identifiable, or shapes are wrong.
+        When a face is missing or the gyro bias is not identifiable.
     """
     t = np.asarray(t, dtype=float)
     acc = np.asarray(acc, dtype=float)
     gyr = None if gyr is None else np.asarray(gyr, dtype=float)
-    all_segs = None
-    if sections is not None:
-        poses, rots = regions_from_sections(t, acc, gyr, sections)
-    else:
-        if segments is None:
-            all_segs = find_static_segments(t, acc, gyr, min_duration=min_duration)
-            poses = label_poses(all_segs)
-        elif isinstance(segments, dict):
-            poses = dict(segments)
-        else:
-            all_segs = list(segments)
-            poses = label_poses(all_segs)
-        if gyr is None:
-            rots = {}
-        elif rotations is None:
-            rots = _pick_rotations(find_rotations(t, gyr, all_segs if all_segs is not None
-                                                  else sorted(poses.values(), key=lambda s: s.i0)))
-        else:
-            rots = _pick_rotations(rotations)
+    poses = regions.poses
     missing = [p for p in POSES if p not in poses]
     if missing:
         faces = ", ".join(f"{p} ({ARDUPILOT_FACE[p]})" for p in missing)
         raise ApmcalError(f"Ferraris calibration needs all six holds; missing {faces}")
     warnings: list[str] = []
     _quality_warnings(poses, warnings)
-    acc_cal, acc_info, g = _accel_part(poses, gravity, lat_deg, all_segs)
+    acc_cal, acc_info, g = _accel_part(poses, gravity, lat_deg, regions.holds)
     if acc_info["gravity_source"].startswith("Q"):
         warnings.append(f"accelerometer scaled to Q = {acc_info['Q']:.4f} (its own mean norm), not "
                         "to local gravity: pass lat_deg or gravity for an absolute scale")
@@ -375,19 +362,17 @@ def ferraris_calibration(t, acc, gyr=None, *, segments=None, rotations=None, sec
               "warnings": warnings, **acc_info}
     sensors = {"acc": acc_cal}
     if gyr is not None:
+        model = GyroModel(bias_drift, earth_rate, g_sensitivity, expected_angle_deg, gyro_step)
         if earth_rate and lat_deg is None:
             warnings.append("latitude unknown: Earth rate not removed from the gyro bias")
-        if earth_rate and lat_deg is not None:
+        if model.removes_earth_rate(lat_deg):
             report["earth_rate"] = ("vertical component Ω sin φ removed; horizontal Ω cos φ = "
                                     f"{EARTH_RATE * np.cos(np.radians(lat_deg)):.3g} rad/s needs "
                                     "the heading and stays in the bias")
-        segs = [poses[p] for p in POSES] if all_segs is None else all_segs
-        a_cal = acc_cal.apply(acc)
-        gcal, ginfo = _gyro_part(t, gyr, a_cal, poses, segs, rots, g, bias_drift=bias_drift,
-                                 earth_rate=earth_rate, lat_deg=lat_deg,
-                                 g_sensitivity=g_sensitivity, expected_angle_deg=expected_angle_deg,
-                                 warnings=warnings, gyro_step=gyro_step)
+        gcal, ginfo = _gyro_part(t, gyr, acc_cal.apply(acc), regions, g, lat_deg, model,
+                                 warnings)
         sensors["gyr"] = gcal
         report.update(ginfo)
-        report["rotations"] = {a: [r.start, r.end, r.angle_deg] for a, r in rots.items()}
+        report["rotations"] = {a: [r.start, r.end, r.angle_deg]
+                               for a, r in regions.rotations.items()}
     return Calibration(method="ferraris", sensors=sensors, report=report)
