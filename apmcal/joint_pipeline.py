@@ -11,6 +11,7 @@ import datetime
 import numpy as np
 
 from apmcal.errors import ApmcalError
+from apmcal.solvers.report_types import CalibrationReport, MagneticField
 from apmcal.solvers.result import Calibration
 
 MIN_HOLDS = 3      # still poses; fewer leave most of the 42 parameters undetermined
@@ -35,9 +36,10 @@ def compass_on_imu_times(t: np.ndarray, prepared, mag_prepared) -> np.ndarray | 
     return out
 
 
-def field_magnitude(mag: np.ndarray, opts, report: dict) -> float:
+def field_magnitude(mag: np.ndarray, opts, report: CalibrationReport) -> float:
     """Field magnitude [mGauss] that fixes the scale of the soft-iron matrix: the World
-    Magnetic Model's at --lat/--lon when given, else the samples' sphere fit."""
+    Magnetic Model's at --lat/--lon when given, else the samples' sphere fit (into
+    ``report.magnetic_field``, with a warning when the model has one)."""
     from apmcal.geomag import field_magnitude
     from apmcal.solvers.ellipsoid import sphere_fit
 
@@ -45,12 +47,11 @@ def field_magnitude(mag: np.ndarray, opts, report: dict) -> float:
         when = opts.date or datetime.date.today()
         radius, note = field_magnitude(opts.lat_deg, opts.lon_deg, when)
         if note:
-            report.setdefault("warnings", []).append(f"mag: {note}")
+            report.warnings.append(f"mag: {note}")
         origin = f"WMM at {when}"
     else:
         radius, origin = float(sphere_fit(mag)[1]), "sphere fit (no --lat/--lon)"
-    report.setdefault("lines", []).append(f"mag: field magnitude {radius:.1f} mGauss from "
-                                          f"{origin}")
+    report.magnetic_field = MagneticField(float(radius), origin)
     return radius
 
 
@@ -69,10 +70,10 @@ def joint_on_prepared(prepared, mag_prepared, opts) -> Calibration:
         raise ApmcalError("joint calibration needs gyro samples; this recording has none")
     t = raw.t
     mag = compass_on_imu_times(t, prepared, mag_prepared)
-    report: dict = {}
+    report = CalibrationReport()
     if mag is None:
-        report["warnings"] = ["no compass in this session (or it logged only zeros): the "
-                              "accelerometer and gyro are calibrated without it"]
+        report.warnings.append("no compass in this session (or it logged only zeros): the "
+                               "accelerometer and gyro are calibrated without it")
         span = np.ones(len(t), bool)
     else:
         span = np.all(np.isfinite(mag), axis=1)
@@ -93,7 +94,8 @@ def joint_on_prepared(prepared, mag_prepared, opts) -> Calibration:
     except np.linalg.LinAlgError as err:      # a degenerate session (e.g. all poses alike)
         raise ApmcalError(f"joint calibration: the session does not determine the parameters "
                           f"({err}); add still poses in other orientations") from None
-    cal.report["lines"] = report.get("lines", []) + cal.report["lines"]
-    cal.report["warnings"] = report.get("warnings", []) + cal.report["warnings"]
-    cal.report["static_segments"] = len(holds)
+    cal.report.warnings = report.warnings + cal.report.warnings
+    if report.magnetic_field is not None:
+        cal.report.magnetic_field = report.magnetic_field
+    cal.report.holds.count = len(holds)
     return cal

@@ -28,7 +28,7 @@ the constant-bias (imucal) matrix is off by 7.6e-3, ours by 6e-5 (tests/test_fer
 Earth rate: with only the latitude known, the component Ω sin φ along "up" (taken from the
 accelerometer) is removed from every static mean; the horizontal component Ω cos φ needs the
 heading, which a hand-held session does not give, so it is left in the bias (≤ 7.3e-5 rad/s,
-reported in ``report["earth_rate"]``).
+reported as ``report.gyro_turns.earth_rate_left``).
 
 Identifiability: the vertical Earth rate Ω sin φ · up is parallel to the specific force, so it is
 indistinguishable from a diagonal g-sensitivity Ω sin φ / g · I. Without ``earth_rate`` (or with
@@ -64,6 +64,7 @@ from apmcal.preprocessing.static import (
 from apmcal.solvers.blas_threads import single_threaded_blas
 from apmcal.solvers.gyro_bias import fit_gyro_bias, integrate_motions, motions_between_holds
 from apmcal.solvers.misfit import hold_misfit
+from apmcal.solvers.report_types import CalibrationReport, GyroTurns, Hold, Holds, SixFaceFit, Turn
 from apmcal.solvers.result import Calibration, SensorCalibration
 from apmcal.solvers.uncertainty import jacobian_sigma
 
@@ -158,7 +159,7 @@ def _accel_part(poses: dict[str, StaticSegment], gravity: float | None, lat_deg:
 
     The hold means' σ is their white noise (std/√n) plus τ, the scatter the redundant holds
     show beyond it on each axis (:mod:`apmcal.solvers.misfit`); the noise-only σ is kept in the
-    report as ``acc_sigma_noise_only``.
+    report (:class:`~apmcal.solvers.report_types.SixFaceFit`).
     """
     up, um = u_matrices({k: s.acc_mean for k, s in poses.items()})
     sp, sm = u_matrices({k: s.acc_std / np.sqrt(s.n) for k, s in poses.items()})
@@ -187,10 +188,9 @@ def _accel_part(poses: dict[str, StaticSegment], gravity: float | None, lat_deg:
     sy[:3] = np.hypot(sy[:3], misfit.offset_spread)
     cal = SensorCalibration(offset=y[:3], matrix=y[3:].reshape(3, 3),
                             sigma={"offset": sy[:3], "matrix": sy[3:].reshape(3, 3)})
-    info = {"U_plus": up, "U_minus": um, "Q": q, "gravity": g, "gravity_source": source,
-            "acc_misfit": misfit.to_dict(),
-            "acc_sigma_noise_only": {"offset": noise_only[:3],
-                                     "matrix": noise_only[3:].reshape(3, 3)}}
+    info = SixFaceFit(u_plus=up, u_minus=um, q=q, gravity=g, gravity_source=source,
+                      misfit=misfit, sigma_noise_only={"offset": noise_only[:3],
+                                                       "matrix": noise_only[3:].reshape(3, 3)})
     return cal, info, g
 
 
@@ -212,7 +212,6 @@ def _static_rows(t, gyr, segs, acc_cal, lat_deg, earth_rate):
 
 def _gyro_part(t, gyr, acc_cal, poses, segs, rots, g, *, bias_drift, earth_rate, lat_deg,
                g_sensitivity, expected_angle_deg, warnings, gyro_step=0.0):
-    info: dict = {}
     classic = not bias_drift and not (earth_rate and lat_deg is not None)
     if classic:
         # imucal: plain mean of all samples of the six holds; K_ga from the hold differences
@@ -228,7 +227,9 @@ def _gyro_part(t, gyr, acc_cal, poses, segs, rots, g, *, bias_drift, earth_rate,
         t_ref = float(ts.mean())
         b0, b1, kga, sb0, sb1 = fit_gyro_bias(ts, ys, fs if g_sensitivity else None,
                                               drift=bias_drift, t_ref=t_ref)
-    info.update(t_ref=t_ref, bias_drift=b1, gyr_g_sensitivity=kga)
+    earth_left = (EARTH_RATE * np.cos(np.radians(lat_deg)) if earth_rate and lat_deg is not None
+                  else None)
+    info = GyroTurns(t_ref=t_ref, earth_rate_left=earth_left)
     # The Earth rate left in the bias (its horizontal part Ω cos φ, or all of Ω when it was not
     # removed) is a vector of known length and unknown heading: σ of one axis = length/√3.
     # On a clean simulated session it was 2-6σ of the noise-only σ (benchmarks/sigma_coverage.py).
@@ -236,7 +237,8 @@ def _gyro_part(t, gyr, acc_cal, poses, segs, rots, g, *, bias_drift, earth_rate,
                          else 1.0)
     sb0 = np.hypot(sb0, left / np.sqrt(3.0))
     cal = SensorCalibration(offset=b0, drift=b1, t_ref=t_ref,
-                            sigma={"offset": sb0, "drift": sb1} if bias_drift else {"offset": sb0})
+                            sigma={"offset": sb0, "drift": sb1} if bias_drift else {"offset": sb0},
+                            g_sensitivity=np.zeros((3, 3)) if kga is None else kga)
     missing = [a for a in AXES if a not in rots]
     if missing:
         warnings.append(f"no 360° rotation about {', '.join(missing)}: gyro matrix not estimated (identity)")
@@ -272,7 +274,7 @@ def _gyro_part(t, gyr, acc_cal, poses, segs, rots, g, *, bias_drift, earth_rate,
         if err > ANGLE_WARN_DEG:
             warnings.append(f"rotation about {a} integrates to {np.degrees(w[j, j]):.1f}°, "
                             f"{err:.1f}° from a full turn")
-    info.update(rotation_integrals=w, rotation_angles_deg=np.degrees(angles))
+    info.integrals_rad, info.angles_deg = w, np.degrees(angles)
 
     def solve(x):
         return np.linalg.inv(gyro_coupling(x.reshape(3, 3), angles)).ravel()
@@ -325,14 +327,15 @@ def ferraris_calibration(t, acc, gyr=None, *, segments=None, rotations=None, sec
     earth_rate : bool
         Remove the vertical Earth rate from the static gyro means (needs ``lat_deg``).
     g_sensitivity : bool
-        Estimate and remove the gyro g-sensitivity K_ga (reported, not part of SensorCalibration).
+        Estimate and remove the gyro g-sensitivity K_ga (the gyro's ``g_sensitivity``, applied
+        with the calibrated specific force).
     expected_angle_deg : float, optional
         Turned angle of each rotation (imucal: −360); default ±360 with the sign of the integral.
 
     Returns
     -------
-    Calibration with sensors "acc" (and "gyr"), sigma filled, ``report`` with U+, U−, Q, gravity
-    used, K_ga, drift, rotation integrals and warnings.
+    Calibration with sensors "acc" (and "gyr", with drift and K_ga), sigma filled, ``report``
+    with the holds, turns, U+, U−, Q, gravity used, misfit, rotation integrals and warnings.
 
     Raises
     ------
@@ -368,19 +371,15 @@ def ferraris_calibration(t, acc, gyr=None, *, segments=None, rotations=None, sec
     warnings: list[str] = []
     _quality_warnings(poses, warnings)
     acc_cal, acc_info, g = _accel_part(poses, gravity, lat_deg, all_segs)
-    if acc_info["gravity_source"].startswith("Q"):
-        warnings.append(f"accelerometer scaled to Q = {acc_info['Q']:.4f} (its own mean norm), not "
+    if acc_info.gravity_source.startswith("Q"):
+        warnings.append(f"accelerometer scaled to Q = {acc_info.q:.4f} (its own mean norm), not "
                         "to local gravity: pass lat_deg or gravity for an absolute scale")
-    report = {"method": "ferraris", "poses": {k: [s.start, s.end, s.n] for k, s in poses.items()},
-              "warnings": warnings, **acc_info}
+    report = CalibrationReport(warnings=warnings, six_face=acc_info, holds=Holds(used={
+        k: Hold(s.start, s.end, s.n) for k, s in poses.items()}))
     sensors = {"acc": acc_cal}
     if gyr is not None:
         if earth_rate and lat_deg is None:
             warnings.append("latitude unknown: Earth rate not removed from the gyro bias")
-        if earth_rate and lat_deg is not None:
-            report["earth_rate"] = ("vertical component Ω sin φ removed; horizontal Ω cos φ = "
-                                    f"{EARTH_RATE * np.cos(np.radians(lat_deg)):.3g} rad/s needs "
-                                    "the heading and stays in the bias")
         segs = [poses[p] for p in POSES] if all_segs is None else all_segs
         a_cal = acc_cal.apply(acc)
         gcal, ginfo = _gyro_part(t, gyr, a_cal, poses, segs, rots, g, bias_drift=bias_drift,
@@ -388,6 +387,6 @@ def ferraris_calibration(t, acc, gyr=None, *, segments=None, rotations=None, sec
                                  g_sensitivity=g_sensitivity, expected_angle_deg=expected_angle_deg,
                                  warnings=warnings, gyro_step=gyro_step)
         sensors["gyr"] = gcal
-        report.update(ginfo)
-        report["rotations"] = {a: [r.start, r.end, r.angle_deg] for a, r in rots.items()}
+        report.gyro_turns = ginfo
+        report.rotations = {a: Turn(r.start, r.end, r.angle_deg) for a, r in rots.items()}
     return Calibration(method="ferraris", sensors=sensors, report=report)
