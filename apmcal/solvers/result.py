@@ -22,7 +22,14 @@ from pathlib import Path
 import numpy as np
 
 from apmcal.errors import ApmcalError
-from apmcal.solvers.report_types import CalibrationReport, Hold, MagneticField, Turn
+from apmcal.solvers.misfit import HoldMisfit
+from apmcal.solvers.report_types import (
+    CalibrationReport,
+    Hold,
+    MagneticField,
+    SixFaceFit,
+    Turn,
+)
 
 SCHEMA = "apmcal.calibration/2"
 UNITS = {"acc": "m/s²", "gyr": "rad/s", "mag": "mGauss", "matrix": "1",
@@ -236,6 +243,8 @@ def report_from_v1(old: dict, sensors: dict[str, SensorCalibration]) -> Calibrat
         cover = old.get("mag_coverage", {})
         rep.magnetic_field = MagneticField(old["mag_field_mgauss"], "version-1 file",
                                            cover.get("fraction"), cover.get("min_eig"))
+    if "acc_misfit" in old and "U_plus" in old:
+        rep.six_face = _six_face_from_v1(old)
     g_sens = old.get("gyr_g_sensitivity")
     if g_sens is not None and "gyr" in sensors:
         gyr = sensors["gyr"]
@@ -243,6 +252,18 @@ def report_from_v1(old: dict, sensors: dict[str, SensorCalibration]) -> Calibrat
         if old.get("gyr_g_sensitivity_sigma") is not None:
             gyr.sigma["g_sensitivity"] = np.asarray(old["gyr_g_sensitivity_sigma"], dtype=float)
     return rep
+
+
+def _six_face_from_v1(old: dict) -> SixFaceFit:
+    m = old["acc_misfit"]
+    misfit = HoldMisfit(tau=np.asarray(m["tau"], float),
+                        offset_spread=np.asarray(m["offset_spread"], float), chi2=m["chi2"],
+                        dof=m["dof"], n_holds=m["n_holds"], worst=m["worst_residual"])
+    noise = {k: np.asarray(v, float) for k, v in old.get("acc_sigma_noise_only", {}).items()}
+    return SixFaceFit(u_plus=np.asarray(old["U_plus"], float),
+                      u_minus=np.asarray(old["U_minus"], float), q=old["Q"],
+                      gravity=old["gravity"], gravity_source=old["gravity_source"],
+                      misfit=misfit, sigma_noise_only=noise)
 
 
 def jsonable(obj, nan_as_null: bool = False):
