@@ -374,8 +374,9 @@ def ferraris_calibration(t, acc, gyr=None, *, segments=None, rotations=None, sec
     if acc_info.gravity_source.startswith("Q"):
         warnings.append(f"accelerometer scaled to Q = {acc_info.q:.4f} (its own mean norm), not "
                         "to local gravity: pass lat_deg or gravity for an absolute scale")
-    report = CalibrationReport(warnings=warnings, six_face=acc_info, holds=Holds(used={
-        k: Hold(s.start, s.end, s.n) for k, s in poses.items()}))
+    report = CalibrationReport(warnings=warnings, six_face=acc_info, holds=Holds(
+        count=None if all_segs is None else len(all_segs),
+        used={k: Hold(s.start, s.end, s.n) for k, s in poses.items()}))
     sensors = {"acc": acc_cal}
     if gyr is not None:
         if earth_rate and lat_deg is None:
