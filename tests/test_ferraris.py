@@ -135,6 +135,7 @@ def test_simulated_session_recovered_with_drift_and_earth_rate():
     np.testing.assert_allclose(g.drift, B1_TRUE, atol=2e-6)
     np.testing.assert_allclose(g.offset, B0_TRUE + B1_TRUE * g.t_ref, atol=5e-5)
     np.testing.assert_allclose(g.g_sensitivity, KGA_TRUE, atol=2e-5)
+    assert np.all(np.abs(g.g_sensitivity - KGA_TRUE) < 5 * g.sigma["g_sensitivity"])
     np.testing.assert_allclose(g.matrix, np.linalg.inv(E_TRUE), atol=1e-3)
     assert np.all(np.abs(g.matrix - np.linalg.inv(E_TRUE)) < 5 * g.sigma["matrix"] + 1e-4)
     assert cal.report.warnings == []

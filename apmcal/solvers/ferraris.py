@@ -221,12 +221,12 @@ def _gyro_part(t, gyr, acc_cal, poses, segs, rots, g, *, bias_drift, earth_rate,
         sb0, sb1 = allg.std(axis=0, ddof=1) / np.sqrt(len(allg)), np.zeros(3)
         ugp, uga = u_matrices({k: s.gyr_mean for k, s in poses.items()})
         kga = gyro_g_sensitivity(ugp, uga, g) if g_sensitivity else None
-        t_ref = 0.0
+        skga, t_ref = None, 0.0
     else:
         ts, ys, fs = _static_rows(t, gyr, segs, acc_cal, lat_deg, earth_rate)
         t_ref = float(ts.mean())
-        b0, b1, kga, sb0, sb1 = fit_gyro_bias(ts, ys, fs if g_sensitivity else None,
-                                              drift=bias_drift, t_ref=t_ref)
+        b0, b1, kga, sb0, sb1, skga = fit_gyro_bias(ts, ys, fs if g_sensitivity else None,
+                                                    drift=bias_drift, t_ref=t_ref)
     earth_left = (EARTH_RATE * np.cos(np.radians(lat_deg)) if earth_rate and lat_deg is not None
                   else None)
     info = GyroTurns(t_ref=t_ref, earth_rate_left=earth_left)
@@ -239,6 +239,8 @@ def _gyro_part(t, gyr, acc_cal, poses, segs, rots, g, *, bias_drift, earth_rate,
     cal = SensorCalibration(offset=b0, drift=b1, t_ref=t_ref,
                             sigma={"offset": sb0, "drift": sb1} if bias_drift else {"offset": sb0},
                             g_sensitivity=np.zeros((3, 3)) if kga is None else kga)
+    if skga is not None:
+        cal.sigma["g_sensitivity"] = skga
     missing = [a for a in AXES if a not in rots]
     if missing:
         warnings.append(f"no 360° rotation about {', '.join(missing)}: gyro matrix not estimated (identity)")
