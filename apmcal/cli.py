@@ -422,8 +422,8 @@ def summarise_and_calibrate(contents, args):
     require_plausible_units(contents)       # a sensor in impossible units is not data (issue 9)
     summary = report.summarize(contents)
     report.print_summary(summary, console)
-    output = {"summary": summary}
-    proposal = None
+    output = {"summary": summary}      # the JSON file's own fields besides the calibration's
+    calibration = proposal = None
     param_error = None
     if not getattr(args, "summary_only", False):
         from apmcal.pipeline import Options, calibrate_log
@@ -431,10 +431,8 @@ def summarise_and_calibrate(contents, args):
         calibration, proposal = calibrate_log(contents, Options(
             args.method, args.lat, args.lon, args.min_still, args.instance, args.firmware))
         report.print_calibration(calibration, proposal, console, args.verbose)
-        output.update(calibration.to_dict())
         output["verdict"] = report.verdict_dict(calibration, proposal)
-        if proposal is not None:
-            output["params"] = dict(proposal.values)
+        if proposal is not None:       # its values are the calibration's own "params"
             output["rejected_params"] = dict(proposal.rejected)
         if args.param_file:
             try:
@@ -446,7 +444,10 @@ def summarise_and_calibrate(contents, args):
                 output["param_file"] = args.param_file
                 console.print(f"wrote {args.param_file}")
     if args.json:
-        write_json(args.json, output)
+        if calibration is None:
+            write_json(args.json, output)
+        else:
+            calibration.save(args.json, extra=output)      # schema, units, report + ours
         console.print(f"wrote {args.json}")
     if param_error is not None:
         raise param_error

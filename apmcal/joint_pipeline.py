@@ -11,6 +11,7 @@ import datetime
 import numpy as np
 
 from apmcal.errors import ApmcalError
+from apmcal.solvers.report_types import CalibrationReport, MagneticField
 from apmcal.solvers.result import Calibration
 
 MIN_HOLDS = 3      # still poses; fewer leave most of the 42 parameters undetermined
@@ -41,9 +42,10 @@ def compass_on_imu_times(t: np.ndarray, prepared, mag_prepared) -> np.ndarray | 
     return out
 
 
-def field_magnitude(mag: np.ndarray, opts, report: dict) -> float:
+def field_magnitude(mag: np.ndarray, opts, report: CalibrationReport) -> float:
     """Field magnitude [mGauss] that fixes the scale of the soft-iron matrix: the World
-    Magnetic Model's at --lat/--lon when given, else the samples' sphere fit."""
+    Magnetic Model's at --lat/--lon when given, else the samples' sphere fit (into
+    ``report.magnetic_field``, with a warning when the model has one)."""
     from apmcal.geomag import field_magnitude
     from apmcal.solvers.ellipsoid import sphere_fit
 
@@ -51,27 +53,23 @@ def field_magnitude(mag: np.ndarray, opts, report: dict) -> float:
         when = opts.date or datetime.date.today()
         radius, note = field_magnitude(opts.lat_deg, opts.lon_deg, when)
         if note:
-            report.setdefault("warnings", []).append(f"mag: {note}")
+            report.warnings.append(f"mag: {note}")
         origin = f"WMM at {when}"
     else:
         radius, origin = float(sphere_fit(mag)[1]), "sphere fit (no --lat/--lon)"
-    report.setdefault("lines", []).append(f"mag: field magnitude {radius:.1f} mGauss from "
-                                          f"{origin}")
+    report.magnetic_field = MagneticField(float(radius), origin)
     return radius
 
 
-def at_joint_rate(t, acc, gyr, mag, report: dict):
-    """The samples averaged down to :data:`JOINT_RATE_HZ` (block means), with a report line
-    saying so; unchanged when the recording is not faster."""
+def at_joint_rate(t, acc, gyr, mag):
+    """The samples averaged down to :data:`JOINT_RATE_HZ` (block means) and the samples per
+    block (1: unchanged, the recording is not faster)."""
     from apmcal.preprocessing.decimation import block_means, factor_for_rate
 
     k = factor_for_rate(t, JOINT_RATE_HZ)
     if k == 1:
-        return t, acc, gyr, mag
-    fs = 1.0 / float(np.median(np.diff(t)))
-    report.setdefault("lines", []).append(f"joint: samples averaged in blocks of {k} "
-                                          f"({fs:.0f} → {fs / k:.0f} Hz) to bound the fit's cost")
-    return tuple(block_means(x, k) for x in (t, acc, gyr, mag))
+        return t, acc, gyr, mag, 1
+    return (*(block_means(x, k) for x in (t, acc, gyr, mag)), k)
 
 
 def joint_on_prepared(prepared, mag_prepared, opts) -> Calibration:
@@ -89,10 +87,10 @@ def joint_on_prepared(prepared, mag_prepared, opts) -> Calibration:
         raise ApmcalError("joint calibration needs gyro samples; this recording has none")
     t = raw.t
     mag = compass_on_imu_times(t, prepared, mag_prepared)
-    report: dict = {}
+    report = CalibrationReport()
     if mag is None:
-        report["warnings"] = ["no compass in this session (or it logged only zeros): the "
-                              "accelerometer and gyro are calibrated without it"]
+        report.warnings.append("no compass in this session (or it logged only zeros): the "
+                               "accelerometer and gyro are calibrated without it")
         span = np.ones(len(t), bool)
     else:
         span = np.all(np.isfinite(mag), axis=1)
@@ -101,7 +99,8 @@ def joint_on_prepared(prepared, mag_prepared, opts) -> Calibration:
                               "in time")
         mag = mag[span]
     t, acc, gyr = t[span], raw.xyz("acc")[span], raw.xyz("gyr")[span]
-    t, acc, gyr, mag = at_joint_rate(t, acc, gyr, mag, report)
+    recorded_hz = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else None
+    t, acc, gyr, mag, block = at_joint_rate(t, acc, gyr, mag)
     holds = find_static_segments(t, acc, gyr, min_duration=opts.min_still_s)
     if len(holds) < MIN_HOLDS:
         raise ApmcalError(f"joint calibration needs at least {MIN_HOLDS} still poses with turns "
@@ -114,7 +113,9 @@ def joint_on_prepared(prepared, mag_prepared, opts) -> Calibration:
     except np.linalg.LinAlgError as err:      # a degenerate session (e.g. all poses alike)
         raise ApmcalError(f"joint calibration: the session does not determine the parameters "
                           f"({err}); add still poses in other orientations") from None
-    cal.report["lines"] = report.get("lines", []) + cal.report["lines"]
-    cal.report["warnings"] = report.get("warnings", []) + cal.report["warnings"]
-    cal.report["static_segments"] = len(holds)
+    cal.report.warnings = report.warnings + cal.report.warnings
+    if report.magnetic_field is not None:
+        cal.report.magnetic_field = report.magnetic_field
+    cal.report.holds.count = len(holds)
+    cal.report.joint.block_samples, cal.report.joint.recorded_rate_hz = block, recorded_hz
     return cal

@@ -153,9 +153,9 @@ def calibrate(recording: Recording, opts: Options | None = None,
     except ApmcalError as err:
         if opts.method != "auto":
             raise
-        cal = Calibration(method="none", report={"warnings": [
-            f"accelerometer and gyro not calibrated: {err.why}"]})
-    cal.report.setdefault("warnings", []).extend(fallback + prepared.warnings)
+        cal = Calibration(method="none")
+        cal.report.warnings.append(f"accelerometer and gyro not calibrated: {err.why}")
+    cal.report.warnings.extend(fallback + prepared.warnings)
     add_resolution_floor(cal, prepared.floor_steps, {"acc": opts.gravity})
     if has_live_magnetometer(prepared.raw):
         add_magnetometer(cal, prepared, opts)
@@ -171,14 +171,14 @@ def joint_calibration_of(prepared: Prepared, mag_recording: Recording | None,
     if mag_recording is not None and mag_recording is not prepared.raw:
         mag_prepared = prepare(mag_recording, opts.generation)
     cal = joint_on_prepared(prepared, mag_prepared, opts)
-    cal.report["warnings"].extend(prepared.warnings)
+    cal.report.warnings.extend(prepared.warnings)
     if mag_prepared is not None:
-        cal.report["warnings"].extend(f"mag: {w}" for w in mag_prepared.warnings)
+        cal.report.warnings.extend(f"mag: {w}" for w in mag_prepared.warnings)
     # one call for all sensors: the compass is already in the result, so a second call would
     # add its floor to the offset twice
     field = {"acc": opts.gravity}
     if "mag" in cal.sensors:
-        field["mag"] = cal.report["mag_field_mgauss"]
+        field["mag"] = cal.report.magnetic_field.mgauss
     add_resolution_floor(cal, prepared.floor_steps, field)
     return cal
 
@@ -208,12 +208,10 @@ def with_own_compass_fit(cal: Calibration, prepared: Prepared, mag_recording: Re
               else prepare(mag_recording, opts.generation))      # its warnings already given
     add_magnetometer(cal, source, opts)
     if "mag" in cal.sensors:
-        cal.report.setdefault("lines", []).append(
-            "mag: from its own ellipsoid fit over every sample; the joint fit's compass "
-            "(consistent only within its windows) served the gyro")
+        cal.report.joint.compass_own_fit = True
     elif joint_mag is not None:
         cal.sensors["mag"] = joint_mag
-        cal.report.get("not_calibrated", {}).pop("mag", None)
+        cal.report.not_calibrated.pop("mag", None)
     return cal
 
 
@@ -273,23 +271,22 @@ def calibrate_log(contents, opts: Options | None = None):
     if opts.date is None:
         opts = replace(opts, date=recording_date(contents))
     cal = calibrate(recording, opts, mag_recording)
-    cal.report.setdefault("warnings", []).extend(change_warnings)
-    cal.report["recording"] = f"{recording.message} (IMU instance {recording.instance})"
+    cal.report.warnings.extend(change_warnings)
+    cal.report.recording = f"{recording.message} (IMU instance {recording.instance})"
     if mag_recording is not None and "mag" not in cal.sensors:
         if has_live_magnetometer(mag_recording):
             mag_prepared = prepare(mag_recording, opts.generation)
-            cal.report.setdefault("warnings", []).extend(f"mag: {w}"
-                                                          for w in mag_prepared.warnings)
+            cal.report.warnings.extend(f"mag: {w}" for w in mag_prepared.warnings)
             add_magnetometer(cal, mag_prepared, opts)
     if not cal.sensors:
         raise ApmcalError("nothing could be calibrated: "
-                          + "; ".join(cal.report.get("warnings", [])), contents.path)
+                          + "; ".join(cal.report.warnings), contents.path)
     if opts.generation is None and contents.format == "csv":
         return cal, None
     generation = opts.generation or firmware_generation(contents.params, contents.firmware)
     proposal = to_ardupilot_params(cal, generation, instance=recording.instance,
                                    current_params=contents.params)
-    withhold_undetermined(proposal, cal.report.get("undetermined", {}))
+    withhold_undetermined(proposal, cal.report.undetermined)
     cal.params = dict(proposal.values)
     return cal, proposal
 
@@ -325,12 +322,14 @@ def add_magnetometer(cal: Calibration, prepared: Prepared, opts: Options) -> Non
         cal.sensors["mag"] = calibrate_magnetometer(prepared.raw.xyz("mag"), opts.lat_deg,
                                                     opts.lon_deg, cal.report, opts.date)
     except ApmcalError as err:
-        cal.report.setdefault("warnings", []).append(err.why)
-        cal.report.setdefault("not_calibrated", {})["mag"] = err.why      # for the verdict
+        cal.report.warnings.append(err.why)
+        cal.report.not_calibrated["mag"] = err.why      # for the verdict
         return
-    cal.report["mag_coverage"] = mag_coverage(prepared.raw.xyz("mag"), cal.sensors["mag"])
+    cover = mag_coverage(prepared.raw.xyz("mag"), cal.sensors["mag"])
+    field = cal.report.magnetic_field
+    field.coverage_fraction, field.coverage_min_eig = cover["fraction"], cover["min_eig"]
     steps = {"mag": prepared.floor_steps["mag"]} if "mag" in prepared.floor_steps else {}
-    add_resolution_floor(cal, steps, {"mag": cal.report["mag_field_mgauss"]})
+    add_resolution_floor(cal, steps, {"mag": field.mgauss})
 
 
 def mag_coverage(mag: np.ndarray, cal) -> dict:

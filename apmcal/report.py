@@ -161,7 +161,7 @@ def print_calibration(calibration, proposal, console, verbose: bool = False) -> 
     from apmcal.verdict import judge
 
     print_verdict(judge(calibration, proposal), console)
-    used = calibration.report.get("recording")
+    used = calibration.report.recording
     console.print(Text.assemble(("method:", "bold"), f" {calibration.method}"
                                 + (f" on {used}" if used else "")))
     units = {"acc": "m/s²", "gyr": "rad/s", "mag": "mGauss"}
@@ -174,13 +174,17 @@ def print_calibration(calibration, proposal, console, verbose: bool = False) -> 
             console.print(Text("    matrix = " + str(cal.matrix).replace("\n", "\n             ")))
         if np.any(cal.drift):
             console.print(Text(f"    drift [{units[name]}/s] = {cal.drift}"))
-    for line in calibration.report.get("lines", []):     # identifiability, residuals, verdicts
+    from apmcal.report_lines import calibration_lines, verbose_lines
+
+    # identifiability, residuals, verdicts of the fits
+    for line in calibration_lines(calibration.report, calibration.sensors):
         if verbose or not is_technical(line):
             console.print(Text(f"  {line}"))
-    for line in calibration.report.get("warnings", []):
+    for line in calibration.report.warnings:
         console.print(Text.assemble("  ", ("warning:", "yellow"), f" {line}"))
     if verbose:
-        _print_misfit(calibration.report, console)
+        for line in verbose_lines(calibration.report):      # the six-face misfit, Earth rate
+            console.print(Text(f"  {line}"))
     if proposal is not None:
         console.print(Text(f"ArduPilot parameters ({proposal.generation}):", style="bold"))
         for name, value in proposal.values.items():
@@ -189,20 +193,3 @@ def print_calibration(calibration, proposal, console, verbose: bool = False) -> 
             console.print(Text.assemble("  ", ("not proposed", "red"), f" {name}: {why}"))
         for note in proposal.notes:
             console.print(Text(f"  note: {note}"))
-
-
-def _print_misfit(report: dict, console) -> None:
-    """The six-face model's misfit and the noise-only σ it widened (verbose only)."""
-    misfit = report.get("acc_misfit")
-    if not misfit:
-        return
-    console.print(Text(f"  acc: six-face model against {misfit['n_holds']} holds: χ² "
-                       f"{misfit['chi2']:.1f} on {misfit['dof']} checks (Birge ratio "
-                       f"{misfit['birge_ratio']:.2f}), largest residual "
-                       f"{misfit['worst_residual']:.4f} m/s²; extra scatter per hold "
-                       f"{_vector(misfit['tau'], '.2g')}, offset spread "
-                       f"{_vector(misfit['offset_spread'], '.2g')} m/s²"))
-    noise_only = report.get("acc_sigma_noise_only", {}).get("offset")
-    if noise_only is not None:
-        console.print(Text(f"  acc: offset ± from the noise alone {_vector(noise_only, '.2g')} "
-                           "m/s² (before the misfit)"))

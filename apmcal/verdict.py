@@ -30,6 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from apmcal.solvers.report_types import CalibrationReport, MagneticField
+
 GRADES = ("good", "usable", "redo")
 NAMES = {"acc": "accelerometer", "gyr": "gyroscope", "mag": "compass"}
 
@@ -78,11 +80,11 @@ def worst(verdicts: list[Verdict]) -> Verdict:
     return max(verdicts, key=lambda v: GRADES.index(v.grade))
 
 
-def accelerometer(cal, report: dict) -> Verdict:
+def accelerometer(cal, report: CalibrationReport) -> Verdict:
     """Verdict on an accelerometer calibration (see the module doc for the thresholds)."""
-    if "acc" in report.get("undetermined", {}):
+    if "acc" in report.undetermined:
         return Verdict("redo", f"the offsets could not be measured: "
-                               f"{report['undetermined']['acc']}", SIX_FACES)
+                               f"{report.undetermined['acc']}", SIX_FACES)
     sig = cal.sigma
     if "offset" not in sig:
         return Verdict("redo", "no uncertainty could be given for the offsets", SIX_FACES)
@@ -94,25 +96,25 @@ def accelerometer(cal, report: dict) -> Verdict:
                      "" if off <= ACC_OFFSET_SIGMA[0] else SIX_FACES),
              Verdict(_grade(mat, ACC_MATRIX_SIGMA), f"scales known to ±{100 * mat:.2f} %",
                      "" if mat <= ACC_MATRIX_SIGMA[0] else SIX_FACES)]
-    misfit = report.get("acc_misfit")
-    if misfit and misfit.get("birge_ratio", 0) > MISFIT_BIRGE:
+    misfit = report.six_face.misfit if report.six_face is not None else None
+    if misfit is not None and misfit.birge_ratio > MISFIT_BIRGE:
         found.append(Verdict(
-            "usable", f"the model does not fit: the holds disagree {misfit['birge_ratio']:.0f}× "
-                      f"more than their noise allows (up to {misfit['worst_residual']:.3f} m/s²), "
+            "usable", f"the model does not fit: the holds disagree {misfit.birge_ratio:.0f}× "
+                      f"more than their noise allows (up to {misfit.worst:.3f} m/s²), "
                       "so the ± values were widened to cover it (a board warming up between "
                       "holds, faces not square, or a sensor not quite linear)",
             "let the board warm up for 5 minutes before calibrating, then hold each face "
             "square and still"))
-    noisy = [w for w in report.get("warnings", []) if w.startswith("hold ")]
+    noisy = [w for w in report.warnings if w.startswith("hold ")]
     if noisy:
         found.append(Verdict("usable", noisy[0], "hold each face still and square"))
     return worst(found)
 
 
-def gyroscope(cal, report: dict) -> Verdict:
+def gyroscope(cal, report: CalibrationReport) -> Verdict:
     """Verdict on a gyro calibration (offset σ; a missing or odd full turn)."""
-    if "gyr" in report.get("undetermined", {}):
-        return Verdict("redo", report["undetermined"]["gyr"], "keep the vehicle still longer")
+    if "gyr" in report.undetermined:
+        return Verdict("redo", report.undetermined["gyr"], "keep the vehicle still longer")
     sig = cal.sigma.get("offset")
     if sig is None:
         return Verdict("redo", "no uncertainty could be given for the offsets",
@@ -121,8 +123,7 @@ def gyroscope(cal, report: dict) -> Verdict:
     found = [Verdict(_grade(off, GYR_OFFSET_SIGMA),
                      f"offsets known to ±{off:.4f} rad/s ({np.degrees(off):.2f} °/s)",
                      "" if off <= GYR_OFFSET_SIGMA[0] else "keep the vehicle stiller, longer")]
-    turns = [w for w in report.get("warnings", []) if w.startswith(("no 360° rotation",
-                                                                   "rotation about"))]
+    turns = [w for w in report.warnings if w.startswith(("no 360° rotation", "rotation about"))]
     if turns:
         found.append(Verdict("usable", turns[0] + " (ArduPilot stores gyro offsets only, so "
                                                   "this costs the report, not the vehicle)",
@@ -131,17 +132,19 @@ def gyroscope(cal, report: dict) -> Verdict:
     return worst(found)
 
 
-def compass(cal, report: dict) -> Verdict:
+def compass(cal, report: CalibrationReport) -> Verdict:
     """Verdict on a compass calibration (coverage of directions, offset σ vs the field)."""
-    cover = report.get("mag_coverage", {})
-    field = float(report.get("mag_field_mgauss") or np.nan)
+    mf = report.magnetic_field or MagneticField(np.nan, "")
+    field = float(mf.mgauss)
+    min_eig = 1.0 if mf.coverage_min_eig is None else mf.coverage_min_eig
+    fraction = 1.0 if mf.coverage_fraction is None else mf.coverage_fraction
     found = []
-    if cover.get("min_eig", 1.0) < MIN_MAG_EIG:
+    if min_eig < MIN_MAG_EIG:
         found.append(Verdict("redo", "the compass was barely turned: its readings lie close to "
                                      "one plane, so offsets and soft iron across it are "
                                      "guesses", TURN_COMPASS))
-    elif cover.get("fraction", 1.0) < MIN_MAG_FRACTION:
-        found.append(Verdict("usable", f"the compass saw only {100 * cover['fraction']:.0f} % "
+    elif fraction < MIN_MAG_FRACTION:
+        found.append(Verdict("usable", f"the compass saw only {100 * fraction:.0f} % "
                                        "of the directions", TURN_COMPASS))
     sig = cal.sigma.get("offset")
     if sig is not None and field > 0:
@@ -150,7 +153,7 @@ def compass(cal, report: dict) -> Verdict:
                              f"offsets known to ±{np.max(sig):.1f} mGauss "
                              f"({100 * rel:.2g} % of the field)",
                              "" if rel <= MAG_OFFSET_SIGMA[0] else TURN_COMPASS))
-    mismatch = [w for w in report.get("warnings", []) if "field magnitude is" in w]
+    mismatch = [w for w in report.warnings if "field magnitude is" in w]
     if mismatch:
         found.append(Verdict("usable", "the field the compass saw differs from the model's at "
                                        "this site", "check --lat/--lon, then look for iron or "
@@ -171,7 +174,7 @@ def judge(calibration, proposal=None) -> dict[str, Verdict]:
     report = calibration.report
     out = {name: JUDGES[name](cal, report) for name, cal in calibration.sensors.items()
            if name in JUDGES}
-    for name, why in report.get("not_calibrated", {}).items():
+    for name, why in report.not_calibrated.items():
         out[name] = Verdict("redo", f"not calibrated: {why}",
                             TURN_COMPASS if name == "mag" else SIX_FACES)
     for name in _refused(proposal):

@@ -45,7 +45,7 @@ def main() -> None:
         cal = calibrate(rec, Options(method="ferraris", lat_deg=LAT))
         for k, z in sigma_z(truth, cal, vehicle).items():
             groups.setdefault(k, []).extend(np.abs(z))
-        noise_only = cal.report["acc_sigma_noise_only"]["offset"]
+        noise_only = cal.report.six_face.sigma_noise_only["offset"]
         widening.append(cal.sensors["acc"].sigma["offset"] / noise_only)
     every = np.concatenate([np.asarray(v) for v in groups.values()])
     print(f"{args.seeds} seeds, {'nominal effects' if args.nominal else 'every effect'} on")

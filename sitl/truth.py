@@ -332,13 +332,16 @@ class Truth:
         return np.asarray(self.mag_soft_iron, float) if self.on("mag_soft_iron") else np.eye(3)
 
     def sensor_calibrations(self) -> dict[str, SensorCalibration]:
-        """The truth in the project convention calibrated = M @ (measured − offset − drift·t)."""
+        """The truth in the project convention calibrated = M @ (measured − offset − drift·t −
+        G·f), f the true specific force (board frame; what the calibrated accelerometer gives)."""
         z = np.zeros(3)
         acc = SensorCalibration(offset=self.acc_bias if self.on("acc_bias") else z,
                                 matrix=np.linalg.inv(self.acc_forward()))
         gyr = SensorCalibration(offset=self.gyro_bias if self.on("gyro_bias") else z,
                                 matrix=np.linalg.inv(self.gyro_forward()),
-                                drift=self.gyro_bias_drift if self.on("gyro_bias_drift") else z)
+                                drift=self.gyro_bias_drift if self.on("gyro_bias_drift") else z,
+                                g_sensitivity=(self.g_sensitivity if self.on("g_sensitivity")
+                                               else np.zeros((3, 3))))
         mag = SensorCalibration(offset=self.mag_hard_iron if self.on("mag_hard_iron") else z,
                                 matrix=np.linalg.inv(self.mag_forward()))
         return {"acc": acc, "gyr": gyr, "mag": mag}

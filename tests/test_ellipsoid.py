@@ -13,9 +13,9 @@ from apmcal.solvers.ellipsoid import (
     fit_ellipsoid_analytical,
     fit_ellipsoid_numerical,
     fit_ellipsoid_robust,
+    fit_report,
     gyro_offset,
     relative_mse,
-    verdict,
 )
 from apmcal.solvers.result import Calibration
 from apmcal.solvers.uncertainty import bootstrap, covariance_from_jacobian
@@ -35,6 +35,14 @@ def simulate(n=600, noise=1.0, seed=0, mask=None):
     if mask is not None:
         d = d[mask(d)]
     return (R * d) @ W_TRUE.T + V0_TRUE + rng.normal(scale=noise, size=d.shape)
+
+
+def verdict(samples, cal, radius, *, sensor="sensor", info=None) -> list[str]:
+    """The report's lines on an ellipsoid fit, from the numbers the solver gives."""
+    from apmcal.report_lines import ellipsoid_lines
+
+    return ellipsoid_lines(sensor, fit_report(samples, cal, radius, info),
+                           cal.sigma.get("offset"))
 
 
 def errors(cal):
@@ -158,11 +166,13 @@ def test_wrapper_builds_a_calibration_that_round_trips(tmp_path):
     cal = ellipsoid_calibration({"mag": simulate(seed=5), "gyr": rng.normal(size=(200, 3))},
                                 {"mag": R}, holdout=0.5, rng=0)
     assert cal.method == "ellipsoid"
-    rep = cal.report["mag"]
-    assert rep["relative_mse_calibrated"] < rep["relative_mse_raw"] / 10
+    score = cal.report.ellipsoids["mag"].score
+    assert score.calibrated < score.raw / 10 and score.scored_on == "held-out"
+    assert cal.report.gyro_offset_only
     cal.save(tmp_path / "c.json")
     back = Calibration.load(tmp_path / "c.json")
     np.testing.assert_allclose(back.sensors["mag"].matrix, cal.sensors["mag"].matrix)
+    assert back.report.ellipsoids["mag"].score == score
 
 
 # --- uncertainty helpers -------------------------------------------------------------------
@@ -280,14 +290,14 @@ def test_bootstrap_counts_failed_refits_and_says_so(monkeypatch):
 
 
 def test_few_residual_degrees_of_freedom_are_flagged():
-    from apmcal.solvers.ellipsoid import few_residuals_line
+    from apmcal.report_lines import calibration_lines, few_residuals_lines
 
-    assert few_residuals_line("acc", 100, 9) == []
-    assert "only 1 residual degree" in few_residuals_line("acc", 7, 6)[0]
-    assert "no residual is left" in few_residuals_line("acc", 6, 9)[0]
+    assert few_residuals_lines("acc", 100, 9) == []
+    assert "only 1 residual degree" in few_residuals_lines("acc", 7, 6)[0]
+    assert "no residual is left" in few_residuals_lines("acc", 6, 9)[0]
     cal = ellipsoid_calibration({"acc": simulate(n=7, noise=0.5, seed=2)}, {"acc": R})
     assert any("residual degree" in line or "no residual" in line
-               for line in cal.report["lines"])
+               for line in calibration_lines(cal.report, cal.sensors))
 
 
 def test_second_order_bias_removed_on_a_half_sphere():
@@ -318,21 +328,28 @@ def test_debiasing_leaves_a_noise_free_fit_alone():
 
     s = simulate(n=300, noise=0.0)
     cal = fit_ellipsoid_robust(s, R)
-    out, line = debiased(lambda x: fit_ellipsoid_robust(x, R), s, cal, R)
+    from apmcal.report_lines import debias_line
+
+    out, shift = debiased(lambda x: fit_ellipsoid_robust(x, R), s, cal, R)
     np.testing.assert_allclose(out.offset, cal.offset, atol=1e-6)
     np.testing.assert_allclose(out.matrix, cal.matrix, atol=1e-9)
-    assert "antithetic" in line
+    np.testing.assert_allclose(shift.offset_shift, out.offset - cal.offset, atol=1e-12)
+    assert "antithetic" in debias_line(shift)
 
 
 def test_magnetometer_reports_the_papers_figure_of_merit_on_held_out_blocks():
     """calibrate_magnetometer scores seed 000's relative MSE on blocks the fit never saw: it must
     fall from the raw value to about (noise / field)² = (1/500)² = 4e-6 for this simulation."""
-    from apmcal.solvers.magnetometer import calibrate_magnetometer, held_out_line
+    from apmcal.report_lines import calibration_lines, score_line
+    from apmcal.solvers.magnetometer import calibrate_magnetometer, held_out_score
+    from apmcal.solvers.report_types import CalibrationReport
 
     s = simulate(n=2000, noise=1.0)
-    report: dict = {}
-    calibrate_magnetometer(s, None, None, report)
-    (line,) = [ln for ln in report["lines"] if "held-out" in ln]
+    report = CalibrationReport()
+    cal = calibrate_magnetometer(s, None, None, report)
+    (line,) = [ln for ln in calibration_lines(report, {"mag": cal}) if "held-out" in ln]
     raw, calibrated = (float(v) for v in re.findall(r"raw (\S+) → (\S+) on", line)[0])
     assert raw > 1e-3 and calibrated < 8e-6
-    assert "no held-out score" in held_out_line(s[:, :1] * [1, 0, 0], R, "symmetric")
+    assert report.ellipsoids["mag"].held_out.raw == pytest.approx(raw, rel=1e-2)
+    failed = held_out_score(s[:, :1] * [1, 0, 0], R, "symmetric")
+    assert failed.failed and "no held-out score" in score_line("mag", failed)

@@ -135,18 +135,19 @@ def test_simulated_session_recovered_with_drift_and_earth_rate():
                            k_ga=KGA_TRUE, lat_deg=90.0)     # pole: no horizontal Earth rate
     cal = ferraris(t, acc, gyr, lat_deg=90.0, gravity=G)
     a, g = cal.sensors["acc"], cal.sensors["gyr"]
-    assert sorted(cal.report["poses"]) == sorted(POSES)
+    assert sorted(cal.report.holds.used) == sorted(POSES)
     np.testing.assert_allclose(a.matrix, np.linalg.inv(F_TRUE), atol=3e-4)
     np.testing.assert_allclose(a.offset, BA_TRUE, atol=3e-3)
     assert np.all(np.abs(a.offset - BA_TRUE) < 5 * a.sigma["offset"] + 1e-4)
     np.testing.assert_allclose(g.drift, B1_TRUE, atol=2e-6)
     np.testing.assert_allclose(g.offset, B0_TRUE + B1_TRUE * g.t_ref, atol=5e-5)
-    np.testing.assert_allclose(cal.report["gyr_g_sensitivity"], KGA_TRUE, atol=2e-5)
+    np.testing.assert_allclose(g.g_sensitivity, KGA_TRUE, atol=2e-5)
+    assert np.all(np.abs(g.g_sensitivity - KGA_TRUE) < 5 * g.sigma["g_sensitivity"])
     np.testing.assert_allclose(g.matrix, np.linalg.inv(E_TRUE), atol=1e-3)
     assert np.all(np.abs(g.matrix - np.linalg.inv(E_TRUE)) < 5 * g.sigma["matrix"] + 1e-4)
-    assert cal.report["warnings"] == []
+    assert cal.report.warnings == []
     # the calibration applied to the raw gyro gives the true rate (no drift left)
-    assert set(cal.report["rotations"]) == {"x", "y", "z"}
+    assert set(cal.report.rotations) == {"x", "y", "z"}
 
 
 def test_drift_ignored_biases_the_classic_ferraris():
@@ -166,10 +167,10 @@ def test_vertical_earth_rate_is_indistinguishable_from_g_sensitivity():
     t, acc, gyr = simulate(lat_deg=90.0, gyr_noise=3e-5, acc_noise=1e-3)   # effect: Ω/g = 7.4e-6
     with_er = ferraris(t, acc, gyr, lat_deg=90.0, gravity=G, bias_drift=False)
     without = ferraris(t, acc, gyr, gravity=G, bias_drift=False, earth_rate=False)
-    np.testing.assert_allclose(with_er.report["gyr_g_sensitivity"], 0, atol=3e-7)
-    np.testing.assert_allclose(without.report["gyr_g_sensitivity"], EARTH_RATE / G * np.eye(3),
+    np.testing.assert_allclose(with_er.sensors["gyr"].g_sensitivity, 0, atol=3e-7)
+    np.testing.assert_allclose(without.sensors["gyr"].g_sensitivity, EARTH_RATE / G * np.eye(3),
                                atol=3e-7)
-    assert any("latitude unknown" in w for w in ferraris(t, acc, gyr).report["warnings"])
+    assert any("latitude unknown" in w for w in ferraris(t, acc, gyr).report.warnings)
 
 
 def test_sigma_matches_monte_carlo():
@@ -205,21 +206,21 @@ def test_missing_rotation_is_reported():
     keep = t < 48.0                      # six faces, no full turn yet
     cal = ferraris(t[keep], acc[keep], gyr[keep], gravity=G)
     assert np.array_equal(cal.sensors["gyr"].matrix, np.eye(3))
-    assert any("no 360° rotation" in w for w in cal.report["warnings"])
+    assert any("no 360° rotation" in w for w in cal.report.warnings)
 
 
 def test_motion_during_hold_is_flagged():
     t, acc, gyr = simulate(f_mat=F_TRUE)
     segs = {}
     cal = ferraris(t, acc, gyr, gravity=G)
-    for name, (start, end, _) in cal.report["poses"].items():
-        i0, i1 = np.searchsorted(t, [start, end + 1e-9])
+    for name, hold in cal.report.holds.used.items():
+        i0, i1 = np.searchsorted(t, [hold.start_s, hold.end_s + 1e-9])
         a = acc.copy()
         if name == "y_a":
             a[i0:i1] += np.random.default_rng(1).normal(0, 0.2, (i1 - i0, 3))
         segs[name] = make_segment(t, a, gyr, i0, i1)
     noisy = ferraris(t, acc, gyr, segments=segs, gravity=G)
-    assert any(w.startswith("hold y_a noisy") for w in noisy.report["warnings"])
+    assert any(w.startswith("hold y_a noisy") for w in noisy.report.warnings)
 
 
 # ----------------------------------------------------------------------------- imucal
@@ -268,7 +269,7 @@ def test_matches_imucal_on_its_example_session(imucal_session):
     assert _rel(a.offset, ref[1]) < 1e-12
     assert _rel(g.matrix, ref[2]) < 1e-12
     assert _rel(np.degrees(g.offset), ref[3]) < 1e-12                      # imucal: deg/s
-    assert _rel(np.degrees(cal.report["gyr_g_sensitivity"]), ref[4]) < 1e-12
+    assert _rel(np.degrees(cal.sensors["gyr"].g_sensitivity), ref[4]) < 1e-12
 
 
 def test_matches_imucal_snapshot(shared_data):
@@ -291,7 +292,7 @@ def test_matches_imucal_snapshot(shared_data):
     assert _rel(cal.sensors["acc"].offset, ref[1]) < 1e-12
     assert _rel(cal.sensors["gyr"].matrix, ref[2]) < 1e-12
     assert _rel(np.degrees(cal.sensors["gyr"].offset), ref[3]) < 1e-12
-    assert _rel(np.degrees(cal.report["gyr_g_sensitivity"]), ref[4]) < 1e-12
+    assert _rel(np.degrees(cal.sensors["gyr"].g_sensitivity), ref[4]) < 1e-12
 
 
 def test_reproduces_imucal_calibrated_example_output(shared_data, imucal_session):
@@ -306,8 +307,9 @@ def test_reproduces_imucal_calibrated_example_output(shared_data, imucal_session
     n = len(expected)
     acc_cal = cal.sensors["acc"].apply(acc[:n])
     g = cal.sensors["gyr"]
-    # g-sensitivity is not part of SensorCalibration: remove it before applying (imucal's order)
-    gyr_cal = g.apply(np.radians(gyr_deg[:n]) - acc_cal @ cal.report["gyr_g_sensitivity"].T)
+    # the g-sensitivity acts on the calibrated specific force (imucal's order)
+    gyr_cal = g.apply(np.radians(gyr_deg[:n]), acc=acc_cal)
+    np.testing.assert_allclose(cal.apply("gyr", np.radians(gyr_deg[:n]), acc=acc[:n]), gyr_cal)
     np.testing.assert_allclose(acc_cal, expected[["acc_x", "acc_y", "acc_z"]], rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(np.degrees(gyr_cal), expected[["gyr_x", "gyr_y", "gyr_z"]],
                                rtol=1e-10, atol=1e-12)
@@ -333,4 +335,4 @@ def test_drift_and_auto_sections_versus_imucal(imucal_session):
     assert _rel(auto.sensors["acc"].matrix, ref[0]) < 3e-3
     assert _rel(auto.sensors["acc"].offset, ref[1]) < 3e-3
     assert _rel(auto.sensors["gyr"].matrix, ref[2]) < 1e-3
-    assert any("Q" in w for w in ferraris(t, acc, gyr).report["warnings"])
+    assert any("Q" in w for w in ferraris(t, acc, gyr).report.warnings)

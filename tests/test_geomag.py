@@ -12,6 +12,7 @@ from pygeomag import GeoMag
 
 from apmcal.geomag import decimal_year, earth_field_ned
 from apmcal.pipeline import Options, calibrate_log
+from apmcal.report_lines import calibration_lines
 from apmcal.sources import read_log
 
 LOGS = Path(__file__).resolve().parents[1] / "logs"
@@ -58,8 +59,9 @@ def test_an_old_recording_is_calibrated_with_the_field_of_its_date(tmp_path):
     log.write_bytes(bytes(data))
     cal, _ = calibrate_log(read_log(log), Options(lat_deg=ACCRA[0], lon_deg=ACCRA[1]))
     assert "mag" in cal.sensors
-    assert "mag: field magnitude" in " ".join(cal.report["lines"])
-    assert "WMM at recording date 2018-06-01" in " ".join(cal.report["lines"])
+    text = " ".join(calibration_lines(cal.report, cal.sensors))
+    assert "mag: field magnitude" in text and "WMM at recording date 2018-06-01" in text
+    assert cal.report.magnetic_field.source == "WMM at recording date 2018-06-01"
     field_2018 = np.linalg.norm(earth_field_ned(*ACCRA, 0.0, decimal_year(
         datetime.date(2018, 6, 1)))[0])
-    assert cal.report["mag_field_mgauss"] == pytest.approx(field_2018)
+    assert cal.report.magnetic_field.mgauss == pytest.approx(field_2018)

@@ -7,12 +7,18 @@ import pytest
 from apmcal.constants import EARTH_RATE, STANDARD_GRAVITY, earth_rate_ned
 from apmcal.errors import ApmcalError
 from apmcal.preprocessing.highpass import highpass
+from apmcal.report_lines import calibration_lines
 from apmcal.solvers.one_position import c_ecef_to_ned, one_position_calibration
 from apmcal.solvers.result import Calibration
 
 G = STANDARD_GRAVITY
 KUMASI_LAT = 6.6885      # seed 002's site (KNUST, Kumasi); Table 2's τ = 8.5258 ≈ cot(lat)
 FS = 50.0
+
+
+def lines(cal) -> list[str]:
+    """The report's lines on ``cal`` (words made from the solver's numbers)."""
+    return calibration_lines(cal.report, cal.sensors)
 
 
 def still(n=3000, acc_bias=(0.1, -0.2, 0.3), gyr_bias=(2e-3, -1e-3, 5e-4), lat=KUMASI_LAT,
@@ -54,8 +60,8 @@ def test_accelerometer_steps_worked_by_hand():
     assert abs(b[2] - (m[0] ** 2 + m[1] ** 2) / (2 * g)) < 1e-3     # NOT the true 0.3 m/s²
     assert abs(mu - 1) < 1e-4 and abs(beta) < 1e-4 and abs(gamma) < 1e-4
     # Table 4's "proposed" matrix in the paper's sign convention: ≈ −I
-    np.testing.assert_allclose(cal.report["acc"]["F_paper_convention"], -np.eye(3), atol=1e-4)
-    assert abs(cal.report["acc"]["mu_literal"]) < 1e-3                # literal reading: singular
+    np.testing.assert_allclose(cal.report.one_position.acc.F_paper_convention, -np.eye(3), atol=1e-4)
+    assert abs(cal.report.one_position.acc.mu_literal) < 1e-3                # literal reading: singular
     # the calibrated still record reads (0, 0, −‖mean‖): true by construction, not a check of truth
     np.testing.assert_allclose(cal.apply("acc", m[None])[0], [0, 0, -g], atol=1e-3)
 
@@ -63,7 +69,7 @@ def test_accelerometer_steps_worked_by_hand():
 def test_gyro_reproduces_table_2_tau_from_latitude_alone():
     t, acc, gyr = still(gyr_noise=0.0)
     cal = one_position_calibration(t, acc, gyr, lat_deg=KUMASI_LAT, lon_deg=-1.57)
-    tau, xi, nu = cal.report["gyr"]["tau_xi_nu"]
+    tau, xi, nu = cal.report.one_position.gyr.tau_xi_nu
     assert tau == pytest.approx(8.5258, abs=0.01)             # seed 002 Table 2, "proposed"
     assert abs(xi) < 1e-6 and abs(nu) < 1e-6                  # R_f = 0 for a constant signal
     # bias = mean = true bias + Earth rate (the method cannot tell them apart)
@@ -71,9 +77,9 @@ def test_gyro_reproduces_table_2_tau_from_latitude_alone():
                                np.array([2e-3, -1e-3, 5e-4]) + earth_rate_ned(KUMASI_LAT),
                                atol=1e-12)
     # E is the recipe's artefact (τ = cot φ, ν ≈ 0): reported, never applied
-    np.testing.assert_allclose(cal.report["gyr"]["E"][0, 2], tau)
+    np.testing.assert_allclose(cal.report.one_position.gyr.E[0, 2], tau)
     np.testing.assert_allclose(cal.sensors["gyr"].matrix, np.eye(3))
-    assert any("gyro matrix left at identity" in line for line in cal.report["lines"])
+    assert any("gyro matrix left at identity" in line for line in lines(cal))
 
 
 def test_gyro_offset_sigma_is_the_standard_error_of_the_mean():
@@ -88,8 +94,8 @@ def test_report_tells_what_one_pose_cannot_determine(tmp_path):
     t, acc, gyr = still(gyr_noise=1e-3)
     cal = one_position_calibration(t, acc, gyr, lat_deg=51.5)
     cal.save(tmp_path / "static.json")                       # report must be JSON-able
-    assert Calibration.load(tmp_path / "static.json").report["lines"] == cal.report["lines"]
-    text = "\n".join(cal.report["lines"])
+    assert lines(Calibration.load(tmp_path / "static.json")) == lines(cal)
+    text = "\n".join(lines(cal))
     assert "acc: 1 pose(s), 9 parameters" in text and "rank 3 of 9" in text
     assert "b_x, F_xz cannot be separated" in text
     assert "gyr: F_zz not determinable at 0.001 rad/s resolution" in text
@@ -101,8 +107,8 @@ def test_tilted_platform_is_flagged():
     c, s = np.cos(np.radians(8)), np.sin(np.radians(8))
     acc = acc @ np.array([[1, 0, 0], [0, c, -s], [0, s, c]]).T
     cal = one_position_calibration(t, acc, gyr)
-    assert any("NOT LEVEL" in line for line in cal.report["lines"])
-    assert any("no latitude" in line for line in cal.report["lines"])
+    assert any("NOT LEVEL" in line for line in lines(cal))
+    assert any("no latitude" in line for line in lines(cal))
 
 
 @pytest.mark.parametrize("case", ["short", "shape", "nan", "equator"])
@@ -135,10 +141,10 @@ def test_real_still_minute_from_dataflash(shared_data):
     # the paper's bias on real data: the mean, minus the gravity reading on z
     np.testing.assert_allclose(cal.sensors["acc"].offset[:2], m[:2], atol=0.01)
     np.testing.assert_allclose(cal.sensors["gyr"].offset, gyr.mean(axis=0), atol=1e-4)
-    assert cal.report["fs_hz"] == pytest.approx(50.0, rel=0.05)
+    assert cal.report.one_position.fs_hz == pytest.approx(50.0, rel=0.05)
     # |a| ≈ 8.4 m/s² here (uncalibrated accel): step 7 takes g := ‖mean‖ and hides it
-    assert cal.report["acc"]["g"] == pytest.approx(np.linalg.norm(m))
-    assert cal.report["acc"]["g"] < 9.0
+    assert cal.report.one_position.acc.g == pytest.approx(np.linalg.norm(m))
+    assert cal.report.one_position.acc.g < 9.0
 
 
 def test_body_to_sensor_gives_the_same_calibrated_samples():

@@ -127,7 +127,7 @@ def test_calibrate_log_uses_only_samples_after_a_param_change():
     cut = float(rec.t[0] + 0.5 * rec.duration)
     contents.param_changes = [_change(cut, "INS_GYROFFS_Y")]
     cal, _ = calibrate_log(contents)
-    assert any("only the" in w and f"t={cut:.3f} s" in w for w in cal.report["warnings"])
+    assert any("only the" in w and f"t={cut:.3f} s" in w for w in cal.report.warnings)
     expected = calibrate(replace(rec, data=rec.data[rec.data["t"] > cut]))
     np.testing.assert_allclose(cal.sensors["gyr"].offset, expected.sensors["gyr"].offset)
 

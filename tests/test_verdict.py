@@ -8,6 +8,7 @@ import pytest
 from sitl_helpers import session_recording, sigma_z
 
 from apmcal.pipeline import Options, calibrate
+from apmcal.solvers.report_types import CalibrationReport, MagneticField
 from apmcal.solvers.result import Calibration, SensorCalibration
 from apmcal.verdict import compass, judge
 
@@ -54,7 +55,8 @@ def test_compass_not_turned_is_redo():
                                           ({"min_eig": 0.6, "fraction": 0.9}, "good")])
 def test_compass_coverage_rules(cover, grade):
     cal = SensorCalibration(sigma={"offset": [0.5] * 3})
-    v = compass(cal, {"mag_coverage": cover, "mag_field_mgauss": 400.0})
+    field = MagneticField(400.0, "WMM", cover["fraction"], cover["min_eig"])
+    v = compass(cal, CalibrationReport(magnetic_field=field))
     assert v.grade == grade, v
 
 
@@ -92,7 +94,7 @@ def test_the_coverage_check_can_fail(every_effect):
     z = []
     for truth, cal, _ in every_effect:
         err = cal.sensors["acc"].offset - truth.sensor_calibrations()["acc"].offset
-        z.extend(np.abs(err) / cal.report["acc_sigma_noise_only"]["offset"])
+        z.extend(np.abs(err) / cal.report.six_face.sigma_noise_only["offset"])
     assert np.mean(np.array(z) < 3) < 0.2 and np.median(z) > 10
 
 
@@ -100,10 +102,10 @@ def test_sigma_not_inflated_on_a_clean_session():
     for seed in (1, 2, 3):
         truth, cal, vehicle = calibrated(seed, *CLEAN)
         acc = cal.sensors["acc"].sigma
-        noise_only = cal.report["acc_sigma_noise_only"]
+        noise_only = cal.report.six_face.sigma_noise_only
         assert np.allclose(acc["offset"], noise_only["offset"])
         assert np.allclose(acc["matrix"], noise_only["matrix"])
-        assert cal.report["acc_misfit"]["birge_ratio"] < 1.5
+        assert cal.report.six_face.misfit.birge_ratio < 1.5
         z = np.abs(np.concatenate(list(sigma_z(truth, cal, vehicle).values())))
         assert np.mean(z < 3) >= 0.9
 

@@ -27,6 +27,7 @@ from typing import Callable
 
 import numpy as np
 
+from apmcal.solvers.report_types import Debias
 from apmcal.solvers.result import SensorCalibration
 
 DEFAULT_PAIRS = 4
@@ -77,12 +78,10 @@ def second_order_bias(fit: Callable[[np.ndarray], SensorCalibration], samples: n
 
 def debiased(fit: Callable[[np.ndarray], SensorCalibration], samples: np.ndarray,
              cal: SensorCalibration, radius: float, pairs: int = DEFAULT_PAIRS,
-             rng=None) -> tuple[SensorCalibration, str]:
-    """``cal`` with its second-order bias subtracted, and a report line saying by how much."""
+             rng=None) -> tuple[SensorCalibration, Debias]:
+    """``cal`` with its second-order bias subtracted, and by how much (for the report)."""
     d_offset, d_matrix = second_order_bias(fit, samples, cal, radius, pairs, rng)
     out = SensorCalibration(offset=cal.offset - d_offset, matrix=cal.matrix - d_matrix,
                             drift=cal.drift, t_ref=cal.t_ref, sigma=dict(cal.sigma))
-    line = (f"second-order fit bias removed ({pairs} antithetic refit pairs): offset by "
-            f"{np.array2string(-d_offset, precision=3)}, matrix by up to "
-            f"{np.max(np.abs(d_matrix)):.2g}")
-    return out, line
+    return out, Debias(offset_shift=-d_offset, matrix_shift_max=float(np.max(np.abs(d_matrix))),
+                       pairs=pairs)

@@ -1,4 +1,4 @@
-"""Robust geometric ellipsoid fit with uncertainty and a plain-words verdict.
+"""Robust geometric ellipsoid fit with uncertainty and the numbers it is judged by.
 
 Improves on seed 000's two estimators in three ways:
 
@@ -35,6 +35,7 @@ from apmcal.solvers.ellipsoid_paper import (
     params_to_matrix,
     sphere_fit,
 )
+from apmcal.solvers.report_types import Coverage, EllipsoidFit, Residuals
 from apmcal.solvers.result import SensorCalibration
 from apmcal.solvers.uncertainty import bootstrap, covariance_from_normal_equations
 
@@ -487,56 +488,29 @@ def _bootstrap_sigma(fit: _Fit, loss, mode, reject_sigma, n_bootstrap: int, rng,
             "sigma describes only the resamples that could be fitted")
 
 
-def verdict(samples, cal: SensorCalibration, radius: float, *, sensor: str = "sensor",
-            noise: float | None = None, info: dict | None = None) -> list[str]:
-    """Plain-words judgement of an ellipsoid calibration, one line per finding.
+def fit_report(samples, cal: SensorCalibration, radius: float, info: dict | None = None,
+               method: str = "") -> EllipsoidFit:
+    """The numbers an ellipsoid calibration is judged by (:func:`apmcal.report_lines.
+    ellipsoid_lines` words them): coverage and residuals of the calibrated ``samples``
+    [sensor units], and the fit's internals from its ``info`` on these same samples.
 
-    Checks coverage (scatter eigenvalues, sphere fraction), residual size (motion during
-    "static" holds, wrong radius) and relative parameter uncertainty.
-
-    Parameters
-    ----------
-    noise : float, optional
-        Expected per-sample noise [sensor units]; residual RMS above 5× this is flagged.
-    info : dict, optional
-        The fit's info on these same ``samples``: its notes are added, and its coverage's
-        ``spread_eig`` (the samples' own shape, whatever the centre) is reused.
+    The coverage eigenvalues are the smaller of the calibrated samples' scatter (which exposes a
+    collapsed fit) and the raw samples' own shape (``info``'s ``spread_eig``, whatever the centre).
     """
     s = check_samples(samples, 1)
-    lines = []
+    info = info or {}
     calibrated = cal.apply(s)
-    cov = direction_coverage(calibrated, np.zeros(3))   # calibrated: exposes a collapse
-    shape_eig = (info["coverage"]["spread_eig"] if info and "coverage" in info
+    cov = direction_coverage(calibrated, np.zeros(3))
+    shape_eig = (info["coverage"]["spread_eig"] if "coverage" in info
                  else direction_coverage(s, cal.offset, fraction=False)["spread_eig"])
-    eig, frac = np.minimum(cov["scatter_eig"], shape_eig), cov["fraction"]
-    lines.append(f"{sensor}: {len(s)} samples, directions cover {100 * frac:.0f}% of the sphere "
-                 f"(20° cones), coverage eigenvalues {np.array2string(eig, precision=2)} "
-                 "(1 = uniform)")
-    if eig[0] < MIN_SCATTER_FULL:
-        lines.append(f"{sensor}: POORLY DETERMINED — samples lie close to a plane or a few "
-                     "directions; cross-axis terms (and the offset along the missing direction) "
-                     "cannot be trusted: add orientations")
-    elif eig[0] < 0.3:
-        lines.append(f"{sensor}: uneven coverage — the fit is weighted toward the densest "
-                     "directions (seed 000 §VII.C); more orientations would help")
     e = np.linalg.norm(calibrated, axis=1) - radius
-    rms = float(np.sqrt(np.mean(e ** 2)))
     spread = float(1.4826 * np.median(np.abs(e - np.median(e))))     # robust σ (MAD)
     n_out = int(np.sum(np.abs(e - np.median(e)) > 5 * max(spread, 1e-12 * radius)))
-    lines.append(f"{sensor}: residual |calibrated| − {radius:.4g}: RMS {rms:.4g} "
-                 f"({100 * rms / radius:.2f}% of the field), robust σ {spread:.4g}, "
-                 f"{n_out} outliers (> 5σ)")
-    if (noise is not None and spread > 5 * noise) or spread > 0.05 * radius:
-        lines.append(f"{sensor}: LARGE RESIDUAL — motion during the static holds, a disturbed "
-                     "field, or the wrong radius")
-    if n_out > 0.05 * len(s):
-        lines.append(f"{sensor}: {100 * n_out / len(s):.0f}% outliers — motion during "
-                     "\"static\" samples or magnetic disturbances; check the data")
-    if "offset" in cal.sigma:
-        so = cal.sigma["offset"]
-        lines.append(f"{sensor}: offset ± {np.array2string(so, precision=3)} (1σ)")
-        if np.any(so > 0.05 * radius):
-            lines.append(f"{sensor}: POORLY DETERMINED offset (1σ > 5% of the field)")
-    if info:
-        lines += [f"{sensor}: {n}" for n in info.get("notes", [])]
-    return lines
+    return EllipsoidFit(
+        radius=float(radius), method=info.get("method", method),
+        parameterisation=info.get("parameterisation", ""), samples=len(s),
+        n_params=info.get("n_params"), rms=info.get("rms"), cond=info.get("cond"),
+        rank=info.get("rank"), start=info.get("start"), f_scale=info.get("f_scale"),
+        outlier_fraction=info.get("outlier_fraction"), notes=list(info.get("notes", [])),
+        coverage=Coverage(cov["fraction"], np.minimum(cov["scatter_eig"], shape_eig)),
+        residuals=Residuals(len(s), float(np.sqrt(np.mean(e ** 2))), spread, n_out))

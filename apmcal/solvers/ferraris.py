@@ -28,7 +28,7 @@ the constant-bias (imucal) matrix is off by 7.6e-3, ours by 6e-5 (tests/test_fer
 Earth rate: with only the latitude known, the component Ω sin φ along "up" (taken from the
 accelerometer) is removed from every static mean; the horizontal component Ω cos φ needs the
 heading, which a hand-held session does not give, so it is left in the bias (≤ 7.3e-5 rad/s,
-reported in ``report["earth_rate"]``).
+reported as ``report.gyro_turns.earth_rate_left``).
 
 Identifiability: the vertical Earth rate Ω sin φ · up is parallel to the specific force, so it is
 indistinguishable from a diagonal g-sensitivity Ω sin φ / g · I. Without ``earth_rate`` (or with
@@ -60,6 +60,7 @@ from apmcal.preprocessing.static import ARDUPILOT_FACE, POSES, StaticSegment
 from apmcal.solvers.blas_threads import single_threaded_blas
 from apmcal.solvers.gyro_bias import fit_gyro_bias, integrate_motions, motions_between_holds
 from apmcal.solvers.misfit import hold_misfit
+from apmcal.solvers.report_types import CalibrationReport, GyroTurns, Hold, Holds, SixFaceFit, Turn
 from apmcal.solvers.result import Calibration, SensorCalibration
 from apmcal.solvers.uncertainty import jacobian_sigma
 
@@ -116,7 +117,7 @@ def _accel_part(poses: dict[str, StaticSegment], gravity: float | None, lat_deg:
 
     The hold means' σ is their white noise (std/√n) plus τ, the scatter the redundant holds
     show beyond it on each axis (:mod:`apmcal.solvers.misfit`); the noise-only σ is kept in the
-    report as ``acc_sigma_noise_only``.
+    report (:class:`~apmcal.solvers.report_types.SixFaceFit`).
     """
     up, um = u_matrices({k: s.acc_mean for k, s in poses.items()})
     sp, sm = u_matrices({k: s.acc_std / np.sqrt(s.n) for k, s in poses.items()})
@@ -145,10 +146,9 @@ def _accel_part(poses: dict[str, StaticSegment], gravity: float | None, lat_deg:
     sy[:3] = np.hypot(sy[:3], misfit.offset_spread)
     cal = SensorCalibration(offset=y[:3], matrix=y[3:].reshape(3, 3),
                             sigma={"offset": sy[:3], "matrix": sy[3:].reshape(3, 3)})
-    info = {"U_plus": up, "U_minus": um, "Q": q, "gravity": g, "gravity_source": source,
-            "acc_misfit": misfit.to_dict(),
-            "acc_sigma_noise_only": {"offset": noise_only[:3],
-                                     "matrix": noise_only[3:].reshape(3, 3)}}
+    info = SixFaceFit(u_plus=up, u_minus=um, q=q, gravity=g, gravity_source=source,
+                      misfit=misfit, sigma_noise_only={"offset": noise_only[:3],
+                                                       "matrix": noise_only[3:].reshape(3, 3)})
     return cal, info, g
 
 
@@ -204,7 +204,8 @@ class GyroModel:
 def _gyro_bias(t, gyr, acc_cal, regions, g, lat_deg, model: GyroModel):
     """Gyro bias [rad/s] (and drift [rad/s²], g-sensitivity) from the still holds.
 
-    Returns (SensorCalibration with offset, drift, t_ref and their σ; info dict)."""
+    Returns (SensorCalibration with offset, drift, t_ref, g-sensitivity and their σ;
+    GyroTurns with t_ref and the Earth rate left in the bias)."""
     if model.is_classic(lat_deg):
         # imucal: plain mean of all samples of the six holds; K_ga from the hold differences
         allg = np.vstack([gyr[regions.poses[p].kept()] for p in POSES])
@@ -212,13 +213,13 @@ def _gyro_bias(t, gyr, acc_cal, regions, g, lat_deg, model: GyroModel):
         sb0, sb1 = allg.std(axis=0, ddof=1) / np.sqrt(len(allg)), np.zeros(3)
         ugp, uga = u_matrices({k: s.gyr_mean for k, s in regions.poses.items()})
         kga = gyro_g_sensitivity(ugp, uga, g) if model.g_sensitivity else None
-        t_ref = 0.0
+        skga, t_ref = None, 0.0
     else:
         ts, ys, fs = _static_rows(t, gyr, regions.bias_holds(), acc_cal, lat_deg,
                                   model.earth_rate)
         t_ref = float(ts.mean())
-        b0, b1, kga, sb0, sb1 = fit_gyro_bias(ts, ys, fs if model.g_sensitivity else None,
-                                              drift=model.bias_drift, t_ref=t_ref)
+        b0, b1, kga, sb0, sb1, skga = fit_gyro_bias(ts, ys, fs if model.g_sensitivity else None,
+                                                    drift=model.bias_drift, t_ref=t_ref)
     # The Earth rate left in the bias (its horizontal part Ω cos φ, or all of Ω when it was not
     # removed) is a vector of known length and unknown heading: σ of one axis = length/√3.
     # On a clean simulated session it was 2-6σ of the noise-only σ (benchmarks/sigma_coverage.py).
@@ -226,11 +227,16 @@ def _gyro_bias(t, gyr, acc_cal, regions, g, lat_deg, model: GyroModel):
                          else 1.0)
     sb0 = np.hypot(sb0, left / np.sqrt(3.0))
     sigma = {"offset": sb0, "drift": sb1} if model.bias_drift else {"offset": sb0}
-    cal = SensorCalibration(offset=b0, drift=b1, t_ref=t_ref, sigma=sigma)
-    return cal, {"t_ref": t_ref, "bias_drift": b1, "gyr_g_sensitivity": kga}
+    if skga is not None:
+        sigma["g_sensitivity"] = skga
+    cal = SensorCalibration(offset=b0, drift=b1, t_ref=t_ref, sigma=sigma,
+                            g_sensitivity=np.zeros((3, 3)) if kga is None else kga)
+    earth_left = (EARTH_RATE * np.cos(np.radians(lat_deg)) if model.removes_earth_rate(lat_deg)
+                  else None)
+    return cal, GyroTurns(t_ref=t_ref, earth_rate_left=earth_left)
 
 
-def _rotation_integral(t, gyr, acc_cal, r: Rotation, regions, bias: SensorCalibration, kga,
+def _rotation_integral(t, gyr, acc_cal, r: Rotation, regions, bias: SensorCalibration,
                        lat_deg, model: GyroModel, noise: np.ndarray):
     """The bias-corrected gyro integral over rotation ``r`` [rad] (3,) and its σ (3,)."""
     moves = [] if model.is_classic(lat_deg) else motions_between_holds(r, regions.bias_holds())
@@ -243,8 +249,8 @@ def _rotation_integral(t, gyr, acc_cal, r: Rotation, regions, bias: SensorCalibr
         return integrate_motions(t, gyr, moves, model.gyro_step)
     sl = slice(r.i0, r.i1)
     cor = gyr[sl] - bias.offset - np.outer(t[sl] - bias.t_ref, bias.drift)
-    if kga is not None:
-        cor = cor - acc_cal[sl] @ kga.T
+    if np.any(bias.g_sensitivity):
+        cor = cor - acc_cal[sl] @ bias.g_sensitivity.T
     if model.removes_earth_rate(lat_deg):
         f = acc_cal[sl].mean(axis=0)
         cor = cor - earth_rate_up(f / np.linalg.norm(f), lat_deg)
@@ -254,19 +260,19 @@ def _rotation_integral(t, gyr, acc_cal, r: Rotation, regions, bias: SensorCalibr
     return integrate_slice(t[sl], cor), sigma
 
 
-def _gyro_matrix(t, gyr, acc_cal, regions, bias: SensorCalibration, kga, lat_deg,
+def _gyro_matrix(t, gyr, acc_cal, regions, bias: SensorCalibration, lat_deg,
                  model: GyroModel, warnings: list[str]):
     """Gyro coupling matrix and its σ from the three turns (seed 002 eq. 22), or None (with a
-    warning) when a turn is missing; and the integrals/angles for the report."""
+    warning) when a turn is missing; and the integrals [rad] and angles [deg] of the turns."""
     missing = [a for a in AXES if a not in regions.rotations]
     if missing:
         warnings.append(f"no 360° rotation about {', '.join(missing)}: gyro matrix not estimated (identity)")
-        return None, None, {}
+        return None, None, None
     w, sw, angles = np.zeros((3, 3)), np.zeros((3, 3)), np.zeros(3)
     noise = np.median([s.gyr_std for s in regions.poses.values()], axis=0)
     for j, a in enumerate(AXES):
         w[:, j], sw[:, j] = _rotation_integral(t, gyr, acc_cal, regions.rotations[a], regions,
-                                               bias, kga, lat_deg, model, noise)
+                                               bias, lat_deg, model, noise)
         expected = model.expected_angle_deg
         sign = np.sign(w[j, j]) if expected is None else np.sign(expected)
         angles[j] = np.radians(360.0 if expected is None else abs(expected)) * sign
@@ -280,18 +286,18 @@ def _gyro_matrix(t, gyr, acc_cal, regions, bias: SensorCalibration, kga, lat_deg
 
     matrix = solve(w.ravel()).reshape(3, 3)
     sigma = jacobian_sigma(solve, w.ravel(), sw.ravel()).reshape(3, 3)
-    return matrix, sigma, {"rotation_integrals": w, "rotation_angles_deg": np.degrees(angles)}
+    return matrix, sigma, (w, np.degrees(angles))
 
 
 def _gyro_part(t, gyr, acc_cal, regions, g, lat_deg, model: GyroModel, warnings: list[str]):
-    """Gyro bias (seed 002 eq. 5) then coupling matrix (eq. 22): (SensorCalibration, info)."""
+    """Gyro bias (seed 002 eq. 5) then coupling matrix (eq. 22): (SensorCalibration,
+    GyroTurns)."""
     cal, info = _gyro_bias(t, gyr, acc_cal, regions, g, lat_deg, model)
-    matrix, sigma, turn_info = _gyro_matrix(t, gyr, acc_cal, regions, cal,
-                                            info["gyr_g_sensitivity"], lat_deg, model, warnings)
+    matrix, sigma, turns = _gyro_matrix(t, gyr, acc_cal, regions, cal, lat_deg, model, warnings)
     if matrix is not None:
         cal.matrix = matrix
         cal.sigma["matrix"] = sigma
-    info.update(turn_info)
+        info.integrals_rad, info.angles_deg = turns
     return cal, info
 
 
@@ -330,14 +336,15 @@ def ferraris_calibration(t, acc, gyr, regions: FerrarisRegions, *, lat_deg: floa
     bias_drift, earth_rate, g_sensitivity, expected_angle_deg, gyro_step
         The gyro model (:class:`GyroModel`): bias b0 + b1 (t − t_ref) (seed 002 eq. 5) or
         constant; vertical Earth rate removed from the still means (needs ``lat_deg``); gyro
-        g-sensitivity K_ga estimated and removed; turned angle of each rotation (imucal: −360;
+        g-sensitivity K_ga estimated and removed (the gyro's ``g_sensitivity``, applied with
+        the calibrated specific force); turned angle of each rotation (imucal: −360;
         default ±360 with the integral's sign); quantisation step of integer telemetry [rad/s]
         (RAW_IMU: 1 mrad/s), whose error in the rotation integrals is counted in the matrix σ.
 
     Returns
     -------
-    Calibration with sensors "acc" (and "gyr"), sigma filled, ``report`` with U+, U−, Q, gravity
-    used, K_ga, drift, rotation integrals and warnings.
+    Calibration with sensors "acc" (and "gyr", with drift and K_ga), sigma filled, ``report``
+    with the holds, turns, U+, U−, Q, gravity used, misfit, rotation integrals and warnings.
 
     Raises
     ------
@@ -355,24 +362,21 @@ def ferraris_calibration(t, acc, gyr, regions: FerrarisRegions, *, lat_deg: floa
     warnings: list[str] = []
     _quality_warnings(poses, warnings)
     acc_cal, acc_info, g = _accel_part(poses, gravity, lat_deg, regions.holds)
-    if acc_info["gravity_source"].startswith("Q"):
-        warnings.append(f"accelerometer scaled to Q = {acc_info['Q']:.4f} (its own mean norm), not "
+    if acc_info.gravity_source.startswith("Q"):
+        warnings.append(f"accelerometer scaled to Q = {acc_info.q:.4f} (its own mean norm), not "
                         "to local gravity: pass lat_deg or gravity for an absolute scale")
-    report = {"method": "ferraris", "poses": {k: [s.start, s.end, s.n] for k, s in poses.items()},
-              "warnings": warnings, **acc_info}
+    report = CalibrationReport(warnings=warnings, six_face=acc_info, holds=Holds(
+        count=None if regions.holds is None else len(regions.holds),
+        used={k: Hold(s.start, s.end, s.n) for k, s in poses.items()}))
     sensors = {"acc": acc_cal}
     if gyr is not None:
         model = GyroModel(bias_drift, earth_rate, g_sensitivity, expected_angle_deg, gyro_step)
         if earth_rate and lat_deg is None:
             warnings.append("latitude unknown: Earth rate not removed from the gyro bias")
-        if model.removes_earth_rate(lat_deg):
-            report["earth_rate"] = ("vertical component Ω sin φ removed; horizontal Ω cos φ = "
-                                    f"{EARTH_RATE * np.cos(np.radians(lat_deg)):.3g} rad/s needs "
-                                    "the heading and stays in the bias")
         gcal, ginfo = _gyro_part(t, gyr, acc_cal.apply(acc), regions, g, lat_deg, model,
                                  warnings)
         sensors["gyr"] = gcal
-        report.update(ginfo)
-        report["rotations"] = {a: [r.start, r.end, r.angle_deg]
-                               for a, r in regions.rotations.items()}
+        report.gyro_turns = ginfo
+        report.rotations = {a: Turn(r.start, r.end, r.angle_deg)
+                            for a, r in regions.rotations.items()}
     return Calibration(method="ferraris", sensors=sensors, report=report)

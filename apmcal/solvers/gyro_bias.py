@@ -16,8 +16,9 @@ from apmcal.preprocessing.rotations import Rotation, integrate_slice, sample_int
 def fit_gyro_bias(ts, ys, fs=None, *, drift: bool = True, t_ref: float = 0.0):
     """Least squares per axis of ``y = b0 + b1 (t − t_ref) + K_ga f`` (seed 002 eq. 5 + g-sensitivity).
 
-    Returns b0 (3,), b1 (3,), K_ga (3, 3) or None, and the one-sigma of b0 and b1 (residual-scaled
-    covariance; white-noise assumption, optimistic for correlated noise).
+    Returns b0 (3,), b1 (3,), K_ga (3, 3) or None, the one-sigma of b0 and b1 (residual-scaled
+    covariance; white-noise assumption, optimistic for correlated noise) and that of K_ga
+    (3, 3) or None.
     """
     cols = [np.ones_like(ts)] + ([ts - t_ref] if drift else [])
     a = np.column_stack(cols + ([fs] if fs is not None else []))
@@ -32,8 +33,8 @@ def fit_gyro_bias(ts, ys, fs=None, *, drift: bool = True, t_ref: float = 0.0):
     sig = np.sqrt(np.outer(np.diag(cov), s2))
     b0, sb0 = coef[0], sig[0]
     b1, sb1 = (coef[1], sig[1]) if drift else (np.zeros(3), np.zeros(3))
-    kga = coef[-3:].T if fs is not None else None
-    return b0, b1, kga, sb0, sb1
+    kga, skga = (coef[-3:].T, sig[-3:].T) if fs is not None else (None, None)
+    return b0, b1, kga, sb0, sb1, skga
 
 
 def motions_between_holds(rotation: Rotation, segments) -> list[tuple]:

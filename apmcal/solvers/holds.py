@@ -6,6 +6,7 @@ import numpy as np
 
 from apmcal.constants import STANDARD_GRAVITY
 from apmcal.errors import ApmcalError
+from apmcal.solvers.report_types import Hold, Holds
 from apmcal.solvers.result import Calibration, SensorCalibration
 
 LEVEL_TOLERANCE_DEG = 10.0  # seed 002 §3.2 levels the platform with a plumb line
@@ -60,9 +61,10 @@ def one_position_on_holds(t, acc, gyr, segments, lat_deg, lon_deg,
                                    None if gyr is None else gyr[part] @ R.T,
                                    lat_deg=lat_deg, lon_deg=lon_deg)
     cal.sensors = {name: body_to_sensor(sc, R) for name, sc in cal.sensors.items()}
-    cal.report["static_segment_s"] = [still.start, still.end]
-    cal.report["undetermined"] = {"acc": "one static pose cannot separate accelerometer "
-                                  "bias from tilt (see the identifiability report)"}
+    cal.report.holds = Holds(count=len(segments), used={"level": Hold(still.start, still.end,
+                                                                      len(part))})
+    cal.report.undetermined = {"acc": "one static pose cannot separate accelerometer "
+                               "bias from tilt (see the identifiability report)"}
     return cal
 
 
@@ -122,5 +124,5 @@ def ellipsoid_on_holds(gyr, segments, gravity: float) -> Calibration:
     if gyr is not None:
         samples["gyr"] = np.concatenate([gyr[s.kept()] for s in segments])
     cal = ellipsoid_calibration(samples, {"acc": gravity})
-    cal.report["static_segments"] = len(segments)
+    cal.report.holds.count = len(segments)
     return cal

@@ -34,6 +34,7 @@ from apmcal.solvers import joint_model as jm
 from apmcal.solvers.joint_covariance import Whitener
 from apmcal.solvers.joint_jacobian import jacobian
 from apmcal.solvers.joint_residuals import DIM, interval_rows, layout, misclosures
+from apmcal.solvers.report_types import CalibrationReport, JointFit, MagneticField
 from apmcal.solvers.result import Calibration
 
 HUBER_K = 1.345          # 95 % Gaussian efficiency
@@ -62,13 +63,15 @@ def joint_calibration(t, acc, gyr, mag, holds, *, gravity: float,
 
     Returns
     -------
-    Calibration "joint": sensors acc, gyr (mapping into the accelerometer frame), mag; report
-    with the parameters, their σ and t values, dropped parameters, family statistics.
+    Calibration "joint": sensors acc, gyr (mapping into the accelerometer frame, with its
+    g-sensitivity), mag; report (:class:`~apmcal.solvers.report_types.JointFit`) with the
+    parameters and their σ, fixed and dropped parameters, family statistics.
     """
     from apmcal.solvers.ellipsoid import fit_ellipsoid_robust, sphere_fit
 
     if gyr is None:
         raise ApmcalError("joint calibration needs gyro samples")
+    source = "the caller" if field_mgauss is not None else "sphere fit"
     if mag is not None and field_mgauss is None:
         field_mgauss = float(sphere_fit(mag)[1])
     d = layout(t, acc, gyr, mag, holds, gravity, field_mgauss)
@@ -97,7 +100,10 @@ def joint_calibration(t, acc, gyr, mag, holds, *, gravity: float,
             spread = (fit["x"][idx] - jm.NOMINAL[idx]) ** 2 + fit["sigma"][idx] ** 2
             fit = _solve(d, x1, free & ~insignificant, consider=(insignificant, spread),
                          start=fit)
-    return _calibration(fit, d, dropped)
+    cal = _calibration(fit, d, dropped)
+    if mag is not None:
+        cal.report.magnetic_field = MagneticField(float(d.field), source)
+    return cal
 
 
 def check_motion(d, n_holds: int) -> None:
@@ -241,28 +247,16 @@ def _statistics(x, free, j, r, weights, factor, families) -> dict:
 def _calibration(fit: dict, d, dropped: list[str]) -> Calibration:
     sensors = ("acc", "gyr") + (("mag",) if d.mag is not None else ())
     cals, extra = jm.sensor_calibrations(fit["x"], fit["cov"], sensors)
+    cals["gyr"].g_sensitivity = extra["gyr_g_sensitivity"]
+    cals["gyr"].sigma["g_sensitivity"] = extra["gyr_g_sensitivity_sigma"]
     gyr_cost = float(np.linalg.norm(cals["gyr"].matrix - np.eye(3), 2))
-    lines = [
-        "joint (seed 001): " + ", ".join(f"{k} {n}" + (f" ({fit['rejected'][k]} rejected)"
-                                                       if fit["rejected"][k] else "")
-                                         for k, n in fit["counts"].items()) + " conditions",
-        "joint: noise scale per family (1 = the still periods' white noise, never less) "
-        + ", ".join(f"{k} {v:.2f}" for k, v in fit["factor"].items() if k != "mag_datum"),
-        f"joint: {int(fit['free'].sum())} of {jm.N_PARAMS} parameters estimated"
-        + (f"; insignificant at 95 % (t-test, fixed to nominal and refitted): "
-           f"{', '.join(dropped)}" if dropped else ""),
-        f"joint: gyro scale/misalignment cannot be held by ArduPilot (INS_GYROFFS only): "
-        f"left uncorrected it costs up to {np.degrees(gyr_cost * 2 * np.pi):.2f}° per 360° turn",
-        f"joint: gyro g-sensitivity cannot be held either: up to "
-        f"{np.linalg.norm(extra['gyr_g_sensitivity'], 2) * d.gravity:.2g} rad/s at 1 g",
-    ]
-    report = {"method": "joint", "lines": lines, "warnings": [],
-              "joint_parameters": {n: [float(v), float(s)] for n, v, s, f in
-                                   zip(jm.NAMES, fit["x"], fit["sigma"], fit["free"])
-                                   if f or n in dropped},
-              "joint_fixed": [n for n, f in zip(jm.NAMES, fit["free"]) if not f],
-              "joint_dropped_t_test": dropped, "gyr_matrix_cost_deg_per_turn":
-              float(np.degrees(gyr_cost * 2 * np.pi)), **extra}
-    if d.mag is not None:
-        report["mag_field_mgauss"] = d.field
-    return Calibration(method="joint", sensors=cals, report=report)
+    joint = JointFit(
+        conditions=dict(fit["counts"]), rejected=dict(fit["rejected"]),
+        noise_scale={k: float(v) for k, v in fit["factor"].items()},
+        n_estimated=int(fit["free"].sum()), n_params=jm.N_PARAMS,
+        parameters={n: [float(v), float(s)] for n, v, s, f in
+                    zip(jm.NAMES, fit["x"], fit["sigma"], fit["free"]) if f or n in dropped},
+        fixed=[n for n, f in zip(jm.NAMES, fit["free"]) if not f], dropped_t_test=dropped,
+        gyr_matrix_cost_deg_per_turn=float(np.degrees(gyr_cost * 2 * np.pi)),
+        gyr_g_sensitivity_at_1g=float(np.linalg.norm(extra["gyr_g_sensitivity"], 2) * d.gravity))
+    return Calibration(method="joint", sensors=cals, report=CalibrationReport(joint=joint))

@@ -9,9 +9,10 @@ import numpy as np
 from apmcal.errors import ApmcalError
 from apmcal.geomag import field_magnitude
 from apmcal.solvers.blas_threads import single_threaded_blas
-from apmcal.solvers.ellipsoid import fit_ellipsoid_robust, relative_mse, sphere_fit, verdict
+from apmcal.solvers.ellipsoid import fit_ellipsoid_robust, fit_report, relative_mse, sphere_fit
 from apmcal.solvers.ellipsoid_debias import debiased
 from apmcal.solvers.ellipsoid_robust import warm_refit
+from apmcal.solvers.report_types import CalibrationReport, MagneticField, MseScore
 from apmcal.solvers.result import SensorCalibration
 
 
@@ -33,8 +34,10 @@ def check_coverage(mag: np.ndarray, min_spread: float = 0.25) -> None:
 
 @single_threaded_blas
 def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: float | None,
-                           report: dict, when: datetime.date | None = None) -> SensorCalibration:
-    """Robust ellipsoid fit of raw sensor-frame samples [mGauss]; verdict lines into ``report``.
+                           report: CalibrationReport, when: datetime.date | None = None
+                           ) -> SensorCalibration:
+    """Robust ellipsoid fit of raw sensor-frame samples [mGauss]; the field used and the fit's
+    quality go into ``report`` (``magnetic_field``, ``ellipsoids["mag"]``, warnings).
 
     The field magnitude comes from the World Magnetic Model when the site is known; otherwise
     from a sphere fit, which ties the overall scale to the data's own mean radius (offsets and
@@ -48,21 +51,21 @@ def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: floa
         radius, note = field_magnitude(lat_deg, lon_deg, when)
         origin = f"WMM at {date}"
         if note:
-            report.setdefault("warnings", []).append(f"mag: {note}")
+            report.warnings.append(f"mag: {note}")
         mismatch = field_mismatch(sphere[1], radius, lat_deg, lon_deg)
         if mismatch:
-            report.setdefault("warnings", []).append(mismatch)
+            report.warnings.append(mismatch)
     else:
         radius, origin = sphere[1], "sphere fit (no --lat/--lon)"
     info: dict = {}
     fitted = fit_ellipsoid_robust(mag, radius, info=info, sphere=sphere)
-    cal, bias_line = debiased(warm_refit(fitted, radius, info), mag[info["inliers"]], fitted,
-                              radius)
-    report.setdefault("lines", []).append(f"mag: field magnitude {radius:.1f} mGauss from {origin}")
-    report["lines"] += verdict(mag, cal, radius, sensor="mag", info=info) + [f"mag: {bias_line}"]
-    report["lines"].append(held_out_line(mag, radius, info["parameterisation"], start=fitted,
-                                         f_scale=info["f_scale"]))
-    report["mag_field_mgauss"] = radius
+    cal, bias = debiased(warm_refit(fitted, radius, info), mag[info["inliers"]], fitted, radius)
+    fit = fit_report(mag, cal, radius, info)
+    fit.debias = bias
+    fit.held_out = held_out_score(mag, radius, info["parameterisation"], start=fitted,
+                                  f_scale=info["f_scale"])
+    report.ellipsoids["mag"] = fit
+    report.magnetic_field = MagneticField(float(radius), origin)
     return cal
 
 
@@ -94,9 +97,9 @@ def field_mismatch(measured_mgauss: float, wmm_mgauss: float, lat_deg: float,
             f"vehicle, which distort the field the fit sees")
 
 
-def held_out_line(mag: np.ndarray, radius: float, parameterisation: str,
-                  n_blocks: int = 20, *, start: SensorCalibration | None = None,
-                  f_scale: float | None = None) -> str:
+def held_out_score(mag: np.ndarray, radius: float, parameterisation: str,
+                   n_blocks: int = 20, *, start: SensorCalibration | None = None,
+                   f_scale: float | None = None) -> MseScore:
     """Seed 000's figure of merit (§VI.B) on samples the fit never saw.
 
     The record is cut into ``n_blocks`` consecutive blocks; the even ones are fitted and the odd
@@ -104,6 +107,7 @@ def held_out_line(mag: np.ndarray, radius: float, parameterisation: str,
     of |calibrated| is given raw and calibrated; the calibration itself uses every sample.
     ``start`` and ``f_scale`` [mGauss]: the fit on every sample and its Huber scale, so that the
     half-fit starts next to its minimum (a few steps instead of a search from the quadric).
+    A half that cannot be fitted gives NaN scores and the reason in ``failed``.
     """
     blocks = np.array_split(np.arange(len(mag)), n_blocks)
     train = mag[np.concatenate(blocks[0::2])]
@@ -117,8 +121,6 @@ def held_out_line(mag: np.ndarray, radius: float, parameterisation: str,
         cal = fit_ellipsoid_robust(train, radius, parameterisation=parameterisation,
                                    start=start, f_scale=f_scale)
     except ApmcalError as err:
-        return (f"mag: no held-out score: half of the samples is not enough for a fit of its "
-                f"own ({err.why})")
-    raw, calibrated = relative_mse(test, None, radius), relative_mse(test, cal, radius)
-    return (f"mag: relative MSE of |calibrated| (seed 000) raw {raw:.3g} → {calibrated:.3g} on "
-            f"held-out samples (odd blocks of {n_blocks}, fitted on the even ones)")
+        return MseScore(float("nan"), float("nan"), "held-out blocks", n_blocks, failed=err.why)
+    return MseScore(relative_mse(test, None, radius), relative_mse(test, cal, radius),
+                    "held-out blocks", n_blocks)

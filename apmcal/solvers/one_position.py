@@ -12,7 +12,8 @@ F_ours = −F_paper, and the calibrated output stays in ArduPilot's convention.
 Step 2 ("the norm of the mean is subtracted from the z output") removes the gravity reading from
 z: for ArduPilot's z ≈ −g that means adding ‖mean‖ (we subtract sign(mean_z)·‖mean‖).
 
-Degeneracies of the paper's recipe, reported to the user:
+Degeneracies of the paper's recipe, reported to the user (in words by
+:func:`apmcal.report_lines.one_position_lines`):
 
 * A zero-phase high-pass of a static signal has mean ≈ 0, so ``R_f ≈ 0`` and the bias
   ``b = R − R_f ≈ R``: x/y bias = the mean itself (a tilt of θ reads as g·sin θ bias, 1° ≈
@@ -30,13 +31,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from apmcal.constants import EARTH_RATE, MG_TO_MS2, MRAD_TO_RAD
+from apmcal.constants import EARTH_RATE
 from apmcal.errors import ApmcalError
 from apmcal.preprocessing.highpass import highpass  # zero-phase Butterworth (seed 002 §5)
-from apmcal.solvers.identifiability import identifiability
+from apmcal.solvers.report_types import (
+    CalibrationReport,
+    OnePositionAcc,
+    OnePositionFit,
+    OnePositionGyr,
+)
 from apmcal.solvers.result import Calibration, SensorCalibration
-
-LEVEL_TOLERANCE_DEG = 5.0
 
 
 def c_ecef_to_ned(lat_deg: float, lon_deg: float) -> np.ndarray:
@@ -56,7 +60,7 @@ def _sample_rate(t: np.ndarray) -> float:
 
 
 def accelerometer_one_position(acc: np.ndarray, fs: float, cutoff_hz: float = 0.5
-                               ) -> tuple[SensorCalibration, dict]:
+                               ) -> tuple[SensorCalibration, OnePositionAcc]:
     """Seed 002 §5.1 steps 1-9 on level, still specific-force samples (n, 3) [m/s², body FRD].
 
     Returns the SensorCalibration (offset = b, matrix = F⁻¹) and the intermediate quantities.
@@ -77,14 +81,14 @@ def accelerometer_one_position(acc: np.ndarray, fs: float, cutoff_hz: float = 0.
     mu_literal = (R - b)[2] / a_p[2]                       # a_s = step-3 R read literally
     tilt = float(np.degrees(np.arccos(min(1.0, abs(m[2]) / norm)))) if norm > 0 else 90.0
     sc = SensorCalibration(offset=b, matrix=np.linalg.inv(F))
-    return sc, {"mean": m, "g": g, "R": R, "R_f": Rf, "bias": b, "F": F,
-                "beta_gamma_mu": np.array([beta, gamma, mu]), "mu_literal": mu_literal,
-                "F_paper_convention": -F, "tilt_deg": tilt}
+    return sc, OnePositionAcc(mean=m, g=g, R=R, R_f=Rf, bias=b, F=F,
+                              beta_gamma_mu=np.array([beta, gamma, mu]),
+                              mu_literal=float(mu_literal), F_paper_convention=-F, tilt_deg=tilt)
 
 
 def gyroscope_one_position(gyr: np.ndarray, fs: float, cutoff_hz: float = 0.5,
                            lat_deg: float | None = None, lon_deg: float | None = None
-                           ) -> tuple[SensorCalibration, dict]:
+                           ) -> tuple[SensorCalibration, OnePositionGyr]:
     """Seed 002 §5.2 on still gyro samples (n, 3) [rad/s], x north, z down.
 
     Returns SensorCalibration (offset = b, matrix = I) and the intermediate quantities. The
@@ -94,10 +98,8 @@ def gyroscope_one_position(gyr: np.ndarray, fs: float, cutoff_hz: float = 0.5,
     R = gyr.mean(axis=0)                                   # mean
     Rf = highpass(gyr, fs, cutoff_hz).mean(axis=0)         # high-pass mean
     b = R - Rf                                             # eq. (2) with E = I
-    out = {"R": R, "R_f": Rf, "bias": b, "notes": []}
-    if lat_deg is None:
-        out["notes"].append("no latitude: E not computed")
-    else:
+    out = OnePositionGyr(R=R, R_f=Rf, bias=b)
+    if lat_deg is not None:
         C = c_ecef_to_ned(lat_deg, 0.0 if lon_deg is None else lon_deg)
         w_p = C @ np.array([0.0, 0.0, EARTH_RATE])         # = Ω(cos φ, 0, −sin φ), any longitude
         if abs(w_p[2]) < 1e-12:
@@ -109,9 +111,7 @@ def gyroscope_one_position(gyr: np.ndarray, fs: float, cutoff_hz: float = 0.5,
         xi = (d[1] - w_p[1]) / w_p[2]
         nu = d[2] / w_p[2]
         E = np.array([[1.0, 0.0, tau], [0.0, 1.0, xi], [0.0, 0.0, nu]])
-        out.update({"omega_p": w_p, "E": E, "tau_xi_nu": np.array([tau, xi, nu])})
-    out["notes"].append("gyro matrix left at identity: one pose cannot determine it (E is "
-                        "reported, not applied)")
+        out.omega_p, out.E, out.tau_xi_nu = w_p, E, np.array([tau, xi, nu])
     # white-noise standard error of the mean; the resolution floor is added by the pipeline
     sigma = {"offset": gyr.std(axis=0, ddof=1) / np.sqrt(len(gyr))}
     return SensorCalibration(offset=b, matrix=np.eye(3), sigma=sigma), out
@@ -148,43 +148,7 @@ def one_position_calibration(t, acc, gyr, *, lat_deg: float | None = None,
                           f"a {cutoff_hz} Hz high-pass (seed 002 records about a minute)")
     acc_cal, a = accelerometer_one_position(acc, fs, cutoff_hz)
     gyr_cal, w = gyroscope_one_position(gyr, fs, cutoff_hz, lat_deg, lon_deg)
-    lines = _report_lines(a, w, lat_deg)
-    g_id = identifiability("acc", [[0.0, 0.0, -a["g"]]], matrix="upper",
-                           resolution=MG_TO_MS2)
-    lines += g_id.lines
-    if "omega_p" in w:
-        lines += identifiability("gyr", [w["omega_p"]], matrix="upper",
-                                 resolution=MRAD_TO_RAD).lines
+    fit = OnePositionFit(acc=a, gyr=w, fs_hz=fs, duration_s=float(t[-1] - t[0]),
+                         cutoff_hz=cutoff_hz, lat_deg=lat_deg)
     return Calibration(method="static", sensors={"acc": acc_cal, "gyr": gyr_cal},
-                       report={"lines": lines, "acc": a, "gyr": w, "fs_hz": fs,
-                               "duration_s": float(t[-1] - t[0]), "cutoff_hz": cutoff_hz})
-
-
-def _e(v: float) -> str:
-    return f"{v:.2e}"
-
-
-def _report_lines(a: dict, w: dict, lat_deg) -> list[str]:
-    """Plain-words notes on what the paper's recipe did determine."""
-    lines = [
-        f"acc: g taken as ‖mean‖ = {a['g']:.4f} m/s² (seed 002 §5.1 step 7), tilt from level "
-        f"{a['tilt_deg']:.2f}°",
-        f"acc: high-pass mean R_f = {np.array2string(a['R_f'], formatter={'float': _e})} m/s² "
-        "≈ 0, so bias = "
-        "R − R_f ≈ R: x/y bias is the mean itself (tilt and bias cannot be told apart: 1° of tilt "
-        "= 0.17 m/s²), z bias ≈ 0 by construction",
-        f"acc: β, γ, μ = {np.array2string(a['beta_gamma_mu'], precision=4)}: μ = 1 − R_fz/g ≈ 1 by "
-        f"construction, β, γ = −R_f/g ≈ 0; read literally (a_s = step-3 R) μ would be "
-        f"{a['mu_literal']:.3g} (singular F)",
-    ]
-    if a["tilt_deg"] > LEVEL_TOLERANCE_DEG:
-        lines.append(f"acc: NOT LEVEL ({a['tilt_deg']:.1f}° > {LEVEL_TOLERANCE_DEG}°): the method "
-                     "assumes a level platform; its bias absorbs the tilt")
-    lines.append(f"gyr: bias = {np.array2string(w['bias'] * 1e3, precision=3)} mrad/s "
-                 "(≈ mean: the high-pass mean is ≈ 0)")
-    if "tau_xi_nu" in w:
-        lines.append(f"gyr: τ, ξ, ν = {np.array2string(w['tau_xi_nu'], precision=4)} at latitude "
-                     f"{lat_deg:.3f}°: τ ≈ cot(latitude) = {1 / np.tan(np.radians(lat_deg)):.4f}, "
-                     "ν ≈ R_fz/ω_D — artefacts of the recipe, not gyro properties")
-    lines += [f"gyr: {n}" for n in w.get("notes", [])]
-    return lines
+                       report=CalibrationReport(one_position=fit))

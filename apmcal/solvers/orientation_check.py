@@ -47,14 +47,10 @@ def pose_pairs(t: np.ndarray, holds) -> list[PosePair]:
 
 def corrected(cal, t, acc, gyr, mag, holds):
     """Calibrated specific force, rate (bias re-measured on ``holds``) and field, or the raw
-    samples for a sensor the calibration lacks. g-sensitivity (report "gyr_g_sensitivity",
-    rad/s per m/s² of the calibrated specific force) is removed when the calibration has it."""
+    samples for a sensor the calibration lacks. The gyro's g-sensitivity, when the calibration
+    has one, acts on the calibrated specific force (:class:`SensorCalibration` convention)."""
     a = cal.apply("acc", acc, t) if "acc" in cal.sensors else np.asarray(acc, float)
-    y = np.asarray(gyr, float)
-    g_sens = cal.report.get("gyr_g_sensitivity")
-    if g_sens is not None and np.ndim(g_sens) == 2:
-        y = y - a @ np.asarray(g_sens).T
-    w = cal.apply("gyr", y, t) if "gyr" in cal.sensors else y
+    w = cal.sensors["gyr"].apply(gyr, t, acc=a) if "gyr" in cal.sensors else np.asarray(gyr, float)
     still = np.concatenate([h.kept() for h in holds])
     w = w - w[still].mean(axis=0)
     m = None

@@ -1,0 +1,324 @@
+"""What a calibration run found, as numbers: one small dataclass per stage.
+
+Solvers fill these in; :mod:`apmcal.report_lines` turns them into words and :mod:`apmcal.verdict`
+into grades. Every field is a number, an array, a name or a message; units are in the field name
+or the docstring (accelerometer m/s², gyroscope rad/s, magnetometer mGauss, time s, angles deg
+unless the name says rad). :func:`to_plain` and :func:`from_plain` turn any of them into plain
+JSON values and back (:meth:`apmcal.solvers.result.Calibration.save` / ``load``).
+"""
+from __future__ import annotations
+
+import types
+import typing
+from dataclasses import dataclass, field, fields, is_dataclass
+
+import numpy as np
+
+from apmcal.solvers.misfit import HoldMisfit
+
+
+@dataclass
+class Hold:
+    """One still period a method used: its span [s] and sample count."""
+
+    start_s: float
+    end_s: float
+    samples: int = 0
+
+
+@dataclass
+class Holds:
+    """The still periods: how many were found, and the ones the method used by name (Ferraris
+    poses "x_p" … "z_a"; "level" for the one-position method)."""
+
+    count: int | None = None
+    used: dict[str, Hold] = field(default_factory=dict)
+
+
+@dataclass
+class Turn:
+    """A full turn about one axis used for the gyro matrix: span [s] and integrated angle [deg]."""
+
+    start_s: float
+    end_s: float
+    angle_deg: float
+
+
+@dataclass
+class SixFaceFit:
+    """The Ferraris accelerometer stage (seed 002 §4.1-4.2).
+
+    u_plus, u_minus : (3, 3) m/s², hold means of x_p, y_p, z_p / x_a, y_a, z_a as columns
+    q : mean column norm of U+ [m/s²] (seed 002 eq. 4)
+    gravity : the g the scale was fitted to [m/s²]; gravity_source says where it came from
+    misfit : the six-face model against its redundant holds (:mod:`apmcal.solvers.misfit`)
+    sigma_noise_only : "offset" (3,) m/s², "matrix" (3, 3): σ from the noise alone, before the
+        misfit widened it
+    """
+
+    u_plus: np.ndarray
+    u_minus: np.ndarray
+    q: float
+    gravity: float
+    gravity_source: str
+    misfit: HoldMisfit
+    sigma_noise_only: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+@dataclass
+class GyroTurns:
+    """The Ferraris gyro stage (seed 002 §4.3-4.4).
+
+    t_ref : time [s] at which the gyro offset holds (drift is referred to it)
+    earth_rate_left : horizontal Earth rate Ω cos φ [rad/s] left in the bias when the vertical
+        part was removed; None when it was not removed
+    integrals_rad : (3, 3) bias-corrected integral of each turn (column j: turn about axis j)
+    angles_deg : (3,) the angle each turn is taken to be
+    """
+
+    t_ref: float = 0.0
+    earth_rate_left: float | None = None
+    integrals_rad: np.ndarray | None = None
+    angles_deg: np.ndarray | None = None
+
+
+@dataclass
+class Coverage:
+    """How the sample directions cover the sphere: ``fraction`` (0..1) of it within 20° of a
+    sample and the ``eigenvalues`` (3,) of 3·mean(n nᵀ) (1 = uniform, 0 = one plane)."""
+
+    fraction: float
+    eigenvalues: np.ndarray
+
+
+@dataclass
+class Residuals:
+    """|calibrated| − field over ``samples`` samples [sensor units]: RMS, robust σ (MAD) and
+    the count beyond 5 robust σ."""
+
+    samples: int
+    rms: float
+    robust_sigma: float
+    outliers: int
+
+
+@dataclass
+class MseScore:
+    """Seed 000's figure of merit (§VI.B): relative MSE of |calibrated| raw and calibrated.
+
+    scored_on : "fitting" or "held-out" samples, or "held-out blocks" (the odd ones of
+        ``blocks`` consecutive blocks, fitted on the even ones)
+    failed : why no score could be given (then raw and calibrated are NaN)
+    """
+
+    raw: float
+    calibrated: float
+    scored_on: str
+    blocks: int = 0
+    failed: str = ""
+
+
+@dataclass
+class Debias:
+    """The geometric fit's second-order bias removed (:mod:`apmcal.solvers.ellipsoid_debias`):
+    offset moved by ``offset_shift`` (3,) [sensor units], matrix entries by up to
+    ``matrix_shift_max``, from ``pairs`` antithetic refit pairs."""
+
+    offset_shift: np.ndarray
+    matrix_shift_max: float
+    pairs: int
+
+
+@dataclass
+class EllipsoidFit:
+    """Quality of one sensor's ellipsoid fit (seed 000 and its robust successor).
+
+    radius : field magnitude fitted to [sensor units]
+    method : the estimator; parameterisation : "symmetric", "upper" or "diagonal"
+    samples : samples fitted; n_params : parameters fitted (None: the paper's fits)
+    rms, cond, rank, start, f_scale, outlier_fraction : the fit's internals (rms and f_scale in
+        sensor units), None when the estimator does not give them
+    notes : the fit's own findings (diagonal fallback, outliers, bounds), as messages
+    coverage : of the calibrated samples (eigenvalues: the smaller of their scatter and of the
+        raw samples' own shape)
+    residuals : |calibrated| − field on the fitted samples
+    score : relative MSE on the fitting or held-out samples; held_out : on held-out blocks
+    debias : the second-order bias removed (robust magnetometer fit)
+    """
+
+    radius: float
+    method: str
+    parameterisation: str = ""
+    samples: int = 0
+    n_params: int | None = None
+    rms: float | None = None
+    cond: float | None = None
+    rank: int | None = None
+    start: str | None = None
+    f_scale: float | None = None
+    outlier_fraction: float | None = None
+    notes: list[str] = field(default_factory=list)
+    coverage: Coverage | None = None
+    residuals: Residuals | None = None
+    score: MseScore | None = None
+    held_out: MseScore | None = None
+    debias: Debias | None = None
+
+
+@dataclass
+class MagneticField:
+    """The compass's field: magnitude [mGauss], where it came from ("WMM at recording date …",
+    "sphere fit (no --lat/--lon)") and how the samples cover the directions around the fitted
+    offset (fraction of the sphere within 20°, smallest eigenvalue of 3·mean(n nᵀ))."""
+
+    mgauss: float
+    source: str
+    coverage_fraction: float | None = None
+    coverage_min_eig: float | None = None
+
+
+@dataclass
+class OnePositionAcc:
+    """Seed 002 §5.1 on the level hold (body FRD, m/s²): step-1 ``mean`` (3,), g := ‖mean‖,
+    step-3 mean ``R`` and high-pass mean ``R_f`` (3,), ``bias`` (3,), F (3, 3) and its β, γ, μ,
+    μ read literally (a_s = R), F in the paper's sign convention, tilt from level [deg]."""
+
+    mean: np.ndarray
+    g: float
+    R: np.ndarray
+    R_f: np.ndarray
+    bias: np.ndarray
+    F: np.ndarray
+    beta_gamma_mu: np.ndarray
+    mu_literal: float
+    F_paper_convention: np.ndarray
+    tilt_deg: float
+
+
+@dataclass
+class OnePositionGyr:
+    """Seed 002 §5.2 (rad/s): mean ``R``, high-pass mean ``R_f``, ``bias``; with a latitude the
+    Earth-rate input ``omega_p`` (3,), E (3, 3) and its τ, ξ, ν (reported, never applied)."""
+
+    R: np.ndarray
+    R_f: np.ndarray
+    bias: np.ndarray
+    omega_p: np.ndarray | None = None
+    E: np.ndarray | None = None
+    tau_xi_nu: np.ndarray | None = None
+
+
+@dataclass
+class OnePositionFit:
+    """The one-position method (seed 002 §5): its two parts, sample rate [Hz], duration [s],
+    high-pass cut-off [Hz] and the latitude [deg] used (None: unknown)."""
+
+    acc: OnePositionAcc
+    gyr: OnePositionGyr
+    fs_hz: float
+    duration_s: float
+    cutoff_hz: float
+    lat_deg: float | None = None
+
+
+@dataclass
+class JointFit:
+    """Seed 001's joint fit: conditions and robust rejections per family, each family's noise
+    scale (1 = the still periods' white noise), the parameters (name → [value, σ] in the units
+    of :data:`apmcal.solvers.joint_model.UNITS`), those held fixed and those the t-test dropped,
+    and what ArduPilot cannot hold: the gyro matrix's cost [deg per 360° turn] and the
+    g-sensitivity's largest effect at 1 g [rad/s]. ``block_samples`` > 1: the fit ran on
+    means of that many samples of a ``recorded_rate_hz`` recording; ``compass_own_fit``: the
+    compass result is the compass's own ellipsoid fit (``auto``), not the joint fit's."""
+
+    conditions: dict[str, int]
+    rejected: dict[str, int]
+    noise_scale: dict[str, float]
+    n_estimated: int
+    n_params: int
+    parameters: dict[str, list[float]]
+    fixed: list[str]
+    dropped_t_test: list[str]
+    gyr_matrix_cost_deg_per_turn: float
+    gyr_g_sensitivity_at_1g: float
+    block_samples: int = 1
+    recorded_rate_hz: float | None = None
+    compass_own_fit: bool = False
+
+
+@dataclass
+class CalibrationReport:
+    """Everything a calibration run found besides the corrections themselves.
+
+    recording : which record was calibrated ("RAW_IMU (IMU instance 0)")
+    warnings : messages for the user
+    undetermined : sensor → why its values cannot be trusted (never sent to a vehicle)
+    not_calibrated : sensor → why it was not calibrated at all
+    holds, rotations : the still periods and full turns used (rotations: axis → :class:`Turn`)
+    six_face, gyro_turns : the Ferraris stages; one_position, joint : those methods' stages
+    gyro_offset_only : the gyro offset is a mean at rest (ellipsoid method: no matrix)
+    ellipsoids : sensor → quality of its ellipsoid fit
+    magnetic_field : the compass's field and coverage
+    """
+
+    recording: str | None = None
+    warnings: list[str] = field(default_factory=list)
+    undetermined: dict[str, str] = field(default_factory=dict)
+    not_calibrated: dict[str, str] = field(default_factory=dict)
+    holds: Holds = field(default_factory=Holds)
+    rotations: dict[str, Turn] = field(default_factory=dict)
+    six_face: SixFaceFit | None = None
+    gyro_turns: GyroTurns | None = None
+    one_position: OnePositionFit | None = None
+    joint: JointFit | None = None
+    gyro_offset_only: bool = False
+    ellipsoids: dict[str, EllipsoidFit] = field(default_factory=dict)
+    magnetic_field: MagneticField | None = None
+
+    def to_dict(self) -> dict:
+        return to_plain(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "CalibrationReport":
+        return from_plain(cls, d)
+
+
+# --------------------------------------------------------------------------- plain values
+def to_plain(obj):
+    """Dataclasses, numpy arrays and scalars → dicts, lists and plain numbers, recursively."""
+    if is_dataclass(obj):
+        return {f.name: to_plain(getattr(obj, f.name)) for f in fields(obj)}
+    if isinstance(obj, dict):
+        return {str(k): to_plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_plain(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj
+
+
+def from_plain(cls, data: dict):
+    """The dataclass ``cls`` from :func:`to_plain`'s output (keys it does not know: ignored;
+    missing ones: the default). Arrays come back as float arrays."""
+    hints = typing.get_type_hints(cls)
+    kwargs = {f.name: _typed(hints[f.name], data[f.name]) for f in fields(cls) if f.name in data}
+    return cls(**kwargs)
+
+
+def _typed(tp, value):
+    if value is None:
+        return None
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin in (typing.Union, types.UnionType):
+        return _typed(next(a for a in args if a is not type(None)), value)
+    if tp is np.ndarray:
+        return np.asarray(value, dtype=float)
+    if is_dataclass(tp):
+        return from_plain(tp, value)
+    if origin is dict:
+        return {k: _typed(args[1], v) for k, v in value.items()}
+    if origin is list:
+        return [_typed(args[0], v) for v in value]
+    return value
