@@ -336,7 +336,7 @@ def mag_coverage(mag: np.ndarray, cal) -> dict:
     """How well the compass samples [mGauss] cover the directions around the fitted offset:
     ``fraction`` of the sphere within 20° of a sample, ``min_eig`` the smallest eigenvalue of
     3·mean(n nᵀ) (1 uniform, 0 all in one plane). Numbers for apmcal.verdict."""
-    from apmcal.solvers.ellipsoid_robust import direction_coverage
+    from apmcal.solvers.coverage import direction_coverage
 
     # the fraction from at most 40 000 samples, as the ellipsoid fit's own (a pass over the
     # samples per grid point: on a 10-minute 400 Hz session the whole set cost 0.5 s)

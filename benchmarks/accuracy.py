@@ -24,7 +24,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from apmcal.solvers.ellipsoid_debias import debiased  # noqa: E402
+from apmcal.solvers.ellipsoid_debias import (
+    debiased,  # noqa: E402
+    warm_refit,  # noqa: E402
+)
 from apmcal.solvers.ellipsoid_paper import (  # noqa: E402
     DIAGONAL_ENTRIES,
     SYMMETRIC_ENTRIES,
@@ -33,7 +36,7 @@ from apmcal.solvers.ellipsoid_paper import (  # noqa: E402
     geometric_residual,
     matrix_to_params,
 )
-from apmcal.solvers.ellipsoid_robust import fit_ellipsoid_robust, warm_refit  # noqa: E402
+from apmcal.solvers.ellipsoid_robust import fit_ellipsoid_robust  # noqa: E402
 
 NAMES = ["o_x", "o_y", "o_z", "M_xx", "M_yy", "M_zz", "M_xy", "M_xz", "M_yz"]
 RADIUS = 500.0          # e.g. mGauss

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from apmcal.errors import ApmcalError
+from apmcal.solvers.coverage import direction_coverage
 from apmcal.solvers.ellipsoid_paper import (
     fit_ellipsoid_analytical,
     fit_ellipsoid_numerical,
@@ -17,12 +18,7 @@ from apmcal.solvers.ellipsoid_paper import (
     relative_mse,
     sphere_fit,
 )
-from apmcal.solvers.ellipsoid_robust import (
-    algebraic_ellipsoid,
-    direction_coverage,
-    fit_ellipsoid_robust,
-    fit_report,
-)
+from apmcal.solvers.ellipsoid_robust import algebraic_ellipsoid, fit_ellipsoid_robust, fit_report
 from apmcal.solvers.report_types import CalibrationReport, MseScore
 from apmcal.solvers.result import Calibration
 

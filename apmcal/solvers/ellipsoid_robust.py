@@ -25,7 +25,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from apmcal.errors import ApmcalError
-from apmcal.solvers.ellipsoid_lm import Problem, gradient, loss_weights, residual, residual_jacobian
+from apmcal.solvers.coverage import direction_coverage
+from apmcal.solvers.ellipsoid_lm import Problem, loss_weights, residual, residual_jacobian
 from apmcal.solvers.ellipsoid_lm import solve as lm_solve
 from apmcal.solvers.ellipsoid_paper import (
     DIAGONAL_ENTRIES,
@@ -43,54 +44,6 @@ ENTRIES = {"symmetric": SYMMETRIC_ENTRIES, "upper": UPPER_ENTRIES, "diagonal": D
 MIN_SCATTER_FULL = 0.05    # min eigenvalue of 3·mean(nnᵀ) below which off-diagonals are dropped
 MAX_COND = 1e6             # Jacobian condition number above which the full fit is not trusted
 PRESOLVE_SAMPLES = 20_000  # samples of the first, subsampled pass of a fit from a far start
-
-
-def direction_coverage(samples, offset, n_grid: int = 200, cone_deg: float = 20.0,
-                       fraction: bool = True, fraction_samples: int | None = None) -> dict:
-    """How well the sample directions (seen from ``offset``) cover the unit sphere.
-
-    Returns ``scatter_eig`` — eigenvalues of ``3·mean(n nᵀ)`` (all 1 for uniform coverage, one
-    near 0 when the samples lie in a plane through the offset) —, ``spread_eig`` — eigenvalues of
-    the sample covariance scaled to mean 1 (0 for any planar set, whatever the offset) — and
-    ``fraction`` — share of ``n_grid`` Fibonacci
-    points on the sphere with a sample direction within ``cone_deg`` (NaN with
-    ``fraction=False``: the one part that costs a pass over the samples per grid point; from
-    every k-th sample, at most about ``fraction_samples``, when given).
-    """
-    c = np.asarray(samples, dtype=float) - offset
-    n = c / np.linalg.norm(c, axis=1, keepdims=True)
-    eig = np.linalg.eigvalsh(3.0 * (n.T @ n) / len(n))
-    # centre-free: shape of the sample cloud itself (a circle in a plane → 0 whatever the offset)
-    C = np.cov(c.T) if len(c) > 1 else np.zeros((3, 3))
-    spread = np.linalg.eigvalsh(3.0 * C / np.trace(C)) if np.trace(C) > 0 else np.zeros(3)
-    step = max(1, len(n) // fraction_samples) if fraction_samples else 1
-    share = (float(_grid_points_near(n[::step], n_grid, np.cos(np.radians(cone_deg))).mean())
-             if fraction else float("nan"))
-    return {"scatter_eig": eig, "spread_eig": spread, "fraction": share}
-
-
-def _grid_points_near(n: np.ndarray, n_grid: int, cos_cone: float,
-                      chunk: int = 8192) -> np.ndarray:
-    """Which of ``n_grid`` Fibonacci points have a unit direction of ``n`` (m, 3) within the
-    cone (cos ≥ ``cos_cone``); bool (n_grid,).
-
-    In chunks of samples, and only for the points not yet covered: the one-shot
-    ``grid @ n.T`` is an n_grid × m array (400 MB for 250 000 samples), while a covered
-    sphere is usually settled by the first chunk. The answer is the same.
-    """
-    k = np.arange(n_grid) + 0.5
-    z = 1 - 2 * k / n_grid
-    phi = np.pi * (1 + 5 ** 0.5) * k
-    grid = np.column_stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z])
-    # every k-th sample first (it spans the whole record, so it settles most points), then
-    # the points still open against contiguous chunks of all samples
-    near = (grid @ n[::max(1, len(n) // chunk)].T).max(axis=1) >= cos_cone
-    for lo in range(0, len(n), 8 * chunk):
-        todo = np.flatnonzero(~near)
-        if not todo.size:
-            break
-        near[todo] = (grid[todo] @ n[lo:lo + 8 * chunk].T).max(axis=1) >= cos_cone
-    return near
 
 
 def algebraic_ellipsoid(samples) -> tuple[np.ndarray, np.ndarray] | None:
@@ -187,61 +140,6 @@ def _default_f_scale(s, radius, o0, M0, entries) -> float:
                   np.ascontiguousarray(s.T / radius), entries)
     mad = 1.4826 * np.median(np.abs(r0 - np.median(r0)))
     return max(1.345 * mad, 1e-9)
-
-
-def warm_refit(cal: SensorCalibration, radius: float, info: dict, steps: int = 3):
-    """The final least-squares stage of the fit that made ``cal`` (with ``info``), as a
-    function of new samples, from ``cal``: for samples simulated from ``cal``'s model with
-    Gaussian noise (the parametric bootstrap of :mod:`apmcal.solvers.ellipsoid_debias`).
-
-    Same parameterisation and prior rows, plain least squares (on outlier-free Gaussian
-    samples the Huber stage and the 4σ rejection leave the LS minimum where it is: the cut
-    drops 6e-5 of them), no bounds. Started at the model the samples were drawn from, the
-    refit is δ = O(σ) away: ``steps`` chord steps ``x ← x − A⁻¹Jᵀr`` with A = JᵀJ (+ prior)
-    at the start contract the error by ~σ/r each (A is off by O(σ/r), as Gauss-Newton's own
-    contraction), so three leave ~(σ/r)³·δ, far below the O(σ²/r) bias the bootstrap
-    measures. A step needs only Jᵀr (:func:`apmcal.solvers.ellipsoid_lm.gradient`), and the
-    setup a cold fit repeats (sphere fit, coverage, quadric start, Huber pass, covariance) is
-    skipped. ``refit.at_design(clean)`` (m, 3): the same with A formed once, from the
-    noise-free samples all draws perturb (as good a chord matrix: it too is O(σ/r) off).
-
-    Returns
-    -------
-    callable
-        (m, 3) samples [sensor units] → SensorCalibration (no sigmas).
-    """
-    entries = ENTRIES[info["parameterisation"]]
-    x0 = np.concatenate([cal.offset / radius, [cal.matrix[c[0]] for c in entries]])
-    prior = info.get("prior")
-    box = np.full(len(x0), np.inf)
-
-    def chord_matrix(sT: np.ndarray) -> np.ndarray:
-        """Cholesky factor of JᵀJ (+ prior) at the start, samples ``sT`` (3, m) / radius."""
-        problem = Problem(sT, entries, np.ones(sT.shape[1]), "linear", 1.0, -box, box, prior)
-        return np.linalg.cholesky(problem.normal_equations(x0)[0])
-
-    def steps_from_start(sT: np.ndarray, chol: np.ndarray) -> SensorCalibration:
-        x = x0.copy()
-        for _ in range(steps):
-            g = gradient(x, sT, entries)
-            if prior is not None:
-                g[3:] += prior[1] ** 2 * (x[3:] - prior[0])
-            x = x - np.linalg.solve(chol.T, np.linalg.solve(chol, g))
-        return SensorCalibration(offset=x[:3] * radius, matrix=params_to_matrix(x[3:], entries))
-
-    def scaled(samples: np.ndarray) -> np.ndarray:
-        return np.ascontiguousarray(np.asarray(samples, dtype=float).T / radius)
-
-    def refit(samples: np.ndarray) -> SensorCalibration:
-        sT = scaled(samples)
-        return steps_from_start(sT, chord_matrix(sT))
-
-    def at_design(clean: np.ndarray):
-        chol = chord_matrix(scaled(clean))
-        return lambda samples: steps_from_start(scaled(samples), chol)
-
-    refit.at_design = at_design
-    return refit
 
 
 def _covariance(J: np.ndarray, r: np.ndarray, irls: np.ndarray, prior) -> tuple[np.ndarray, int]:

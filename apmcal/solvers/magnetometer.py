@@ -10,8 +10,7 @@ from apmcal.errors import ApmcalError
 from apmcal.geomag import field_magnitude
 from apmcal.solvers.blas_threads import single_threaded_blas
 from apmcal.solvers.ellipsoid import fit_ellipsoid_robust, fit_report, relative_mse, sphere_fit
-from apmcal.solvers.ellipsoid_debias import debiased
-from apmcal.solvers.ellipsoid_robust import warm_refit
+from apmcal.solvers.ellipsoid_debias import debiased, warm_refit
 from apmcal.solvers.report_types import CalibrationReport, MagneticField, MseScore
 from apmcal.solvers.result import SensorCalibration
 
