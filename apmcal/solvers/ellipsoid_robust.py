@@ -51,6 +51,18 @@ def algebraic_ellipsoid(samples) -> tuple[np.ndarray, np.ndarray] | None:
 
     Fits ``[x², y², z², 2xy, 2xz, 2yz, 2x, 2y, 2z]·v = 1`` on centred, scaled data (conditioning);
     None when the quadric is not an ellipsoid (A not positive definite) or the design is singular.
+
+    Parameters
+    ----------
+    samples : (n, 3) array
+        Samples [sensor units].
+
+    Returns
+    -------
+    o : (3,) array
+        Centre [sensor units].
+    A : (3, 3) array
+        Shape, symmetric positive definite [1/sensor units²].
     """
     s = np.asarray(samples, dtype=float)
     mu, scale = s.mean(axis=0), s.std() or 1.0
@@ -204,6 +216,11 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
     -------
     SensorCalibration
         with ``sigma = {"offset": (3,), "matrix": (3, 3)}`` (sensor units / dimensionless).
+
+    Raises
+    ------
+    ApmcalError
+        On invalid weights, a radius ≤ 0, an unknown parameterisation or too few samples.
     """
     s, w, radius = _checked_inputs(samples, weights, radius, parameterisation)
     notes: list[str] = []
@@ -394,6 +411,24 @@ def fit_report(samples, cal: SensorCalibration, radius: float, info: dict | None
 
     The coverage eigenvalues are the smaller of the calibrated samples' scatter (which exposes a
     collapsed fit) and the raw samples' own shape (``info``'s ``spread_eig``, whatever the centre).
+
+    Parameters
+    ----------
+    samples : (n, 3) array
+        The raw samples the fit used [sensor units].
+    cal : SensorCalibration
+        The fit.
+    radius : float
+        Field magnitude the fit scales to [sensor units].
+    info : dict, optional
+        The fit's ``info``.
+    method : str
+        Method name, when ``info`` has none.
+
+    Returns
+    -------
+    EllipsoidFit
+        Coverage, residuals [sensor units] and the fit's internals.
     """
     s = check_samples(samples, 1)
     info = info or {}
