@@ -189,6 +189,18 @@ class Whitener:
             self.other["mag_datum"] = np.array([[[1.0 / (1e-3 * d.noise["mag"])]]])
 
     def __call__(self, w: dict) -> np.ndarray:
+        """The whitened, weighted residual vector of the misclosures ``w``.
+
+        Parameters
+        ----------
+        w : dict
+            family → (n_c, dim) misclosures (:func:`apmcal.solvers.joint_residuals.misclosures`).
+
+        Returns
+        -------
+        (N,) array
+            Dimensionless: inertial families first (Cholesky order), then the others.
+        """
         head = np.concatenate([w[f].ravel() for f in self.inertial])
         tail = [np.einsum("cij,cj->ci", self.other[f], w[f]).ravel() for f in self.other]
         return np.concatenate([solve_triangular(self.chol, head, lower=True)] + tail)
