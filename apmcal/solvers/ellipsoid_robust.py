@@ -203,12 +203,15 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
         sigmas (MAD) are dropped and the fit is finished by plain LS on the rest (None: skip).
     n_bootstrap : int
         If > 0, also bootstrap sigma (``info["bootstrap_sigma"]``).
+    rng : int or numpy.random.Generator, optional
+        Seed or generator of the bootstrap resamples.
     start : SensorCalibration, optional
         Start (offset, matrix) instead of the quadric fit: a fit already known to be close
         (refits on a subset or on simulated samples of a fitted model) needs a few steps only.
         With ``f_scale`` given, the cost minimised is the same whatever the start.
-    sphere : (offset (3,), radius) of :func:`sphere_fit` on the same ``samples``, optional
-        When the caller has it already (it sets the box and the prior).
+    sphere : tuple, optional
+        (offset (3,), radius) of :func:`sphere_fit` on the same ``samples``,
+        when the caller has it already (it sets the box and the prior).
     info : dict, optional
         Filled with rms, cond, rank, start, parameterisation, coverage, notes, cov.
 

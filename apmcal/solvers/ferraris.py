@@ -409,7 +409,8 @@ def ferraris_calibration(t, acc, gyr, regions: FerrarisRegions, *, lat_deg: floa
     Parameters
     ----------
     t : (n,) array, s
-    acc : (n, 3) array, sensor frame (m/s² for a calibrated output in m/s² when gravity is known)
+    acc : (n, 3) array
+        Sensor frame (m/s² for a calibrated output in m/s² when gravity is known).
     gyr : (n, 3) array, rad/s, or None (accelerometer only)
     regions : FerrarisRegions
         The six faces, the turns and the holds

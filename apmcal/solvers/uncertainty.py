@@ -74,10 +74,13 @@ def covariance_from_normal_equations(A: np.ndarray, weighted_rss: float, dof: fl
         Σ w·r² [residual units²].
     dof : float
         Σ w − number of parameters.
+    rcond : float
+        Relative singular-value cut-off, as in :func:`covariance_from_jacobian`.
 
     Returns
     -------
-    cov : (p, p) array, rank : int
+    cov : (p, p) array
+    rank : int
     """
     A = 0.5 * (A + A.T)
     p = A.shape[0]
