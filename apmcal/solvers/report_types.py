@@ -219,7 +219,27 @@ class MagneticField:
 class OnePositionAcc:
     """Seed 002 §5.1 on the level hold (body FRD, m/s²): step-1 ``mean`` (3,), g := ‖mean‖,
     step-3 mean ``R`` and high-pass mean ``R_f`` (3,), ``bias`` (3,), F (3, 3) and its β, γ, μ,
-    μ read literally (a_s = R), F in the paper's sign convention, tilt from level [deg]."""
+    μ read literally (a_s = R), F in the paper's sign convention, tilt from level [deg].
+
+    Attributes
+    ----------
+    mean : (3,) array, m/s²
+        Step-1 mean.
+    g : float
+        ‖mean‖ [m/s²].
+    R, R_f : (3,) array, m/s²
+        Step-3 mean and high-pass mean.
+    bias : (3,) array, m/s²
+    F : (3, 3) array
+    beta_gamma_mu : (3,) array
+        β, γ, μ of F (dimensionless).
+    mu_literal : float
+        μ read literally (a_s = R).
+    F_paper_convention : (3, 3) array
+        F in the paper's sign convention.
+    tilt_deg : float
+        Tilt from level [deg].
+    """
 
     mean: np.ndarray
     g: float
@@ -236,7 +256,18 @@ class OnePositionAcc:
 @dataclass
 class OnePositionGyr:
     """Seed 002 §5.2 (rad/s): mean ``R``, high-pass mean ``R_f``, ``bias``; with a latitude the
-    Earth-rate input ``omega_p`` (3,), E (3, 3) and its τ, ξ, ν (reported, never applied)."""
+    Earth-rate input ``omega_p`` (3,), E (3, 3) and its τ, ξ, ν (reported, never applied).
+
+    Attributes
+    ----------
+    R, R_f, bias : (3,) array, rad/s
+        Mean, high-pass mean, bias.
+    omega_p : (3,) array, rad/s, or None
+        Earth-rate input (with a latitude).
+    E : (3, 3) array or None
+    tau_xi_nu : (3,) array or None
+        τ, ξ, ν of E (dimensionless).
+    """
 
     R: np.ndarray
     R_f: np.ndarray
@@ -267,7 +298,29 @@ class JointFit:
     and what ArduPilot cannot hold: the gyro matrix's cost [deg per 360° turn] and the
     g-sensitivity's largest effect at 1 g [rad/s]. ``block_samples`` > 1: the fit ran on
     means of that many samples of a ``recorded_rate_hz`` recording; ``compass_own_fit``: the
-    compass result is the compass's own ellipsoid fit (``auto``), not the joint fit's."""
+    compass result is the compass's own ellipsoid fit (``auto``), not the joint fit's.
+
+    Attributes
+    ----------
+    conditions, rejected : dict
+        family → number of conditions, of robust rejections.
+    noise_scale : dict
+        family → noise scale (1 = the still periods' white noise).
+    n_estimated, n_params : int
+        Parameters estimated, of all.
+    parameters : dict
+        name → [value, σ] in the units of :data:`apmcal.solvers.joint_model.UNITS`.
+    fixed, dropped_t_test : list of str
+        Parameters held fixed, and those the t-test dropped.
+    gyr_matrix_cost_deg_per_turn : float
+        The gyro matrix's cost [deg per 360° turn].
+    gyr_g_sensitivity_at_1g : float
+        The g-sensitivity's largest effect at 1 g [rad/s].
+    block_samples : int
+    recorded_rate_hz : float or None
+        [Hz].
+    compass_own_fit : bool
+    """
 
     conditions: dict[str, int]
     rejected: dict[str, int]
