@@ -97,12 +97,14 @@ def one_position_on_holds(t, acc, gyr, segments, lat_deg, lon_deg,
     Returns
     -------
     Calibration
-        Method "one_position", sensor frame, accelerometer marked undetermined.
+        Method "static" (:func:`apmcal.solvers.one_position.one_position_calibration`), sensor
+        frame, accelerometer marked undetermined.
 
     Raises
     ------
     ApmcalError
-        When no hold is level.
+        When no hold is level, or the one-position method refuses the hold (too short for its
+        high-pass, the equator).
     """
     from apmcal.solvers.one_position import one_position_calibration
 
