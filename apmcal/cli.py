@@ -32,12 +32,30 @@ class OneLineParser(argparse.ArgumentParser):
     """argparse, but a usage error is one line on stderr (the project rule), exit status 2."""
 
     def error(self, message):
+        """Print ``message`` as one line on stderr and exit with status 2."""
         self.exit(EXIT_USER_ERROR, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def number_type(kind, low=None, high=None, low_open=False, what="a number"):
     """An argparse ``type=`` accepting a finite ``kind`` (int/float) in [low, high] (or (low,
-    high] with ``low_open``); anything else is argparse's one-line usage error."""
+    high] with ``low_open``); anything else is argparse's one-line usage error.
+
+    Parameters
+    ----------
+    kind : type
+        int or float.
+    low, high : float, optional
+        Bounds, in the option's own unit (s, Hz, deg, baud).
+    low_open : bool
+        Exclude ``low`` itself.
+    what : str
+        What the number is, for the message ("seconds", "latitude [deg]").
+
+    Returns
+    -------
+    callable
+        str → ``kind``, raising argparse.ArgumentTypeError for anything else.
+    """
     lo = "" if low is None else (f"> {low:g}" if low_open else f">= {low:g}")
     hi = "" if high is None else f"<= {high:g}"
     wanted = f"{what} " + (f"in {'(' if low_open else '['}{low:g}, {high:g}]"
@@ -63,6 +81,7 @@ SAMPLE_RATE_HZ = number_type(float, 10, 2000, what="Hz")
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``apmcal`` parser with its sub-commands log, live, upload, restore, gap, tcal."""
     parser = OneLineParser(prog="apmcal", description=__doc__.split("\n")[0])
     parser.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
     parser.add_argument("--version", action=VersionAction)
@@ -115,6 +134,7 @@ class VersionAction(argparse.Action):
                          help="show program's version number and exit", **kwargs)
 
     def __call__(self, parser, namespace, values, option_string=None):
+        """Print ``apmcal <version>`` on stdout and exit."""
         print(f"{parser.prog} {package_version()}")      # stdout, as argparse's own action
         parser.exit()
 
@@ -201,6 +221,7 @@ def add_tcal_parser(sub) -> None:
 
 
 def cmd_tcal(args) -> int:
+    """``apmcal tcal``: fit, print and write or upload the temperature calibration; exit status."""
     from apmcal.sources import read_log
     from apmcal.sources.units import require_plausible_units
     from apmcal.tcal_pipeline import calibrate_temperature, tcal_params
@@ -232,6 +253,7 @@ def cmd_tcal(args) -> int:
 
 
 def add_gap_parser(sub) -> None:
+    """``apmcal gap``: the gap between a real log and its simulated twin (:mod:`apmcal.diagnosis`)."""
     gap = sub.add_parser("gap", help="diagnose the gap between a real log and its simulated "
                                      "twin: where it lies, which unmodelled effect causes it")
     gap.add_argument("file", nargs="?", help=".tlog, .bin, .log or .csv file")
@@ -272,6 +294,7 @@ def add_session_options(p: argparse.ArgumentParser) -> None:
 
 
 def add_calibration_options(p: argparse.ArgumentParser) -> None:
+    """Method, site (--lat/--lon [deg]), session and output options of log and live."""
     p.add_argument("--method", default="auto",
                    choices=["auto", "ferraris", "static", "ellipsoid", "joint"],
                    help="calibration method (default auto: ferraris for the six faces, "
@@ -296,7 +319,20 @@ def add_calibration_options(p: argparse.ArgumentParser) -> None:
 def main(argv: list[str] | None = None, *, operator=None) -> int:
     """Run the command line; Ctrl-C anywhere in it (imports included) ends in one line, 130.
     ``operator``: where ``live --guide`` prompts and reads key presses (default: this
-    terminal; a :class:`apmcal.sources.guided.Operator`, for tests)."""
+    terminal; a :class:`apmcal.sources.guided.Operator`, for tests).
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments (default: ``sys.argv[1:]``).
+    operator : Operator, optional
+
+    Returns
+    -------
+    int
+        Exit status: 0 done, 1 some proposed value out of the firmware's limits, 2 a user
+        error, 3 an internal error, 130 interrupted.
+    """
     try:
         return run(argv, operator)
     except KeyboardInterrupt:
@@ -305,6 +341,7 @@ def main(argv: list[str] | None = None, *, operator=None) -> int:
 
 
 def run(argv: list[str] | None, operator=None) -> int:
+    """:func:`main` without the Ctrl-C handling: parse, check, run the command; exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
     args.guide_operator = operator
@@ -343,6 +380,7 @@ def run(argv: list[str] | None, operator=None) -> int:
 
 
 def console_for(args):
+    """A rich Console that prints text literally (no markup), quiet with ``--quiet``."""
     from rich.console import Console
 
     # markup and emoji codes off: file names, units "[m/s²]" and notes are printed literally;
@@ -354,7 +392,20 @@ def console_for(args):
 
 
 def check_writable(path, what: str) -> None:
-    """Refuse, before any work, an output path that cannot be written (without creating it)."""
+    """Refuse, before any work, an output path that cannot be written (without creating it).
+
+    Parameters
+    ----------
+    path : str, Path or None
+        None: nothing to check.
+    what : str
+        What the file is, for the message.
+
+    Raises
+    ------
+    ApmcalError
+        When the path is a directory, its directory is missing or not writable.
+    """
     if path is None:
         return
     p = Path(path)
@@ -376,7 +427,13 @@ def check_writable(path, what: str) -> None:
 
 
 def write_json(path, obj) -> None:
-    """``obj`` as indented JSON (numpy values made plain), or one line saying why not."""
+    """``obj`` as indented JSON (numpy values made plain), or one line saying why not.
+
+    Raises
+    ------
+    ApmcalError
+        When the file cannot be written.
+    """
     from apmcal.solvers.result import jsonable
 
     text = json.dumps(jsonable(obj), indent=2) + "\n"
@@ -395,6 +452,7 @@ def check_outputs(args) -> None:
 
 @single_threaded_blas      # small BLAS products on long arrays: threads only contend (see there)
 def cmd_log(args) -> int:
+    """``apmcal log``: read a file, summarise and calibrate it; exit status."""
     from apmcal.sources import read_log
 
     check_outputs(args)
@@ -414,6 +472,24 @@ def summarise_and_calibrate(contents, args):
     Returns (exit status, parameter proposal or None). The status is 1 when the firmware would
     reject some proposed value. The JSON file is written last but also when the parameter file
     could not be (it then says why under "param_file_error"), before that error is raised.
+
+    Parameters
+    ----------
+    contents : LogContents
+    args : argparse.Namespace
+        The log or live command's options.
+
+    Returns
+    -------
+    int
+        Exit status, 0 or 1.
+    ParamProposal or None
+
+    Raises
+    ------
+    ApmcalError
+        When the units are implausible, nothing could be calibrated or an output cannot be
+        written.
     """
     from apmcal import report
     from apmcal.sources.units import require_plausible_units
@@ -455,7 +531,13 @@ def summarise_and_calibrate(contents, args):
 
 
 def write_proposal(path, proposal, calibration, contents) -> None:
-    """The proposed parameters as a .param file (ApmcalError when there are none or on OSError)."""
+    """The proposed parameters as a .param file (ApmcalError when there are none or on OSError).
+
+    Raises
+    ------
+    ApmcalError
+        Without a proposal (no firmware generation) or when the file cannot be written.
+    """
     if proposal is None:
         raise ApmcalError("not an ArduPilot log, so no firmware generation to write "
                           "parameters for: add --firmware 3.2 or --firmware 3.3+",
@@ -470,6 +552,7 @@ def write_proposal(path, proposal, calibration, contents) -> None:
 
 
 def cmd_live(args) -> int:
+    """``apmcal live``: record from a vehicle, calibrate, optionally upload; exit status."""
     from apmcal.sources import read_log
     from apmcal.sources.live import VehicleLink
 
@@ -512,6 +595,23 @@ def values_to_upload(proposal, connection: str, console) -> dict[str, float]:
     A sensor out of limits is withheld whole (ParamProposal.rejected); the others are uploaded
     all the same, since a rejected compass (say) says nothing against the accelerometer and
     gyro values. Nothing to upload at all is an ApmcalError.
+
+    Parameters
+    ----------
+    proposal : ParamProposal or None
+    connection : str
+        For the message.
+    console : rich.console.Console
+
+    Returns
+    -------
+    dict
+        Parameter name → value.
+
+    Raises
+    ------
+    ApmcalError
+        When no value is within the firmware's limits.
     """
     if proposal is None or not proposal.values:
         why = ", ".join(proposal.rejected) if proposal and proposal.rejected else "none proposed"
@@ -541,7 +641,19 @@ def record_guided(link, args) -> int:
 
 
 def record_with_progress(link, duration_s: float, console) -> int:
-    """Receive for ``duration_s`` with a progress bar; returns the IMU message count."""
+    """Receive for ``duration_s`` with a progress bar; returns the IMU message count.
+
+    Parameters
+    ----------
+    link : VehicleLink
+    duration_s : float
+        Recording time [s].
+    console : rich.console.Console
+
+    Returns
+    -------
+    int
+    """
     from rich.progress import Progress
 
     with Progress(console=console, transient=True) as bar:
@@ -555,6 +667,18 @@ def check_params_unchanged(before: dict, after: dict, connection: str) -> None:
     RAW_IMU is corrected with the parameters in force (ardupilot-facts.md), so samples from
     before and after a change (a boot gyro calibration still running, another GCS writing)
     cannot be un-corrected with one set.
+
+    Parameters
+    ----------
+    before, after : dict
+        The vehicle's parameters (name → value) before and after the recording.
+    connection : str
+        For the message.
+
+    Raises
+    ------
+    ApmcalError
+        When a calibration parameter differs.
     """
     from apmcal.recording import is_calibration_param
 
@@ -567,11 +691,35 @@ def check_params_unchanged(before: dict, after: dict, connection: str) -> None:
 
 
 def default_backup_name() -> str:
+    """``apmcal-backup-<local time>.param`` in the current directory."""
     return f"apmcal-backup-{time.strftime('%Y%m%d-%H%M%S')}.param"
 
 
 def upload_values(connection, values, backup, vehicle_params, console, baud,
                   all_params=False):
+    """Write ``values`` to the vehicle (backed up to ``backup``, verified) and say so.
+
+    Parameters
+    ----------
+    connection : str
+        pymavlink connection string.
+    values : dict
+        Parameter name → value.
+    backup : str or None
+        Backup file (None: :func:`default_backup_name`).
+    vehicle_params : dict or None
+        The vehicle's parameters when already fetched.
+    console : rich.console.Console
+    baud : int
+        Serial baud rate.
+    all_params : bool
+        Allow parameters other than calibration ones.
+
+    Raises
+    ------
+    ApmcalError
+        When the backup cannot be written or the upload fails.
+    """
     from apmcal.sources.live import VehicleLink
     from apmcal.vehicle.upload import upload_params
 
@@ -593,6 +741,7 @@ def print_skipped(result, console) -> None:
 
 
 def cmd_upload(args) -> int:
+    """``apmcal upload``: write a .param file to the vehicle; exit status."""
     from apmcal.vehicle.paramfile import read_param_file
     from apmcal.vehicle.scope import check_scope
 
@@ -604,6 +753,7 @@ def cmd_upload(args) -> int:
 
 
 def cmd_restore(args) -> int:
+    """``apmcal restore``: write a backup back to the vehicle; exit status."""
     from apmcal.sources.live import VehicleLink
     from apmcal.vehicle.paramfile import read_param_file
     from apmcal.vehicle.upload import restore_params
@@ -628,6 +778,7 @@ def print_left_out(names: list[str], console, all_params: bool) -> None:
 
 
 def cmd_gap(args) -> int:
+    """``apmcal gap``: see :func:`apmcal.diagnosis.cli.run_gap`; exit status."""
     from apmcal.diagnosis.cli import run_gap
 
     return run_gap(args, console_for(args))

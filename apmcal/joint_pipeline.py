@@ -29,6 +29,20 @@ def compass_on_imu_times(t: np.ndarray, prepared, mag_prepared) -> np.ndarray | 
 
     A compass in the IMU's own message (RAW_IMU, HIGHRES_IMU) is used as it is; a separate
     one (dataflash MAG) is interpolated linearly onto the IMU times.
+
+    Parameters
+    ----------
+    t : (n,) array
+        IMU sample times [s].
+    prepared : Prepared
+        The IMU recording.
+    mag_prepared : Prepared or None
+        A separate compass recording.
+
+    Returns
+    -------
+    (n, 3) array or None
+        Compass samples [mGauss].
     """
     from apmcal.pipeline import has_live_magnetometer
 
@@ -45,7 +59,22 @@ def compass_on_imu_times(t: np.ndarray, prepared, mag_prepared) -> np.ndarray | 
 def field_magnitude(mag: np.ndarray, opts, report: CalibrationReport) -> float:
     """Field magnitude [mGauss] that fixes the scale of the soft-iron matrix: the World
     Magnetic Model's at --lat/--lon when given, else the samples' sphere fit (into
-    ``report.magnetic_field``, with a warning when the model has one)."""
+    ``report.magnetic_field``, with a warning when the model has one).
+
+    Parameters
+    ----------
+    mag : (n, 3) array
+        Raw compass samples [mGauss].
+    opts : Options
+        Its ``lat_deg``, ``lon_deg`` [deg] and ``date``.
+    report : CalibrationReport
+        Changed in place.
+
+    Returns
+    -------
+    float
+        The magnitude [mGauss].
+    """
     from apmcal.geomag import field_magnitude
     from apmcal.solvers.ellipsoid import sphere_fit
 
@@ -63,7 +92,20 @@ def field_magnitude(mag: np.ndarray, opts, report: CalibrationReport) -> float:
 
 def at_joint_rate(t, acc, gyr, mag):
     """The samples averaged down to :data:`JOINT_RATE_HZ` (block means) and the samples per
-    block (1: unchanged, the recording is not faster)."""
+    block (1: unchanged, the recording is not faster).
+
+    Parameters
+    ----------
+    t : (n,) array, s
+    acc : (n, 3) array, m/s²
+    gyr : (n, 3) array, rad/s
+    mag : (n, 3) array, mGauss, or None
+
+    Returns
+    -------
+    tuple
+        t (m,), acc, gyr, mag (m, 3) (mag None when given None) and the samples per block (int).
+    """
     from apmcal.preprocessing.decimation import block_means, factor_for_rate
 
     k = factor_for_rate(t, JOINT_RATE_HZ)
@@ -78,6 +120,25 @@ def joint_on_prepared(prepared, mag_prepared, opts) -> Calibration:
     Without a live compass the accelerometer and gyro are calibrated alone (their 30
     parameters; the compass conditions are left out, seed 001 §3.2), with a warning. Raises
     ApmcalError (one line) when there are too few still poses or no turns between them.
+
+    Parameters
+    ----------
+    prepared : Prepared
+        The IMU recording (:func:`apmcal.pipeline.prepare`).
+    mag_prepared : Prepared or None
+        A separate compass recording.
+    opts : Options
+
+    Returns
+    -------
+    Calibration
+        Method "joint" (sensors acc, gyr, and mag when there is a compass).
+
+    Raises
+    ------
+    ApmcalError
+        Without gyro samples, when compass and IMU do not overlap in time, with too few still
+        poses or no turns between them, or when the session does not determine the parameters.
     """
     from apmcal.preprocessing.static import find_static_segments
     from apmcal.solvers.joint import joint_calibration

@@ -33,7 +33,22 @@ FERRARIS_MAX_TILT_DEG = 10.0    # Ferraris assumes each hold has one axis along 
 
 @dataclass
 class Options:
-    """What the user chose (the CLI's calibration options)."""
+    """What the user chose (the CLI's calibration options).
+
+    Attributes
+    ----------
+    method : {"auto", "ferraris", "static", "ellipsoid", "joint"}
+    lat_deg, lon_deg : float or None
+        Site [deg]: Earth rate, normal gravity, WMM field.
+    min_still_s : float
+        Shortest still period counted as a hold [s].
+    instance : int or None
+        IMU instance (None: the first).
+    generation : str or None
+        "3.2" / "3.3+" (None: from the log).
+    date : datetime.date or None
+        Recording date, for the WMM field (None: today).
+    """
 
     method: str = "auto"
     lat_deg: float | None = None          # site: Earth rate, normal gravity, WMM field
@@ -51,6 +66,19 @@ class Options:
 
 @dataclass
 class Prepared:
+    """A recording made ready for the solvers (:func:`prepare`).
+
+    Attributes
+    ----------
+    raw : Recording
+        Raw sensor-frame samples.
+    steps : dict
+        Telemetry resolution per sensor [m/s², rad/s, mGauss].
+    floor_steps : dict
+        Of those, the sensors whose noise is below a step.
+    warnings : list of str
+    """
+
     raw: Recording                                           # raw sensor-frame samples
     steps: dict[str, float] = field(default_factory=dict)    # telemetry resolution per sensor
     floor_steps: dict[str, float] = field(default_factory=dict)  # of those, noise below a step
@@ -63,6 +91,15 @@ def prepare(recording: Recording, generation: str | None = None) -> Prepared:
     ardupilot-facts.md "What the telemetry really carries": RAW_IMU and dataflash IMU/MAG are
     corrected with the parameters in force, so a fit on them must first undo that correction,
     the way ``generation`` ("3.2" / "3.3+"; None: from the log) applied it.
+
+    Parameters
+    ----------
+    recording : Recording
+    generation : str, optional
+
+    Returns
+    -------
+    Prepared
     """
     recording, warnings = drop_non_finite(recording)
     recording, time_warnings = monotonic(recording)
@@ -78,7 +115,19 @@ def prepare(recording: Recording, generation: str | None = None) -> Prepared:
 
 
 def drop_non_finite(recording: Recording) -> tuple[Recording, list[str]]:
-    """Rows whose time or sensor values are NaN/inf removed, with a counted warning."""
+    """Rows whose time or sensor values are NaN/inf removed, with a counted warning.
+
+    Parameters
+    ----------
+    recording : Recording
+
+    Returns
+    -------
+    Recording
+        The same object when every row is finite, else a copy without the others.
+    list of str
+        The warning (empty when nothing was dropped).
+    """
     cols = ["t"] + [c for s in recording.sensors for c in SENSOR_COLUMNS[s]]
     finite = np.isfinite(recording.data[cols].to_numpy(dtype=float)).all(axis=1)
     bad = int(np.count_nonzero(~finite))
@@ -92,7 +141,18 @@ def drop_non_finite(recording: Recording) -> tuple[Recording, list[str]]:
 def choose_method(segments, gyro_and_compass: bool = False) -> str:
     """'ferraris' for the six axis-aligned faces; for holds in four orientations or more,
     'joint' when ``gyro_and_compass`` (see :func:`has_gyro_and_compass`),
-    else 'ellipsoid'; 'static' otherwise."""
+    else 'ellipsoid'; 'static' otherwise.
+
+    Parameters
+    ----------
+    segments : list of StaticSegment
+        The still periods.
+    gyro_and_compass : bool
+
+    Returns
+    -------
+    str
+    """
     from apmcal.preprocessing.static import label_poses
 
     aligned = [s for s in segments if s.tilt_deg <= FERRARIS_MAX_TILT_DEG]
@@ -130,6 +190,23 @@ def calibrate(recording: Recording, opts: Options | None = None,
     magnetometer tumble, say) still yields its magnetometer calibration, with a warning.
     ``mag_recording`` (a separate compass record, dataflash MAG) is only used by the joint
     method, which calibrates the compass together with the IMU.
+
+    Parameters
+    ----------
+    recording : Recording
+    opts : Options, optional
+    mag_recording : Recording, optional
+
+    Returns
+    -------
+    Calibration
+        For raw sensor-frame samples (m/s², rad/s, mGauss), sigmas widened by the resolution.
+
+    Raises
+    ------
+    ApmcalError
+        For an unknown method, a recording without accelerometer, or a method given explicitly
+        that cannot calibrate the session.
     """
     opts = opts or Options()
     if opts.method not in METHODS:
@@ -164,7 +241,25 @@ def calibrate(recording: Recording, opts: Options | None = None,
 
 def joint_calibration_of(prepared: Prepared, mag_recording: Recording | None,
                          opts: Options) -> Calibration:
-    """Seed 001's joint calibration of IMU and compass (:mod:`apmcal.joint_pipeline`)."""
+    """Seed 001's joint calibration of IMU and compass (:mod:`apmcal.joint_pipeline`).
+
+    Parameters
+    ----------
+    prepared : Prepared
+    mag_recording : Recording or None
+        A separate compass record.
+    opts : Options
+
+    Returns
+    -------
+    Calibration
+        Method "joint", sigmas widened by the resolution.
+
+    Raises
+    ------
+    ApmcalError
+        When the joint fit refuses the session.
+    """
     from apmcal.joint_pipeline import joint_on_prepared
 
     mag_prepared = None
@@ -185,7 +280,17 @@ def joint_calibration_of(prepared: Prepared, mag_recording: Recording | None,
 
 def find_holds(prepared: Prepared, opts: Options) -> list:
     """The still periods (StaticSegment) of at least ``opts.min_still_s``, found once for
-    every method but the joint one (which finds its own on the compass's time span)."""
+    every method but the joint one (which finds its own on the compass's time span).
+
+    Parameters
+    ----------
+    prepared : Prepared
+    opts : Options
+
+    Returns
+    -------
+    list of StaticSegment
+    """
     from apmcal.preprocessing.static import find_static_segments
 
     raw = prepared.raw
@@ -202,6 +307,19 @@ def with_own_compass_fit(cal: Calibration, prepared: Prepared, mag_recording: Re
     same samples, while its accelerometer and gyro were as close or closer
     (``python benchmarks/joint_auto.py``). The joint's compass conditions still served the
     gyro. If the ellipsoid fit fails, the joint's compass is kept.
+
+    Parameters
+    ----------
+    cal : Calibration
+        The joint result, changed in place.
+    prepared : Prepared
+    mag_recording : Recording or None
+    opts : Options
+
+    Returns
+    -------
+    Calibration
+        ``cal``.
     """
     joint_mag = cal.sensors.pop("mag", None)
     source = (prepared if has_live_magnetometer(prepared.raw)
@@ -218,7 +336,23 @@ def with_own_compass_fit(cal: Calibration, prepared: Prepared, mag_recording: Re
 def inertial_calibration(prepared: Prepared, opts: Options, segments: list) -> Calibration:
     """Accelerometer and gyro calibration of the prepared samples by the chosen method, on the
     still periods ``segments`` (:func:`find_holds`); auto here never means joint (the caller
-    has tried it)."""
+    has tried it).
+
+    Parameters
+    ----------
+    prepared : Prepared
+    opts : Options
+    segments : list of StaticSegment
+
+    Returns
+    -------
+    Calibration
+
+    Raises
+    ------
+    ApmcalError
+        Without a still period, or when the chosen method cannot use the session.
+    """
     from apmcal.preprocessing.ferraris_regions import ferraris_regions
     from apmcal.solvers.ferraris import ferraris_calibration
     from apmcal.solvers.holds import ellipsoid_on_holds, one_position_on_holds
@@ -245,6 +379,14 @@ def board_rotation(recording: Recording) -> np.ndarray:
 
     ardupilot-facts.md "How the firmware applies the parameters": AHRS_ORIENTATION rotates
     sensor vectors into the body frame; "level" and "x north" are the vehicle's, not the board's.
+
+    Parameters
+    ----------
+    recording : Recording
+
+    Returns
+    -------
+    (3, 3) array
     """
     from apmcal.preprocessing.orientation import rotation_matrix
 
@@ -259,6 +401,21 @@ def calibrate_log(contents, opts: Options | None = None):
 
     Returns (Calibration, ParamProposal or None); None when the source is not an ArduPilot log
     and no generation was given (a CSV file has no firmware to write parameters for).
+
+    Parameters
+    ----------
+    contents : LogContents
+    opts : Options, optional
+
+    Returns
+    -------
+    Calibration
+    ParamProposal or None
+
+    Raises
+    ------
+    ApmcalError
+        When no recording fits or nothing could be calibrated.
     """
     from apmcal.preprocessing.firmware import firmware_generation
     from apmcal.preprocessing.param_changes import split_at_param_changes
@@ -292,14 +449,40 @@ def calibrate_log(contents, opts: Options | None = None):
 
 
 def recording_date(contents) -> datetime.date | None:
-    """UTC date the source was recorded, when the source carries a wall-clock time."""
+    """UTC date the source was recorded, when the source carries a wall-clock time.
+
+    Parameters
+    ----------
+    contents : LogContents
+
+    Returns
+    -------
+    datetime.date or None
+    """
     if contents.start_unix_s is None:
         return None
     return datetime.datetime.fromtimestamp(contents.start_unix_s, tz=datetime.timezone.utc).date()
 
 
 def pick_recording(contents, instance: int | None):
-    """(IMU recording, separate magnetometer recording of the same instance or None)."""
+    """(IMU recording, separate magnetometer recording of the same instance or None).
+
+    Parameters
+    ----------
+    contents : LogContents
+    instance : int or None
+        IMU instance (None: the lowest).
+
+    Returns
+    -------
+    Recording
+    Recording or None
+
+    Raises
+    ------
+    ApmcalError
+        When no accelerometer recording (of that instance) exists.
+    """
     candidates = [r for r in contents.recordings if r.has("acc")]
     if instance is not None:
         candidates = [r for r in candidates if r.instance == instance]
@@ -315,7 +498,16 @@ def pick_recording(contents, instance: int | None):
 
 
 def add_magnetometer(cal: Calibration, prepared: Prepared, opts: Options) -> None:
-    """Add the magnetometer fit to ``cal``, or a warning saying why it was not possible."""
+    """Add the magnetometer fit to ``cal``, or a warning saying why it was not possible.
+
+    Parameters
+    ----------
+    cal : Calibration
+        Changed in place.
+    prepared : Prepared
+        With magnetometer samples [mGauss].
+    opts : Options
+    """
     from apmcal.solvers.magnetometer import calibrate_magnetometer
 
     try:
@@ -335,7 +527,20 @@ def add_magnetometer(cal: Calibration, prepared: Prepared, opts: Options) -> Non
 def mag_coverage(mag: np.ndarray, cal) -> dict:
     """How well the compass samples [mGauss] cover the directions around the fitted offset:
     ``fraction`` of the sphere within 20° of a sample, ``min_eig`` the smallest eigenvalue of
-    3·mean(n nᵀ) (1 uniform, 0 all in one plane). Numbers for apmcal.verdict."""
+    3·mean(n nᵀ) (1 uniform, 0 all in one plane). Numbers for apmcal.verdict.
+
+    Parameters
+    ----------
+    mag : (n, 3) array
+        Raw samples [mGauss].
+    cal : SensorCalibration
+        The fit (its offset (3,) [mGauss]).
+
+    Returns
+    -------
+    dict
+        "fraction" and "min_eig" (floats).
+    """
     from apmcal.solvers.coverage import direction_coverage
 
     # the fraction from at most 40 000 samples, as the ellipsoid fit's own (a pass over the

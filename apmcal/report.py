@@ -15,6 +15,14 @@ def reader_notes(contents: LogContents) -> list[str]:
 
     The ArduPilot readers prefix their notes with "note: " or "warning: "; everything a CSV
     reader puts in ``messages`` is a note of its own (a CSV file carries no vehicle texts).
+
+    Parameters
+    ----------
+    contents : LogContents
+
+    Returns
+    -------
+    list of str
     """
     if contents.format == "csv":
         return list(contents.messages)
@@ -29,6 +37,17 @@ def summarize(contents: LogContents) -> dict:
 
     ``messages`` holds the first 20 texts of the file (vehicle texts and reader notes, as read);
     ``notes`` every note of the reader (:func:`reader_notes`), which the text report prints.
+
+    Parameters
+    ----------
+    contents : LogContents
+
+    Returns
+    -------
+    dict
+        Plain values: per recording its sample count, ``rate_hz`` [Hz] and ``duration_s`` [s]
+        (rounded to 1 ms); the calibration parameters in force; ``recorded_utc`` (ISO 8601) and
+        the clock it comes from; messages, notes and parameter changes as text.
     """
     recordings = []
     for rec in contents.recordings:
@@ -70,7 +89,14 @@ def _note(text: str) -> Text:
 
 
 def print_summary(summary: dict, console) -> None:
-    """Render :func:`summarize` output with rich."""
+    """Render :func:`summarize` output with rich.
+
+    Parameters
+    ----------
+    summary : dict
+        :func:`summarize` output.
+    console : rich.console.Console
+    """
     from rich import box
     from rich.table import Table
 
@@ -125,7 +151,14 @@ GRADE_STYLE = {"good": "green", "usable": "yellow", "redo": "red"}
 
 
 def print_verdict(verdicts: dict, console) -> None:
-    """The overall grade, its reason and next step, then one line per sensor."""
+    """The overall grade, its reason and next step, then one line per sensor.
+
+    Parameters
+    ----------
+    verdicts : dict
+        :func:`apmcal.verdict.judge` output (nothing printed without "overall").
+    console : rich.console.Console
+    """
     from apmcal.verdict import NAMES
 
     overall = verdicts.get("overall")
@@ -144,7 +177,19 @@ def print_verdict(verdicts: dict, console) -> None:
 
 
 def verdict_dict(calibration, proposal) -> dict:
-    """The verdicts as plain dicts, for the JSON output."""
+    """The verdicts as plain dicts, for the JSON output.
+
+    Parameters
+    ----------
+    calibration : Calibration
+    proposal : ParamProposal or None
+        As for :func:`apmcal.verdict.judge`.
+
+    Returns
+    -------
+    dict
+        sensor name (and "overall") → :meth:`apmcal.verdict.Verdict.to_dict`.
+    """
     from apmcal.verdict import judge
 
     return {name: v.to_dict() for name, v in judge(calibration, proposal).items()}
@@ -157,7 +202,18 @@ def _vector(values, fmt: str) -> str:
 
 def print_calibration(calibration, proposal, console, verbose: bool = False) -> None:
     """Render a Calibration: the verdict first, then the numbers, the solver's report lines
-    (technical ones only when ``verbose``) and the ArduPilot parameter proposal."""
+    (technical ones only when ``verbose``) and the ArduPilot parameter proposal.
+
+    Parameters
+    ----------
+    calibration : Calibration
+        Offsets shown in m/s², rad/s, mGauss, drift per s.
+    proposal : ParamProposal or None
+        The ArduPilot parameters proposed for it.
+    console : rich.console.Console
+    verbose : bool
+        Also the technical report lines and :func:`apmcal.report_lines.verbose_lines`.
+    """
     from apmcal.verdict import judge
 
     print_verdict(judge(calibration, proposal), console)

@@ -30,7 +30,18 @@ LEVEL_TOLERANCE_DEG = 5.0  # one-position hold tilted more than this: "NOT LEVEL
 
 def calibration_lines(report: CalibrationReport, sensors: dict) -> list[str]:
     """Every report line of a calibration, in order (``sensors``: name → SensorCalibration,
-    whose offset σ the ellipsoid lines quote)."""
+    whose offset σ the ellipsoid lines quote).
+
+    Parameters
+    ----------
+    report : CalibrationReport
+    sensors : dict
+        name → SensorCalibration.
+
+    Returns
+    -------
+    list of str
+    """
     lines: list[str] = []
     if report.one_position is not None:
         lines += one_position_lines(report.one_position)
@@ -61,7 +72,20 @@ def field_line(f: MagneticField) -> str:
 # --------------------------------------------------------------------------- ellipsoid fits
 def ellipsoid_lines(sensor: str, fit: EllipsoidFit, offset_sigma=None) -> list[str]:
     """Plain-words judgement of an ellipsoid fit, one line per finding: coverage, residuals,
-    offset σ (``offset_sigma`` (3,), sensor units), the fit's notes, its scores."""
+    offset σ (``offset_sigma`` (3,), sensor units), the fit's notes, its scores.
+
+    Parameters
+    ----------
+    sensor : str
+        "acc" or "mag", the lines' prefix.
+    fit : EllipsoidFit
+    offset_sigma : (3,) array, optional
+        One-sigma of the offset [sensor units].
+
+    Returns
+    -------
+    list of str
+    """
     r = fit.radius
     lines = []
     if fit.coverage is not None:
@@ -107,6 +131,19 @@ def few_residuals_lines(sensor: str, n_samples: int, n_params: int | None) -> li
     """A warning when the sigmas rest on few residuals (e.g. 7 hold means, 6 parameters).
 
     A sigma estimated from k residual degrees of freedom is itself uncertain by about 1/√(2k).
+
+    Parameters
+    ----------
+    sensor : str
+    n_samples : int
+        Residuals fitted.
+    n_params : int or None
+        Parameters fitted (None: no lines).
+
+    Returns
+    -------
+    list of str
+        Empty with ≥ ``MIN_RESIDUAL_DOF`` degrees of freedom.
     """
     if n_params is None:
         return []

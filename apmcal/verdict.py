@@ -55,9 +55,11 @@ class Verdict:
 
     Attributes
     ----------
-    grade : "good", "usable" or "redo"
-    reason : why, in plain words
-    next_step : what to do about it ("" when nothing is needed)
+    grade : {"good", "usable", "redo"}
+    reason : str
+        Why, in plain words.
+    next_step : str
+        What to do about it ("" when nothing is needed).
     """
 
     grade: str
@@ -65,6 +67,7 @@ class Verdict:
     next_step: str = ""
 
     def to_dict(self) -> dict:
+        """grade, reason and next_step as a plain dict."""
         return {"grade": self.grade, "reason": self.reason, "next_step": self.next_step}
 
 
@@ -76,12 +79,34 @@ def _grade(value: float, limits: tuple[float, float]) -> str:
 
 
 def worst(verdicts: list[Verdict]) -> Verdict:
-    """The verdict with the worst grade (the first of equals): a chain is as good as its worst."""
+    """The verdict with the worst grade (the first of equals): a chain is as good as its worst.
+
+    Parameters
+    ----------
+    verdicts : list of Verdict
+        At least one.
+
+    Returns
+    -------
+    Verdict
+    """
     return max(verdicts, key=lambda v: GRADES.index(v.grade))
 
 
 def accelerometer(cal, report: CalibrationReport) -> Verdict:
-    """Verdict on an accelerometer calibration (see the module doc for the thresholds)."""
+    """Verdict on an accelerometer calibration (see the module doc for the thresholds).
+
+    Parameters
+    ----------
+    cal : SensorCalibration
+        Its sigma: "offset" (3,) [m/s²], "matrix" (3, 3) (dimensionless).
+    report : CalibrationReport
+        The run's findings (undetermined, six-face misfit, warnings).
+
+    Returns
+    -------
+    Verdict
+    """
     if "acc" in report.undetermined:
         return Verdict("redo", f"the offsets could not be measured: "
                                f"{report.undetermined['acc']}", SIX_FACES)
@@ -112,7 +137,19 @@ def accelerometer(cal, report: CalibrationReport) -> Verdict:
 
 
 def gyroscope(cal, report: CalibrationReport) -> Verdict:
-    """Verdict on a gyro calibration (offset σ; a missing or odd full turn)."""
+    """Verdict on a gyro calibration (offset σ; a missing or odd full turn).
+
+    Parameters
+    ----------
+    cal : SensorCalibration
+        Its sigma: "offset" (3,) [rad/s].
+    report : CalibrationReport
+        The run's findings (undetermined, warnings).
+
+    Returns
+    -------
+    Verdict
+    """
     if "gyr" in report.undetermined:
         return Verdict("redo", report.undetermined["gyr"], "keep the vehicle still longer")
     sig = cal.sigma.get("offset")
@@ -133,7 +170,19 @@ def gyroscope(cal, report: CalibrationReport) -> Verdict:
 
 
 def compass(cal, report: CalibrationReport) -> Verdict:
-    """Verdict on a compass calibration (coverage of directions, offset σ vs the field)."""
+    """Verdict on a compass calibration (coverage of directions, offset σ vs the field).
+
+    Parameters
+    ----------
+    cal : SensorCalibration
+        Its sigma: "offset" (3,) [mGauss].
+    report : CalibrationReport
+        The run's findings (magnetic field [mGauss] and its coverage, warnings).
+
+    Returns
+    -------
+    Verdict
+    """
     mf = report.magnetic_field or MagneticField(np.nan, "")
     field = float(mf.mgauss)
     min_eig = 1.0 if mf.coverage_min_eig is None else mf.coverage_min_eig
@@ -170,6 +219,17 @@ def judge(calibration, proposal=None) -> dict[str, Verdict]:
 
     ``proposal`` (ParamProposal or None): a sensor whose parameters the firmware would refuse
     is redo whatever its numbers.
+
+    Parameters
+    ----------
+    calibration : Calibration
+    proposal : ParamProposal, optional
+
+    Returns
+    -------
+    dict
+        "acc", "gyr", "mag" (those calibrated or not calibrated) and "overall" → Verdict;
+        empty when there is no sensor.
     """
     report = calibration.report
     out = {name: JUDGES[name](cal, report) for name, cal in calibration.sensors.items()

@@ -17,6 +17,26 @@ def direction_coverage(samples, offset, n_grid: int = 200, cone_deg: float = 20.
     points on the sphere with a sample direction within ``cone_deg`` (NaN with
     ``fraction=False``: the one part that costs a pass over the samples per grid point; from
     every k-th sample, at most about ``fraction_samples``, when given).
+
+    Parameters
+    ----------
+    samples : (n, 3) array
+        Samples [sensor units].
+    offset : (3,) array
+        The centre the directions are seen from [sensor units].
+    n_grid : int
+        Number of Fibonacci points on the unit sphere.
+    cone_deg : float
+        Half-angle [deg] of the cone around a grid point that a sample direction must fall in.
+    fraction : bool
+        Compute ``fraction`` (False: NaN, no pass over the samples per grid point).
+    fraction_samples : int, optional
+        About how many samples (every k-th) ``fraction`` is computed from; all when None.
+
+    Returns
+    -------
+    dict
+        ``scatter_eig`` (3,), ``spread_eig`` (3,) (both ascending) and ``fraction`` (float, 0..1).
     """
     c = np.asarray(samples, dtype=float) - offset
     n = c / np.linalg.norm(c, axis=1, keepdims=True)

@@ -49,6 +49,19 @@ def ellipsoid_calibration(samples: dict, radius: dict, *, method: str = "robust"
     holdout : float
         Fraction (0..0.5) of samples, taken at random, kept out of the fit to score the paper's
         relative MSE raw vs calibrated (seed 000 §VI.B). 0 scores on the fitting samples.
+    rng : int or numpy.random.Generator, optional
+        Seed or generator of the hold-out draw.
+
+    Returns
+    -------
+    Calibration
+        Method "ellipsoid": one SensorCalibration per sensor of ``samples``, and a report with an
+        EllipsoidFit (including the relative-MSE score) per fitted sensor.
+
+    Raises
+    ------
+    ApmcalError
+        When ``method`` is unknown or a sensor other than "gyr" has no ``radius``.
     """
     if method not in FITS:
         raise ApmcalError(f"unknown ellipsoid method {method!r} (robust, analytical, numerical)")

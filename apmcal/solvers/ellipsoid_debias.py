@@ -53,6 +53,19 @@ def second_order_bias(fit: Callable[[np.ndarray], SensorCalibration], samples: n
         drawn at random, are refitted.
     cal : SensorCalibration
         The fit's result on ``samples``.
+    radius : float
+        Field magnitude the fit scales to [sensor units].
+    pairs : int
+        Number of antithetic pairs of refits.
+    rng : numpy.random.Generator, optional
+        Source of the noise draws (and the subset); a generator seeded with 0 when None.
+
+    Returns
+    -------
+    offset_bias : (3,) array
+        Mean refit offset minus ``cal.offset`` [sensor units].
+    matrix_bias : (3, 3) array
+        Mean refit matrix minus ``cal.matrix``.
     """
     rng = np.random.default_rng(0) if rng is None else rng
     if len(samples) > MAX_SAMPLES:
@@ -82,7 +95,20 @@ def second_order_bias(fit: Callable[[np.ndarray], SensorCalibration], samples: n
 def debiased(fit: Callable[[np.ndarray], SensorCalibration], samples: np.ndarray,
              cal: SensorCalibration, radius: float, pairs: int = DEFAULT_PAIRS,
              rng=None) -> tuple[SensorCalibration, Debias]:
-    """``cal`` with its second-order bias subtracted, and by how much (for the report)."""
+    """``cal`` with its second-order bias subtracted, and by how much (for the report).
+
+    Parameters
+    ----------
+    fit, samples, cal, radius, pairs, rng
+        As for :func:`second_order_bias`.
+
+    Returns
+    -------
+    SensorCalibration
+        ``cal``'s offset (3,) and matrix (3, 3) minus their bias; drift, t_ref and sigmas kept.
+    Debias
+        The offset shift (3,) [sensor units], the largest matrix shift and the number of pairs.
+    """
     d_offset, d_matrix = second_order_bias(fit, samples, cal, radius, pairs, rng)
     out = SensorCalibration(offset=cal.offset - d_offset, matrix=cal.matrix - d_matrix,
                             drift=cal.drift, t_ref=cal.t_ref, sigma=dict(cal.sigma))
@@ -105,6 +131,17 @@ def warm_refit(cal: SensorCalibration, radius: float, info: dict, steps: int = 3
     setup a cold fit repeats (sphere fit, coverage, quadric start, Huber pass, covariance) is
     skipped. ``refit.at_design(clean)`` (m, 3): the same with A formed once, from the
     noise-free samples all draws perturb (as good a chord matrix: it too is O(σ/r) off).
+
+    Parameters
+    ----------
+    cal : SensorCalibration
+        The fit to start from (offset (3,) [sensor units], matrix (3, 3)).
+    radius : float
+        Field magnitude the fit scales to [sensor units].
+    info : dict
+        The fit's ``info`` (its ``parameterisation`` and ``prior``).
+    steps : int
+        Number of chord steps.
 
     Returns
     -------

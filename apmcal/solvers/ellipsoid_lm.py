@@ -37,7 +37,26 @@ MU_MAX = 1e12
 
 
 def loss_weights(f: np.ndarray, f_scale: float, loss: str) -> np.ndarray:
-    """IRLS weights ρ'(f²) of scipy's robust losses at residuals ``f`` (1 for "linear")."""
+    """IRLS weights ρ'(f²) of scipy's robust losses at residuals ``f`` (1 for "linear").
+
+    Parameters
+    ----------
+    f : (n,) array
+        Residuals [radius units].
+    f_scale : float
+        Soft margin C of the loss [radius units].
+    loss : {"linear", "huber", "soft_l1", "cauchy"}
+
+    Returns
+    -------
+    (n,) array
+        The weights.
+
+    Raises
+    ------
+    ValueError
+        For an unknown ``loss``.
+    """
     if loss == "linear":
         return np.ones_like(f)
     z = np.abs(f) / f_scale
@@ -57,6 +76,16 @@ def curvature_weights(f: np.ndarray, f_scale: float, loss: str) -> np.ndarray:
     weights ρ'(f²), this is Newton's step in the loss (Gauss-Newton in the model) and converges
     in a few steps where IRLS creeps linearly (factor ~7 per step on a magnetometer with 7 %
     outliers); the gradient, and so the minimum, is unchanged. Other losses keep ρ'(f²).
+
+    Parameters
+    ----------
+    f, f_scale, loss
+        As for :func:`loss_weights`.
+
+    Returns
+    -------
+    (n,) array
+        The weights.
     """
     if loss != "huber":
         return loss_weights(f, f_scale, loss)
@@ -66,7 +95,23 @@ def curvature_weights(f: np.ndarray, f_scale: float, loss: str) -> np.ndarray:
 
 
 def loss_cost(f: np.ndarray, f_scale: float, loss: str) -> float:
-    """½ Σ ρ(f²) with scipy's scaling ``ρ(z) = C²·ρ₀(z/C²)`` [residual units²]."""
+    """½ Σ ρ(f²) with scipy's scaling ``ρ(z) = C²·ρ₀(z/C²)`` [residual units²].
+
+    Parameters
+    ----------
+    f, f_scale, loss
+        As for :func:`loss_weights` (``C`` = ``f_scale``).
+
+    Returns
+    -------
+    float
+        The cost [residual units²].
+
+    Raises
+    ------
+    ValueError
+        For an unknown ``loss``.
+    """
     if loss == "linear":
         return 0.5 * float(f @ f)
     z = (f / f_scale) ** 2
@@ -83,7 +128,22 @@ def loss_cost(f: np.ndarray, f_scale: float, loss: str) -> float:
 
 def residual(x: np.ndarray, sT: np.ndarray, entries) -> np.ndarray:
     """``|M(s − o)| − 1`` (n,) for ``x = [o (3), m (k)]`` and samples ``sT`` (3, n), in units
-    of the radius."""
+    of the radius.
+
+    Parameters
+    ----------
+    x : (3 + k,) array
+        Offset o [radius units] and the k free matrix parameters m.
+    sT : (3, n) array
+        Samples, transposed [radius units].
+    entries : list
+        Layout of the matrix parameters (:func:`apmcal.solvers.ellipsoid_paper.params_to_matrix`).
+
+    Returns
+    -------
+    (n,) array
+        The residuals [radius units].
+    """
     M = params_to_matrix(x[3:], entries)
     # einsum, not M @ c: a 3×3 by 3×n BLAS product is threaded, which on a busy 2-core
     # machine costs 4× the single-threaded loop
@@ -97,6 +157,18 @@ def residual_jacobian(x: np.ndarray, sT: np.ndarray, entries) -> tuple[np.ndarra
     Seed 000's geometric residual; ``∂r/∂o = −Mᵀn``, ``∂r/∂M_ab = n_a·c_b`` with
     ``c = s − o``, ``n = Mc/|Mc|`` (as :func:`apmcal.solvers.ellipsoid_paper.geometric_residual`,
     which returns the (n, p) layout).
+
+    Parameters
+    ----------
+    x, sT, entries
+        As for :func:`residual` (p = 3 + k parameters).
+
+    Returns
+    -------
+    r : (n,) array
+        The residuals [radius units].
+    J : (p, n) array
+        Their transposed Jacobian.
     """
     M = params_to_matrix(x[3:], entries)
     c = sT - x[:3, None]
@@ -115,7 +187,18 @@ def residual_jacobian(x: np.ndarray, sT: np.ndarray, entries) -> tuple[np.ndarra
 
 def gradient(x: np.ndarray, sT: np.ndarray, entries) -> np.ndarray:
     """``Jᵀr`` (p,) of the geometric residual without forming J (p, n): ``−Mᵀ Σ nᵢrᵢ`` for the
-    offset, ``Σ rᵢ n_a c_b`` (one 3×3 product of (3, n) arrays) for the matrix entries."""
+    offset, ``Σ rᵢ n_a c_b`` (one 3×3 product of (3, n) arrays) for the matrix entries.
+
+    Parameters
+    ----------
+    x, sT, entries
+        As for :func:`residual` (p = 3 + k parameters).
+
+    Returns
+    -------
+    (p,) array
+        The gradient of ½ Σ r² [radius units²].
+    """
     M = params_to_matrix(x[3:], entries)
     c = sT - x[:3, None]
     u = np.einsum("ij,jn->in", M, c)
@@ -133,6 +216,23 @@ class Problem:
     ``sw`` (n,) are the square roots of the sample weights; ``prior = (m_p, λ)`` adds rows
     ``λ·(m − m_p)`` for the matrix parameters (see ``ellipsoid_robust._solve``); ``lo, hi``
     (p,) are the box bounds.
+
+    Attributes
+    ----------
+    sT : (3, n) array
+        Samples, transposed, over the radius.
+    entries : list
+        Layout of the matrix parameters.
+    sw : (n,) array
+        Square roots of the sample weights.
+    loss : str
+        scipy's loss name ("linear", "huber", "soft_l1", "cauchy").
+    f_scale : float
+        Soft margin of the loss [radius units].
+    lo, hi : (p,) array
+        Box bounds.
+    prior : tuple (m_p (k,) array, λ float), optional
+        Prior on the matrix parameters.
     """
 
     sT: np.ndarray
@@ -167,6 +267,20 @@ class Problem:
 
         ``g = Σ ρ'(f²)·f·∇f`` and ``A = Σ c·∇f∇fᵀ`` with c the loss curvature
         (:func:`curvature_weights`), f = √w·r: one (p, n) product each.
+
+        Parameters
+        ----------
+        x : (p,) array
+            Parameters ``[o (3), m (k)]``.
+
+        Returns
+        -------
+        A : (p, p) array
+            Normal matrix.
+        g : (p,) array
+            Gradient of the cost.
+        cost : float
+            ½ Σ ρ(f²) over data and prior rows.
         """
         r, J = residual_jacobian(x, self.sT, self.entries)
         unit = self.unit_weights
@@ -213,6 +327,20 @@ def solve(problem: Problem, x0: np.ndarray, max_iter: int = MAX_ITER) -> np.ndar
 
     Each iteration forms the normal equations once; rejected steps only raise the damping and
     cost one residual evaluation.
+
+    Parameters
+    ----------
+    problem : Problem
+        The fit.
+    x0 : (p,) array
+        Start ``[o (3), m (k)]`` [radius units for o].
+    max_iter : int
+        Iterations at most.
+
+    Returns
+    -------
+    (p,) array
+        The parameters at the minimum found.
     """
     lo, hi = problem.lo, problem.hi
     x = np.clip(np.asarray(x0, dtype=float), lo, hi)

@@ -28,7 +28,27 @@ DIAGONAL_ENTRIES = SYMMETRIC_ENTRIES[:3]
 
 
 def check_samples(samples, min_rows: int, what: str = "samples") -> np.ndarray:
-    """(n, 3) finite float array with at least ``min_rows`` rows, else ApmcalError."""
+    """(n, 3) finite float array with at least ``min_rows`` rows, else ApmcalError.
+
+    Parameters
+    ----------
+    samples : array_like, (n, 3)
+        Samples [sensor units]; rows with a NaN or inf are dropped.
+    min_rows : int
+        Finite rows needed.
+    what : str
+        Name of the samples in the error message.
+
+    Returns
+    -------
+    (m, 3) array
+        The finite rows, as floats.
+
+    Raises
+    ------
+    ApmcalError
+        When the shape is not (n, 3) or fewer than ``min_rows`` rows are finite.
+    """
     s = np.asarray(samples, dtype=float)
     if s.ndim != 2 or s.shape[1] != 3:
         raise ApmcalError(f"{what} must be an (n, 3) array, got shape {s.shape}")
@@ -41,7 +61,20 @@ def check_samples(samples, min_rows: int, what: str = "samples") -> np.ndarray:
 
 
 def params_to_matrix(m: np.ndarray, entries) -> np.ndarray:
-    """3x3 matrix from its free parameters ``m`` laid out as ``entries``."""
+    """3x3 matrix from its free parameters ``m`` laid out as ``entries``.
+
+    Parameters
+    ----------
+    m : (k,) array
+        Free parameters.
+    entries : list
+        k tuples of the (row, column) cells each parameter fills (e.g. ``SYMMETRIC_ENTRIES``).
+
+    Returns
+    -------
+    (3, 3) array
+        The matrix (zero in cells no entry names).
+    """
     M = np.zeros((3, 3))
     for value, cells in zip(m, entries):
         for a, b in cells:
@@ -50,7 +83,18 @@ def params_to_matrix(m: np.ndarray, entries) -> np.ndarray:
 
 
 def matrix_to_params(M: np.ndarray, entries) -> np.ndarray:
-    """Free parameters of ``M`` (first cell of each entry)."""
+    """Free parameters of ``M`` (first cell of each entry).
+
+    Parameters
+    ----------
+    M : (3, 3) array
+    entries : list
+        As for :func:`params_to_matrix` (k entries).
+
+    Returns
+    -------
+    (k,) array
+    """
     return np.array([M[cells[0]] for cells in entries])
 
 
@@ -60,6 +104,26 @@ def geometric_residual(x: np.ndarray, s: np.ndarray, radius: float, entries,
 
     Returns ``r`` (n,) or ``(r, J)`` with the analytic Jacobian J (n, 3 + len(entries)):
     ``∂r/∂o = −Mᵀn`` and ``∂r/∂M_ab = n_a·c_b`` with ``n = M c / |M c|``, ``c = s − o``.
+
+    Parameters
+    ----------
+    x : (3 + k,) array
+        Offset o [sensor units] and the k free matrix parameters.
+    s : (n, 3) array
+        Samples [sensor units].
+    radius : float
+        Field magnitude [sensor units].
+    entries : list
+        Layout of the matrix parameters (:func:`params_to_matrix`).
+    jac : bool
+        Also return the Jacobian.
+
+    Returns
+    -------
+    r : (n,) array
+        The residuals [sensor units].
+    J : (n, 3 + k) array
+        Only with ``jac``.
     """
     o = x[:3]
     M = params_to_matrix(x[3:], entries)
@@ -98,7 +162,25 @@ def _lstsq_full_rank(X: np.ndarray, y: np.ndarray, what: str) -> np.ndarray:
 
 
 def sphere_fit(samples: np.ndarray) -> tuple[np.ndarray, float]:
-    """Fig. 2 step 1: LS sphere ``|s|² = 2·V0·s + (S² − |V0|²)`` → (V0, S)."""
+    """Fig. 2 step 1: LS sphere ``|s|² = 2·V0·s + (S² − |V0|²)`` → (V0, S).
+
+    Parameters
+    ----------
+    samples : (n, 3) array
+        Sensor output [sensor units], n ≥ 4.
+
+    Returns
+    -------
+    V0 : (3,) array
+        Centre [sensor units].
+    S : float
+        Radius [sensor units].
+
+    Raises
+    ------
+    ApmcalError
+        On too few finite samples, a rank-deficient design or a negative squared radius.
+    """
     s = check_samples(samples, 4)
     X = np.column_stack([s, np.ones(len(s))])
     y = np.sum(s ** 2, axis=1)
@@ -130,6 +212,11 @@ def fit_ellipsoid_analytical(samples, radius: float | None = None, *, diagonal_o
     -------
     SensorCalibration
         ``offset = V0``, ``matrix = W⁻¹`` (symmetric); no sigma (the paper gives none).
+
+    Raises
+    ------
+    ApmcalError
+        On too few samples, a rank-deficient design or a quadric that is not an ellipsoid.
     """
     s = check_samples(samples, 6 if diagonal_only else 10)     # seed 000 §V: ≥ 10 for 10 unknowns
     V0, S = sphere_fit(s)                       # step 1, W⁻¹ = I
@@ -164,8 +251,24 @@ def fit_ellipsoid_numerical(samples, radius: float | None = None, *, diagonal_on
 
     Parameters
     ----------
+    samples, radius, diagonal_only
+        As for :func:`fit_ellipsoid_analytical`: (n, 3) samples [sensor units], field magnitude
+        [sensor units] (None: the step-1 estimate), diagonal W⁻¹ only.
     x0 : array, optional
         Start ``[V0 (3), w1, w2, w3, w4, w5, w6]`` (first 6 only when ``diagonal_only``).
+    info : dict, optional
+        Filled with ``S``, ``radius_used``, ``rms`` [sensor units], ``success`` and
+        ``iterations``.
+
+    Returns
+    -------
+    SensorCalibration
+        ``offset = V0`` (3,) [sensor units], ``matrix = W⁻¹`` (3, 3) symmetric; no sigma.
+
+    Raises
+    ------
+    ApmcalError
+        On too few samples or a failed sphere fit (the start).
     """
     from scipy.optimize import minimize  # here: scipy.optimize costs ~0.2 s to import
 
@@ -201,6 +304,23 @@ def gyro_offset(samples, *, n_batches: int = 10) -> SensorCalibration:
 
     sigma["offset"] uses batch means (``n_batches`` consecutive blocks) because low-pass filtered
     sensor noise is correlated: std(batch means)/sqrt(n_batches), not std/sqrt(n).
+
+    Parameters
+    ----------
+    samples : (n, 3) array
+        Gyro samples at rest [rad/s], n ≥ 2·``n_batches``.
+    n_batches : int
+        Number of consecutive blocks for the sigma.
+
+    Returns
+    -------
+    SensorCalibration
+        offset (3,) [rad/s], identity matrix, sigma["offset"] (3,) [rad/s].
+
+    Raises
+    ------
+    ApmcalError
+        On fewer than 2·``n_batches`` finite samples.
     """
     s = check_samples(samples, 2 * n_batches, "gyroscope samples at rest")
     blocks = np.array_split(s, n_batches)
@@ -215,6 +335,20 @@ def relative_mse(samples_test, cal: SensorCalibration | None, radius: float) -> 
     ``mean((|cal(s)| − S)²) / S²`` (dimensionless); ``cal=None`` scores the raw samples.
     The paper names the figure ("magnitude relative mean squared error") without a formula;
     this is the plain reading: MSE of the magnitude relative to the squared true magnitude.
+
+    Parameters
+    ----------
+    samples_test : (n, 3) array
+        Raw samples [sensor units].
+    cal : SensorCalibration or None
+        The calibration to score; None scores the raw samples.
+    radius : float
+        True field magnitude S [sensor units].
+
+    Returns
+    -------
+    float
+        The relative MSE (dimensionless).
     """
     s = check_samples(samples_test, 1, "test samples")
     y = s if cal is None else cal.apply(s)

@@ -51,6 +51,18 @@ def algebraic_ellipsoid(samples) -> tuple[np.ndarray, np.ndarray] | None:
 
     Fits ``[x², y², z², 2xy, 2xz, 2yz, 2x, 2y, 2z]·v = 1`` on centred, scaled data (conditioning);
     None when the quadric is not an ellipsoid (A not positive definite) or the design is singular.
+
+    Parameters
+    ----------
+    samples : (n, 3) array
+        Samples [sensor units].
+
+    Returns
+    -------
+    o : (3,) array
+        Centre [sensor units].
+    A : (3, 3) array
+        Shape, symmetric positive definite [1/sensor units²].
     """
     s = np.asarray(samples, dtype=float)
     mu, scale = s.mean(axis=0), s.std() or 1.0
@@ -191,12 +203,15 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
         sigmas (MAD) are dropped and the fit is finished by plain LS on the rest (None: skip).
     n_bootstrap : int
         If > 0, also bootstrap sigma (``info["bootstrap_sigma"]``).
+    rng : int or numpy.random.Generator, optional
+        Seed or generator of the bootstrap resamples.
     start : SensorCalibration, optional
         Start (offset, matrix) instead of the quadric fit: a fit already known to be close
         (refits on a subset or on simulated samples of a fitted model) needs a few steps only.
         With ``f_scale`` given, the cost minimised is the same whatever the start.
-    sphere : (offset (3,), radius) of :func:`sphere_fit` on the same ``samples``, optional
-        When the caller has it already (it sets the box and the prior).
+    sphere : tuple, optional
+        (offset (3,), radius) of :func:`sphere_fit` on the same ``samples``,
+        when the caller has it already (it sets the box and the prior).
     info : dict, optional
         Filled with rms, cond, rank, start, parameterisation, coverage, notes, cov.
 
@@ -204,6 +219,11 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
     -------
     SensorCalibration
         with ``sigma = {"offset": (3,), "matrix": (3, 3)}`` (sensor units / dimensionless).
+
+    Raises
+    ------
+    ApmcalError
+        On invalid weights, a radius ≤ 0, an unknown parameterisation or too few samples.
     """
     s, w, radius = _checked_inputs(samples, weights, radius, parameterisation)
     notes: list[str] = []
@@ -394,6 +414,24 @@ def fit_report(samples, cal: SensorCalibration, radius: float, info: dict | None
 
     The coverage eigenvalues are the smaller of the calibrated samples' scatter (which exposes a
     collapsed fit) and the raw samples' own shape (``info``'s ``spread_eig``, whatever the centre).
+
+    Parameters
+    ----------
+    samples : (n, 3) array
+        The raw samples the fit used [sensor units].
+    cal : SensorCalibration
+        The fit.
+    radius : float
+        Field magnitude the fit scales to [sensor units].
+    info : dict, optional
+        The fit's ``info``.
+    method : str
+        Method name, when ``info`` has none.
+
+    Returns
+    -------
+    EllipsoidFit
+        Coverage, residuals [sensor units] and the fit's internals.
     """
     s = check_samples(samples, 1)
     info = info or {}

@@ -70,34 +70,106 @@ ANGLE_WARN_DEG = 20.0        # rotation integral further than this from ±360° 
 
 # --------------------------------------------------------------------------- pure equations
 def u_matrices(means: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """U+ and U− (seed 002 §4.2): columns are the mean vectors of x_p,y_p,z_p and x_a,y_a,z_a."""
+    """U+ and U− (seed 002 §4.2): columns are the mean vectors of x_p,y_p,z_p and x_a,y_a,z_a.
+
+    Parameters
+    ----------
+    means : dict
+        Pose name ("x_p", ..., "z_a") → (3,) mean vector [sensor units].
+
+    Returns
+    -------
+    u_plus, u_minus : (3, 3) array
+        One column per axis x, y, z [sensor units].
+    """
     up = np.column_stack([means[a + "_p"] for a in AXES])
     um = np.column_stack([means[a + "_a"] for a in AXES])
     return up, um
 
 
 def accel_bias(u_plus: np.ndarray, u_minus: np.ndarray) -> np.ndarray:
-    """Seed 002 eq. 3: b_i = (a_{i,p_i} + a_{i,ap_i}) / 2, the diagonal of (U+ + U−)/2."""
+    """Seed 002 eq. 3: b_i = (a_{i,p_i} + a_{i,ap_i}) / 2, the diagonal of (U+ + U−)/2.
+
+    Parameters
+    ----------
+    u_plus, u_minus : (3, 3) array
+        From :func:`u_matrices` [m/s²].
+
+    Returns
+    -------
+    (3,) array
+        The bias b [m/s²].
+    """
     return np.diag((u_plus + u_minus) / 2.0).copy()
 
 
 def gravity_q(u_plus: np.ndarray) -> float:
-    """Seed 002 eq. 4: Q = mean of the column norms of U+."""
+    """Seed 002 eq. 4: Q = mean of the column norms of U+.
+
+    Parameters
+    ----------
+    u_plus : (3, 3) array
+        From :func:`u_matrices` [m/s²].
+
+    Returns
+    -------
+    float
+        Q [m/s²].
+    """
     return float(np.mean(np.linalg.norm(u_plus, axis=0)))
 
 
 def accel_coupling(u_plus: np.ndarray, u_minus: np.ndarray, g: float) -> np.ndarray:
-    """Seed 002 §4.2: K_a R_a = (U+ − U−) / (2 g) (g = Q or the known local gravity)."""
+    """Seed 002 §4.2: K_a R_a = (U+ − U−) / (2 g) (g = Q or the known local gravity).
+
+    Parameters
+    ----------
+    u_plus, u_minus : (3, 3) array
+        From :func:`u_matrices` [m/s²].
+    g : float
+        Gravity [m/s²].
+
+    Returns
+    -------
+    (3, 3) array
+        K_a R_a (dimensionless); the calibration matrix is its inverse.
+    """
     return (u_plus - u_minus) / (2.0 * g)
 
 
 def gyro_g_sensitivity(ug_plus: np.ndarray, ug_minus: np.ndarray, g: float) -> np.ndarray:
-    """imucal's eq. 9: K_ga = (Ug+ − Ug−) / (2 g), gyro units per m/s²."""
+    """imucal's eq. 9: K_ga = (Ug+ − Ug−) / (2 g), gyro units per m/s².
+
+    Parameters
+    ----------
+    ug_plus, ug_minus : (3, 3) array
+        Gyro means of the six faces as :func:`u_matrices` lays them out [rad/s].
+    g : float
+        Gravity [m/s²].
+
+    Returns
+    -------
+    (3, 3) array
+        K_ga [rad/s per m/s²].
+    """
     return (ug_plus - ug_minus) / (2.0 * g)
 
 
 def gyro_coupling(integrals: np.ndarray, angles: np.ndarray) -> np.ndarray:
-    """Seed 002 §4.4: K_g R_g = W · diag(angles)⁻¹, column j = integral of rotation j / its angle."""
+    """Seed 002 §4.4: K_g R_g = W · diag(angles)⁻¹, column j = integral of rotation j / its angle.
+
+    Parameters
+    ----------
+    integrals : (3, 3) array
+        W: column j the bias-corrected gyro integral over rotation j [rad].
+    angles : (3,) array
+        Turned angle of each rotation [rad].
+
+    Returns
+    -------
+    (3, 3) array
+        K_g R_g (dimensionless); the calibration matrix is its inverse.
+    """
     return np.asarray(integrals, dtype=float) / np.asarray(angles, dtype=float)[None, :]
 
 
@@ -106,6 +178,18 @@ def earth_rate_up(up_axes: np.ndarray, lat_deg: float) -> np.ndarray:
 
     In NED the Earth rate is Ω(cos φ, 0, −sin φ) (ardupilot-facts.md), i.e. +Ω sin φ along up;
     the horizontal part depends on the heading and is not included.
+
+    Parameters
+    ----------
+    up_axes : (3,) or (n, 3) array
+        Unit "up" vectors in the sensor frame.
+    lat_deg : float
+        Latitude [deg].
+
+    Returns
+    -------
+    (1, 3) or (n, 3) array
+        The vertical Earth rate along ``up_axes`` [rad/s].
     """
     return EARTH_RATE * np.sin(np.radians(lat_deg)) * np.atleast_2d(up_axes)
 
@@ -194,6 +278,7 @@ class GyroModel:
     gyro_step: float = 0.0
 
     def removes_earth_rate(self, lat_deg: float | None) -> bool:
+        """True when the vertical Earth rate is removed: asked for and the latitude known."""
         return self.earth_rate and lat_deg is not None
 
     def is_classic(self, lat_deg: float | None) -> bool:
@@ -324,7 +409,8 @@ def ferraris_calibration(t, acc, gyr, regions: FerrarisRegions, *, lat_deg: floa
     Parameters
     ----------
     t : (n,) array, s
-    acc : (n, 3) array, sensor frame (m/s² for a calibrated output in m/s² when gravity is known)
+    acc : (n, 3) array
+        Sensor frame (m/s² for a calibrated output in m/s² when gravity is known).
     gyr : (n, 3) array, rad/s, or None (accelerometer only)
     regions : FerrarisRegions
         The six faces, the turns and the holds
@@ -343,8 +429,9 @@ def ferraris_calibration(t, acc, gyr, regions: FerrarisRegions, *, lat_deg: floa
 
     Returns
     -------
-    Calibration with sensors "acc" (and "gyr", with drift and K_ga), sigma filled, ``report``
-    with the holds, turns, U+, U−, Q, gravity used, misfit, rotation integrals and warnings.
+    Calibration
+        With sensors "acc" (and "gyr", with drift and K_ga), sigma filled, ``report``
+        with the holds, turns, U+, U−, Q, gravity used, misfit, rotation integrals and warnings.
 
     Raises
     ------

@@ -19,6 +19,37 @@ def fit_gyro_bias(ts, ys, fs=None, *, drift: bool = True, t_ref: float = 0.0):
     Returns b0 (3,), b1 (3,), K_ga (3, 3) or None, the one-sigma of b0 and b1 (residual-scaled
     covariance; white-noise assumption, optimistic for correlated noise) and that of K_ga
     (3, 3) or None.
+
+    Parameters
+    ----------
+    ts : (n,) array
+        Sample times [s].
+    ys : (n, 3) array
+        Still gyro samples [rad/s].
+    fs : (n, 3) array, optional
+        Calibrated specific force at each sample [m/s²]; None fits no g-sensitivity.
+    drift : bool
+        Fit the drift b1 (else zeros).
+    t_ref : float
+        Reference time of the drift [s].
+
+    Returns
+    -------
+    b0 : (3,) array
+        Bias at ``t_ref`` [rad/s].
+    b1 : (3,) array
+        Drift [rad/s²].
+    kga : (3, 3) array or None
+        g-sensitivity K_ga [rad/s per m/s²].
+    sb0, sb1 : (3,) array
+        One-sigma of b0 [rad/s] and b1 [rad/s²].
+    skga : (3, 3) array or None
+        One-sigma of K_ga [rad/s per m/s²].
+
+    Raises
+    ------
+    ApmcalError
+        When the design is rank deficient (bias not identifiable).
     """
     cols = [np.ones_like(ts)] + ([ts - t_ref] if drift else [])
     a = np.column_stack(cols + ([fs] if fs is not None else []))
@@ -42,6 +73,17 @@ def motions_between_holds(rotation: Rotation, segments) -> list[tuple]:
 
     The holds are the static segment ending where the rotation starts, those inside it and the
     one starting where it ends; an empty list when they cannot all be found.
+
+    Parameters
+    ----------
+    rotation : Rotation
+        The turn (sample indices ``i0``, ``i1``).
+    segments : list of StaticSegment
+        The holds.
+
+    Returns
+    -------
+    list of (StaticSegment, StaticSegment)
     """
     holds = [s for s in segments if s.i1 <= rotation.i1 + 1 and s.i0 >= rotation.i0 - 1
              or s.i1 == rotation.i0 or s.i0 == rotation.i1]
@@ -75,6 +117,24 @@ def integrate_motions(t, gyr, moves, step: float = 0.0) -> tuple[np.ndarray, np.
     Each motion is integrated from the trimmed end of the hold before it to the trimmed start
     of the hold after it (:data:`HOLD_EDGE_S` given back to the motion, so slow tails are not
     lost), against a bias linear in time between the two trimmed holds' means.
+
+    Parameters
+    ----------
+    t : (n,) array
+        Sample times [s].
+    gyr : (n, 3) array
+        Gyro samples [rad/s].
+    moves : list of (StaticSegment, StaticSegment)
+        From :func:`motions_between_holds`.
+    step : float
+        Quantisation step of the gyro samples [rad/s].
+
+    Returns
+    -------
+    total : (3,) array
+        The integral [rad].
+    sigma : (3,) array
+        Its one-sigma [rad].
     """
     total, var, moving_s = np.zeros(3), np.zeros(3), 0.0
     for before, after in moves:

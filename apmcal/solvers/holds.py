@@ -15,7 +15,18 @@ MIN_ORIENTATIONS = 4        # holds ≥ 30° apart: fewer leave the ellipsoid un
 
 
 def tilt_from_level_deg(acc_mean: np.ndarray) -> float:
-    """Angle [deg] between the mean specific force and a level vehicle's (0, 0, −g)."""
+    """Angle [deg] between the mean specific force and a level vehicle's (0, 0, −g).
+
+    Parameters
+    ----------
+    acc_mean : (3,) array
+        Mean specific force, body frame [m/s² or counts].
+
+    Returns
+    -------
+    float
+        The tilt [deg], 0..180.
+    """
     up = -np.asarray(acc_mean, dtype=float) / np.linalg.norm(acc_mean)
     return float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
 
@@ -26,6 +37,22 @@ def longest_level_hold(segments, board_rotation: np.ndarray | None = None):
     Level is the vehicle's: the hold means (sensor frame) are rotated into the body frame by
     ``board_rotation`` (AHRS_ORIENTATION, sensor → body), so a board mounted upside down on a
     level vehicle counts as level (None: the identity).
+
+    Parameters
+    ----------
+    segments : list of StaticSegment
+        The holds.
+    board_rotation : (3, 3) array, optional
+        Sensor → body rotation.
+
+    Returns
+    -------
+    StaticSegment
+
+    Raises
+    ------
+    ApmcalError
+        When no hold is level.
     """
     rotation = np.eye(3) if board_rotation is None else np.asarray(board_rotation, dtype=float)
 
@@ -51,6 +78,33 @@ def one_position_on_holds(t, acc, gyr, segments, lat_deg, lon_deg,
     like every other method's. One pose cannot separate accelerometer bias from tilt (see the
     identifiability lines in the report), so the accelerometer is marked undetermined and its
     offsets are never sent to a vehicle.
+
+    Parameters
+    ----------
+    t : (n,) array
+        Sample times [s].
+    acc : (n, 3) array
+        Specific force, sensor frame [m/s²].
+    gyr : (n, 3) array or None
+        Angular rate, sensor frame [rad/s].
+    segments : list of StaticSegment
+        The holds.
+    lat_deg, lon_deg : float
+        Position [deg].
+    board_rotation : (3, 3) array, optional
+        AHRS_ORIENTATION, sensor → body (None: the identity).
+
+    Returns
+    -------
+    Calibration
+        Method "static" (:func:`apmcal.solvers.one_position.one_position_calibration`), sensor
+        frame, accelerometer marked undetermined.
+
+    Raises
+    ------
+    ApmcalError
+        When no hold is level, or the one-position method refuses the hold (too short for its
+        high-pass, the equator).
     """
     from apmcal.solvers.one_position import one_position_calibration
 
@@ -73,6 +127,18 @@ def body_to_sensor(cal: SensorCalibration, R: np.ndarray) -> SensorCalibration:
 
     From R·M_s·(m − o_s) = M_b·(R·m − o_b): o_s = Rᵀ·o_b and M_s = Rᵀ·M_b·R. Sigmas move with
     the squared entries (exact for the axis permutations of ArduPilot's board rotations).
+
+    Parameters
+    ----------
+    cal : SensorCalibration
+        Calibration of body-frame samples.
+    R : (3, 3) array
+        Sensor → body rotation.
+
+    Returns
+    -------
+    SensorCalibration
+        Offset (3,), matrix (3, 3), drift (3,) and their sigmas for sensor-frame samples.
     """
     R2 = R ** 2
     sigma = {}
@@ -93,6 +159,17 @@ def distinct_orientations(segments, min_chord: float = 0.5) -> int:
     The radius is g when the samples are in m/s²; for raw counts (large offsets, unknown scale)
     it is half the largest distance between hold means, provided that distance stands well
     above the holds' own noise.
+
+    Parameters
+    ----------
+    segments : list of StaticSegment
+        The holds (their ``acc_mean`` (3,) and ``acc_std`` (3,)).
+    min_chord : float
+        Least distance between orientations, in field radii.
+
+    Returns
+    -------
+    int
     """
     means = np.array([s.acc_mean for s in segments])
     if len(means) == 0:
@@ -112,7 +189,27 @@ def distinct_orientations(segments, min_chord: float = 0.5) -> int:
 
 
 def ellipsoid_on_holds(gyr, segments, gravity: float) -> Calibration:
-    """Robust ellipsoid fit (seed 000) of the hold means [m/s²]; gyro offset from held samples."""
+    """Robust ellipsoid fit (seed 000) of the hold means [m/s²]; gyro offset from held samples.
+
+    Parameters
+    ----------
+    gyr : (n, 3) array or None
+        Gyro samples [rad/s].
+    segments : list of StaticSegment
+        The holds.
+    gravity : float
+        Local gravity [m/s²], the ellipsoid's radius.
+
+    Returns
+    -------
+    Calibration
+        Method "ellipsoid": "acc" (and "gyr", offset only).
+
+    Raises
+    ------
+    ApmcalError
+        With too few holds or orientations.
+    """
     from apmcal.solvers.ellipsoid import ellipsoid_calibration
 
     n_orient = distinct_orientations(segments)

@@ -37,14 +37,24 @@ class IdentifiabilityReport:
 
     Attributes
     ----------
-    names : parameter names ("b_x", ..., "F_xz", ...)
-    jacobian : (3·poses, p) ∂y/∂θ
-    rank, singular_values, condition : of the Jacobian (condition = inf when rank-deficient)
-    determinable : name → bool, separable from the others by these poses (exact algebra)
-    resolvable : name → bool, determinable and its plausible effect (a ``plausible`` matrix
+    model : str
+        "acc", "gyr" or "mag".
+    names : list of str
+        Parameter names ("b_x", ..., "F_xz", ...).
+    jacobian : (3·poses, p) array
+        ∂y/∂θ.
+    rank : int
+    singular_values : (p,) array
+    condition : float
+        Of the Jacobian (condition = inf when rank-deficient).
+    determinable : dict
+        name → bool, separable from the others by these poses (exact algebra).
+    resolvable : dict
+        name → bool, determinable and its plausible effect (a ``plausible`` matrix
         error, or a bias confounded only with matrix terms whose effect is below the resolution)
-        shows at the given resolution; equals ``determinable`` when no resolution is given
-    lines : plain-words findings for the user
+        shows at the given resolution; equals ``determinable`` when no resolution is given.
+    lines : list of str
+        Plain-words findings for the user.
     """
 
     model: str
@@ -59,11 +69,23 @@ class IdentifiabilityReport:
 
     @property
     def n_params(self) -> int:
+        """Number of parameters p."""
         return len(self.names)
 
 
 def six_faces(magnitude: float = STANDARD_GRAVITY) -> np.ndarray:
-    """Inputs of the six Ferraris faces (each axis parallel and anti-parallel to the field)."""
+    """Inputs of the six Ferraris faces (each axis parallel and anti-parallel to the field).
+
+    Parameters
+    ----------
+    magnitude : float
+        Field magnitude [sensor units] (default standard gravity [m/s²]).
+
+    Returns
+    -------
+    (6, 3) array
+        +x, +y, +z, −x, −y, −z times ``magnitude``.
+    """
     return magnitude * np.vstack([np.eye(3), -np.eye(3)])
 
 
@@ -73,7 +95,20 @@ def _names(matrix: str) -> list[str]:
 
 
 def jacobian(design: np.ndarray, matrix: str = "full") -> np.ndarray:
-    """∂y/∂θ for ``y_k = b + F·u_k`` stacked over the poses u_k (rows of ``design``)."""
+    """∂y/∂θ for ``y_k = b + F·u_k`` stacked over the poses u_k (rows of ``design``).
+
+    Parameters
+    ----------
+    design : (k, 3) array
+        Inputs u_k [sensor units].
+    matrix : {"full", "upper", "symmetric", "diagonal"}
+        Parameterisation of F.
+
+    Returns
+    -------
+    (3·k, 3 + m) array
+        Bias columns, then one column per free matrix term.
+    """
     cells = MATRIX_CELLS[matrix]
     J = np.zeros((3 * len(design), 3 + len(cells)))
     for k, u in enumerate(design):
@@ -132,6 +167,15 @@ def identifiability(model: str, design, *, matrix: str = "full", resolution: flo
         Smallest output change the data can show (RAW_IMU: 1 mG = 0.00981 m/s², 1 mrad/s).
     plausible : float
         Size of a plausible matrix error (0.1 = 10 % scale or cross-axis), used with resolution.
+
+    Returns
+    -------
+    IdentifiabilityReport
+
+    Raises
+    ------
+    ApmcalError
+        For an unknown model or matrix form, or a design that is not finite (k, 3).
     """
     if model not in UNITS:
         raise ApmcalError(f"identifiability: unknown model {model!r} (acc, gyr, mag)")

@@ -53,19 +53,32 @@ def joint_calibration(t, acc, gyr, mag, holds, *, gravity: float,
 
     Parameters
     ----------
-    t : (n,) s; acc : (n, 3) m/s²; gyr : (n, 3) rad/s
-    mag : (n, 3) mGauss on the same time base, or None (accelerometer and gyro only: the
-        magnetometer conditions and its 12 parameters are left out)
-    holds : list of StaticSegment, the still periods in time order
-    gravity : local gravity [m/s²]
-    field_mgauss : field magnitude fixing the scale of D_m (default: the samples' sphere fit)
-    t_test : drop insignificant parameters and refit (seed 001 §5.1)
+    t : (n,) array, s
+    acc : (n, 3) array, m/s²
+    gyr : (n, 3) array, rad/s
+    mag : (n, 3) array, mGauss, or None
+        On the same time base, or None (accelerometer and gyro only: the
+        magnetometer conditions and its 12 parameters are left out).
+    holds : list of StaticSegment
+        The still periods in time order.
+    gravity : float
+        Local gravity [m/s²].
+    field_mgauss : float, optional
+        Field magnitude [mGauss] fixing the scale of D_m (default: the samples' sphere fit).
+    t_test : bool
+        Drop insignificant parameters and refit (seed 001 §5.1).
 
     Returns
     -------
-    Calibration "joint": sensors acc, gyr (mapping into the accelerometer frame, with its
-    g-sensitivity), mag; report (:class:`~apmcal.solvers.report_types.JointFit`) with the
-    parameters and their σ, fixed and dropped parameters, family statistics.
+    Calibration
+        "joint": sensors acc, gyr (mapping into the accelerometer frame, with its
+        g-sensitivity), mag; report (:class:`~apmcal.solvers.report_types.JointFit`) with the
+        parameters and their σ, fixed and dropped parameters, family statistics.
+
+    Raises
+    ------
+    ApmcalError
+        Without gyro samples, or when the session has no turns between still poses.
     """
     from apmcal.solvers.ellipsoid import fit_ellipsoid_robust, sphere_fit
 
@@ -107,7 +120,21 @@ def joint_calibration(t, acc, gyr, mag, holds, *, gravity: float,
 
 
 def check_motion(d, n_holds: int) -> None:
-    """Refuse a session the method cannot use: no turns between still poses."""
+    """Refuse a session the method cannot use: no turns between still poses.
+
+    Parameters
+    ----------
+    d : JointData
+        The session's layout (:func:`apmcal.solvers.joint_residuals.layout`).
+    n_holds : int
+        Number of still periods (for the message).
+
+    Raises
+    ------
+    ApmcalError
+        Without a moving interval between two holds, or with less than ``MIN_TURN_DEG`` [deg]
+        of turning in all of them.
+    """
     if not d.intervals:
         raise ApmcalError(f"joint calibration needs still poses with turns between them; found "
                           f"{n_holds} still period(s) and no motion between two of them")

@@ -32,7 +32,25 @@ WEIGHT_FLOOR = 1e-8        # a rejected condition (weight 0) gets this weight: i
 
 def inertial_covariance(x, d, families, rows) -> np.ndarray:
     """Dense covariance of the inertial misclosures, rows laid out family by family in
-    :data:`INERTIAL` order, each condition's components together."""
+    :data:`INERTIAL` order, each condition's components together.
+
+    Parameters
+    ----------
+    x : (42,) array
+        Parameters (:mod:`apmcal.solvers.joint_model`).
+    d : JointData
+        The session's samples and condition layout (:func:`apmcal.solvers.joint_residuals.layout`).
+    families : tuple of str
+        The condition families in use.
+    rows : (I, K+1) int array
+        Moving intervals' sample indices (:func:`apmcal.solvers.joint_residuals.interval_rows`).
+
+    Returns
+    -------
+    (N, N) array
+        N = Σ over the inertial families of conditions × dim, in the families' units squared
+        ([m/s²]², [rad/s]², [rad]², [m/s]²).
+    """
     m = matrices(x)
     a = correct_acc(d.acc, m)
     sa2, sw2 = d.noise["acc"] ** 2, d.noise["gyr"] ** 2
@@ -90,7 +108,20 @@ def inertial_covariance(x, d, families, rows) -> np.ndarray:
 
 def mag_covariances(x, d) -> np.ndarray:
     """(W, 3, 3) per magnetometer window of the condition D_m·(m_e − dRᵀ·m_s), in raw units:
-    σ_m²·(I + T·Tᵀ) + D_m·σ_ω²·Δt·T·[m]×[m]×ᵀ·D_mᵀ with T = D_m·dRᵀ·D_m⁻¹."""
+    σ_m²·(I + T·Tᵀ) + D_m·σ_ω²·Δt·T·[m]×[m]×ᵀ·D_mᵀ with T = D_m·dRᵀ·D_m⁻¹.
+
+    Parameters
+    ----------
+    x : (42,) array
+        Parameters (:mod:`apmcal.solvers.joint_model`).
+    d : JointData
+        The session's samples and condition layout (:func:`apmcal.solvers.joint_residuals.layout`).
+
+    Returns
+    -------
+    (W, 3, 3) array
+        One covariance per window, all window lengths in turn [mGauss²].
+    """
     sm2, sw2 = d.noise["mag"] ** 2, d.noise["gyr"] ** 2
     step = float(np.median(np.diff(d.t)))
     m = matrices(x)
@@ -112,7 +143,23 @@ def mag_covariances(x, d) -> np.ndarray:
 class Whitener:
     """Maps misclosures (family → (n_c, dim)) to the whitened, weighted residual vector of the
     least squares, with per-condition robust weights and per-family variance factors folded
-    into the covariance (a weight w divides a condition's variance by w)."""
+    into the covariance (a weight w divides a condition's variance by w).
+
+    Parameters
+    ----------
+    x : (42,) array
+        Parameters the covariance is evaluated at.
+    d : JointData
+        The session's samples and condition layout (:func:`apmcal.solvers.joint_residuals.layout`).
+    families : tuple of str
+        The condition families in use.
+    rows : (I, K+1) int array
+        Moving intervals' sample indices.
+    weights : dict
+        family → (n_c,) robust weight of each condition (0..1).
+    factor : dict
+        family → variance factor (a σ scale, dimensionless).
+    """
 
     def __init__(self, x, d, families, rows, weights: dict, factor: dict):
         self.families = families
@@ -142,11 +189,34 @@ class Whitener:
             self.other["mag_datum"] = np.array([[[1.0 / (1e-3 * d.noise["mag"])]]])
 
     def __call__(self, w: dict) -> np.ndarray:
+        """The whitened, weighted residual vector of the misclosures ``w``.
+
+        Parameters
+        ----------
+        w : dict
+            family → (n_c, dim) misclosures (:func:`apmcal.solvers.joint_residuals.misclosures`).
+
+        Returns
+        -------
+        (N,) array
+            Dimensionless: inertial families first (Cholesky order), then the others.
+        """
         head = np.concatenate([w[f].ravel() for f in self.inertial])
         tail = [np.einsum("cij,cj->ci", self.other[f], w[f]).ravel() for f in self.other]
         return np.concatenate([solve_triangular(self.chol, head, lower=True)] + tail)
 
     def jacobian(self, a: dict) -> np.ndarray:
+        """The design matrix whitened as :meth:`__call__` whitens the misclosures.
+
+        Parameters
+        ----------
+        a : dict
+            family → (n_c, dim, p) ∂w/∂X (:func:`apmcal.solvers.joint_jacobian.jacobian`).
+
+        Returns
+        -------
+        (N, p) array
+        """
         head = np.concatenate([a[f].reshape(-1, a[f].shape[2]) for f in self.inertial])
         tail = [np.einsum("cij,cjp->cip", self.other[f], a[f]).reshape(-1, a[f].shape[2])
                 for f in self.other]
@@ -154,7 +224,18 @@ class Whitener:
 
     def family_rows(self, w: dict) -> dict[str, slice]:
         """Rows of the whitened vector attributed to each family (Cholesky order: a row is the
-        part of its condition not explained by the conditions before it)."""
+        part of its condition not explained by the conditions before it).
+
+        Parameters
+        ----------
+        w : dict
+            family → (n_c, dim) misclosures.
+
+        Returns
+        -------
+        dict
+            family → slice of rows.
+        """
         out, k = {}, 0
         for f in self.inertial + list(self.other):
             out[f] = slice(k, k + w[f].size)
@@ -162,7 +243,20 @@ class Whitener:
         return out
 
     def standardised(self, w: dict, f: str) -> np.ndarray:
-        """Each condition's residual over its own (marginal) σ, RMS over its components."""
+        """Each condition's residual over its own (marginal) σ, RMS over its components.
+
+        Parameters
+        ----------
+        w : dict
+            family → (n_c, dim) misclosures.
+        f : str
+            The family.
+
+        Returns
+        -------
+        (n_c,) array
+            Dimensionless.
+        """
         chol = np.linalg.cholesky(self.marginal[f])
         z = np.linalg.solve(chol, w[f][..., None])[..., 0]
         return np.sqrt(np.mean(z ** 2, axis=1))

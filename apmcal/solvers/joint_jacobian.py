@@ -48,6 +48,22 @@ def sample_derivatives(x: np.ndarray, d, free: np.ndarray):
     with ω = K_ω⁻¹(y_ω − b_ω − G_ω·a), ∂ω = −K_ω⁻¹·(∂b_ω + ∂G_ω·a + G_ω·∂a + ∂K_ω·ω);
     with m = D⁻¹(y_m − o), ∂m = −D⁻¹·(∂o + ∂D·m). Only ∂K/∂x of the 3×3 matrices is taken
     by differences (cheap: no samples involved).
+
+    Parameters
+    ----------
+    x : (42,) array
+        Parameters (:mod:`apmcal.solvers.joint_model`).
+    d : JointData
+        The session's samples and condition layout (:func:`apmcal.solvers.joint_residuals.layout`).
+    free : (42,) bool array
+        The parameters estimated (p of them).
+
+    Returns
+    -------
+    signals : tuple
+        a (n, 3) [m/s²], ω (n, 3) [rad/s], m (n, 3) [mGauss] or None.
+    derivatives : tuple
+        ∂a, ∂ω, ∂m, each (n, 3, p) (∂m None without a magnetometer).
     """
     m0 = jm.matrices(x)
     a0, w0, mag0 = _signals(x, d)
@@ -74,7 +90,19 @@ def sample_derivatives(x: np.ndarray, d, free: np.ndarray):
 
 def unit_derivative(v: np.ndarray, dv: np.ndarray):
     """d(v/|v|) = (I − uuᵀ)·dv/|v| for (c, 3) vectors and their (c, 3, p) derivatives;
-    returns (that, u)."""
+    returns (that, u).
+
+    Parameters
+    ----------
+    v : (c, 3) array
+    dv : (c, 3, p) array
+
+    Returns
+    -------
+    du : (c, 3, p) array
+    u : (c, 3) array
+        The unit vectors.
+    """
     n = np.linalg.norm(v, axis=1, keepdims=True)
     u = v / n
     proj = (np.eye(3) - u[:, :, None] * u[:, None, :]) / n[:, :, None]
@@ -87,7 +115,26 @@ def _rows_with_pad(v: np.ndarray) -> np.ndarray:
 
 
 def jacobian(x: np.ndarray, d, families, rows, free: np.ndarray) -> dict[str, np.ndarray]:
-    """∂w/∂X of each family: name → (n_c, dim, p) over the free parameters."""
+    """∂w/∂X of each family: name → (n_c, dim, p) over the free parameters.
+
+    Parameters
+    ----------
+    x : (42,) array
+        Parameters.
+    d : JointData
+        The session's samples and condition layout (:func:`apmcal.solvers.joint_residuals.layout`).
+    families : tuple of str
+        The families to differentiate.
+    rows : (I, K+1) int array
+        :func:`apmcal.solvers.joint_residuals.interval_rows` of ``d``.
+    free : (42,) bool array
+        The parameters estimated (p of them).
+
+    Returns
+    -------
+    dict
+        family → (n_c, dim, p) array.
+    """
     (a, w, mc), (da, dw, dm) = sample_derivatives(x, d, free)
     mats, cols = jm.matrices(x), np.flatnonzero(free)
     p = da.shape[2]

@@ -47,7 +47,17 @@ _LOWER = (np.array([1, 2, 2]), np.array([0, 0, 1]))     # sub-diagonal entries o
 
 
 def lower(n: np.ndarray) -> np.ndarray:
-    """Unit lower-triangular non-orthogonality matrix N from its three sub-diagonal entries."""
+    """Unit lower-triangular non-orthogonality matrix N from its three sub-diagonal entries.
+
+    Parameters
+    ----------
+    n : (3,) array
+        Entries (1, 0), (2, 0), (2, 1) (dimensionless).
+
+    Returns
+    -------
+    (3, 3) array
+    """
     out = np.eye(3)
     out[_LOWER] = n
     return out
@@ -56,10 +66,16 @@ def lower(n: np.ndarray) -> np.ndarray:
 def matrices(x: np.ndarray) -> dict[str, np.ndarray]:
     """The model's matrices from the (42,) parameter vector ``x``.
 
+    Parameters
+    ----------
+    x : (42,) array
+        Parameters laid out as :data:`NAMES`.
+
     Returns
     -------
-    dict with "b_a" (3,) m/s², "K_a" = S_a·N_a (3, 3), "b_w" (3,) rad/s, "K_w" = S_ω·N_ω·R_ω,
-    "G_w" (3, 3) rad/s per m/s², "D_m" (3, 3), "o_m" (3,) mGauss.
+    dict
+        "b_a" (3,) m/s², "K_a" = S_a·N_a (3, 3), "b_w" (3,) rad/s, "K_w" = S_ω·N_ω·R_ω,
+        "G_w" (3, 3) rad/s per m/s², "D_m" (3, 3), "o_m" (3,) mGauss.
     """
     x = np.asarray(x, dtype=float)
     k_a = np.diag(1.0 + x[SLICES["s_a"]]) @ lower(x[SLICES["n_a"]])
@@ -71,24 +87,74 @@ def matrices(x: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def correct_acc(y_a: np.ndarray, mats: dict) -> np.ndarray:
-    """True specific force a [m/s²] (n, 3) from measured y_a, eq. 1 inverted."""
+    """True specific force a [m/s²] (n, 3) from measured y_a, eq. 1 inverted.
+
+    Parameters
+    ----------
+    y_a : (n, 3) array
+        Measured specific force [m/s²].
+    mats : dict
+        :func:`matrices`.
+
+    Returns
+    -------
+    (n, 3) array, m/s²
+    """
     return (np.asarray(y_a) - mats["b_a"]) @ np.linalg.inv(mats["K_a"]).T
 
 
 def correct_gyr(y_w: np.ndarray, a: np.ndarray, mats: dict) -> np.ndarray:
-    """True angular rate ω [rad/s] (n, 3) from measured y_ω and true specific force a, eq. 2."""
+    """True angular rate ω [rad/s] (n, 3) from measured y_ω and true specific force a, eq. 2.
+
+    Parameters
+    ----------
+    y_w : (n, 3) array
+        Measured angular rate [rad/s].
+    a : (n, 3) array
+        True specific force [m/s²] (:func:`correct_acc`).
+    mats : dict
+        :func:`matrices`.
+
+    Returns
+    -------
+    (n, 3) array, rad/s
+    """
     return (np.asarray(y_w) - mats["b_w"] - a @ mats["G_w"].T) @ np.linalg.inv(mats["K_w"]).T
 
 
 def correct_mag(y_m: np.ndarray, mats: dict) -> np.ndarray:
-    """True field m [mGauss] (n, 3) in the accelerometer frame from measured y_m, eq. 3."""
+    """True field m [mGauss] (n, 3) in the accelerometer frame from measured y_m, eq. 3.
+
+    Parameters
+    ----------
+    y_m : (n, 3) array
+        Measured field [mGauss].
+    mats : dict
+        :func:`matrices`.
+
+    Returns
+    -------
+    (n, 3) array, mGauss
+    """
     return (np.asarray(y_m) - mats["o_m"]) @ np.linalg.inv(mats["D_m"]).T
 
 
 def calibration_parts(x: np.ndarray) -> dict[str, np.ndarray]:
     """The result in the project's convention ``calibrated = matrix @ (measured − offset)``:
     flat vector of acc offset, acc matrix, gyro offset, gyro matrix, g-sensitivity, mag offset,
-    mag matrix (see :func:`unflatten_parts`)."""
+    mag matrix (see :func:`unflatten_parts`).
+
+    Parameters
+    ----------
+    x : (42,) array
+        Parameters laid out as :data:`NAMES`.
+
+    Returns
+    -------
+    (45,) array
+        Offsets [m/s², rad/s, mGauss], matrices (dimensionless) and g-sensitivity
+        [rad/s per m/s²], each 3×3 row-major.
+    """
     m = matrices(x)
     return np.concatenate([m["b_a"], np.linalg.inv(m["K_a"]).ravel(), m["b_w"],
                            np.linalg.inv(m["K_w"]).ravel(), m["G_w"].ravel(), m["o_m"],
@@ -101,7 +167,17 @@ _PARTS = (("acc", "offset", 3), ("acc", "matrix", 9), ("gyr", "offset", 3),
 
 
 def unflatten_parts(v: np.ndarray) -> dict[tuple[str, str], np.ndarray]:
-    """(sensor, part) → array, from a vector laid out as :func:`calibration_parts`."""
+    """(sensor, part) → array, from a vector laid out as :func:`calibration_parts`.
+
+    Parameters
+    ----------
+    v : (45,) array
+
+    Returns
+    -------
+    dict
+        (sensor, part) → (3,) offset or (3, 3) matrix / g-sensitivity.
+    """
     out, k = {}, 0
     for sensor, part, size in _PARTS:
         val = np.asarray(v[k:k + size])
@@ -117,6 +193,24 @@ def sensor_calibrations(x: np.ndarray, cov: np.ndarray, sensors=("acc", "gyr", "
     forward-difference Jacobian J of :func:`calibration_parts`.
 
     Returns (sensor → SensorCalibration, {"gyr_g_sensitivity": (3, 3), "..._sigma": (3, 3)}).
+
+    Parameters
+    ----------
+    x : (42,) array
+        Parameters laid out as :data:`NAMES`.
+    cov : (42, 42) array
+        Their covariance.
+    sensors : tuple of str
+        The sensors to return ("acc", "gyr", "mag").
+    step : float
+        Forward-difference step of the Jacobian.
+
+    Returns
+    -------
+    dict
+        sensor → SensorCalibration (offset (3,), matrix (3, 3), their σ).
+    dict
+        "gyr_g_sensitivity" and "gyr_g_sensitivity_sigma", (3, 3) [rad/s per m/s²].
     """
     f0 = calibration_parts(x)
     jac = np.empty((f0.size, x.size))

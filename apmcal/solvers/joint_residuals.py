@@ -69,11 +69,32 @@ DIM = {"acc_norm": 1, "zaru": 3, "level": 2, "zupt": 3, "mag": 3, "mag_datum": 1
 class JointData:
     """Samples and the condition layout (indices only; built once, by :func:`layout`).
 
-    t (n,) s; acc (n, 3) m/s²; gyr (n, 3) rad/s; mag (n, 3) mGauss or None — raw, sensor frame,
-    on one time base. ``blocks``: index arrays of still blocks. ``intervals``: (last block of
-    pose i, first block of pose j, k0, k1) with the moving samples k0 .. k1−1 between them.
-    ``windows``: per window length, an (W, K+1) index array of the samples each window spans.
-    ``noise``: per-sample white-noise σ of "acc", "gyr", "mag" (sensor units).
+    Attributes
+    ----------
+    t : (n,) array, s
+    acc : (n, 3) array, m/s²
+    gyr : (n, 3) array, rad/s
+    mag : (n, 3) array, mGauss, or None
+        Raw, sensor frame, on one time base (as ``t``, ``acc`` and ``gyr``).
+    gravity : float
+        Local gravity [m/s²].
+    field : float or None
+        Field magnitude [mGauss].
+    dt : (n,) array
+        Step to the next sample [s] (0 for the last).
+    blocks : list of int arrays
+        Index arrays of still blocks.
+    level_basis : (I, 3, 2) array
+        E_j of each interval.
+    block_mean : scipy.sparse matrix, (n_blocks, n)
+        The block means as one product.
+    intervals : list of tuple
+        (last block of pose i, first block of pose j, k0, k1) with the moving samples
+        k0 .. k1−1 between them.
+    windows : list of int arrays
+        Per window length, an (W, K+1) index array of the samples each window spans.
+    noise : dict
+        Per-sample white-noise σ of "acc", "gyr", "mag" (sensor units).
     """
 
     t: np.ndarray
@@ -97,6 +118,22 @@ def layout(t, acc, gyr, mag, holds, gravity: float, field_mgauss: float | None) 
     ``holds`` are the still periods (:class:`apmcal.preprocessing.static.StaticSegment`, time
     order). An interval runs from the centre of one pose's last block to the centre of the
     next pose's first block; intervals across a logging gap are left out.
+
+    Parameters
+    ----------
+    t : (n,) array, s
+    acc : (n, 3) array, m/s²
+    gyr : (n, 3) array, rad/s
+    mag : (n, 3) array, mGauss, or None
+    holds : list of StaticSegment
+    gravity : float
+        Local gravity [m/s²].
+    field_mgauss : float or None
+        Field magnitude [mGauss].
+
+    Returns
+    -------
+    JointData
     """
     d = JointData(np.asarray(t, float), np.asarray(acc, float), np.asarray(gyr, float),
                   None if mag is None else np.asarray(mag, float), gravity, field_mgauss)
@@ -139,7 +176,17 @@ def layout(t, acc, gyr, mag, holds, gravity: float, field_mgauss: float | None) 
 
 
 def perpendicular_basis(v: np.ndarray) -> np.ndarray:
-    """(3, 2) orthonormal columns perpendicular to ``v``."""
+    """(3, 2) orthonormal columns perpendicular to ``v``.
+
+    Parameters
+    ----------
+    v : (3,) array
+        Non-zero vector (any units).
+
+    Returns
+    -------
+    (3, 2) array
+    """
     u = v / np.linalg.norm(v)
     q, _ = np.linalg.qr(np.column_stack([u, np.eye(3)[np.argsort(np.abs(u))[:2]].T]))
     return q[:, 1:]
@@ -147,7 +194,17 @@ def perpendicular_basis(v: np.ndarray) -> np.ndarray:
 
 def white_noise(d: JointData) -> dict[str, float]:
     """Per-sample white-noise σ of each sensor from the still blocks (median over blocks of the
-    per-axis std, first-differenced so that a slow sway does not count)."""
+    per-axis std, first-differenced so that a slow sway does not count).
+
+    Parameters
+    ----------
+    d : JointData
+
+    Returns
+    -------
+    dict
+        "acc" [m/s²], "gyr" [rad/s], "mag" [mGauss] (those present) → σ, at least 1e-9.
+    """
     out = {}
     for name, y in (("acc", d.acc), ("gyr", d.gyr), ("mag", d.mag)):
         if y is None or not d.blocks:
@@ -160,7 +217,16 @@ def white_noise(d: JointData) -> dict[str, float]:
 def interval_rows(d: JointData) -> np.ndarray:
     """(I, K+1) sample indices of the moving intervals' steps k0 .. k1−1, padded with n (the
     identity step, no force) to one column more than the longest (``integrate`` integrates
-    the steps ``idx[:, :-1]``)."""
+    the steps ``idx[:, :-1]``).
+
+    Parameters
+    ----------
+    d : JointData
+
+    Returns
+    -------
+    (I, K+1) int array
+    """
     spans = [np.arange(k0, k1) for _, _, k0, k1 in d.intervals]
     width = max((s.size for s in spans), default=0) + 1
     out = np.full((len(spans), width), d.t.size, dtype=int)
@@ -170,7 +236,25 @@ def interval_rows(d: JointData) -> np.ndarray:
 
 
 def misclosures(x: np.ndarray, d: JointData, families, rows=None) -> dict[str, np.ndarray]:
-    """Each family's misclosure w = f(X, Y) at parameters ``x``: name → (n_c, dim) array."""
+    """Each family's misclosure w = f(X, Y) at parameters ``x``: name → (n_c, dim) array.
+
+    Parameters
+    ----------
+    x : (42,) array
+        Parameters (:mod:`apmcal.solvers.joint_model`).
+    d : JointData
+        The session's samples and condition layout (:func:`layout`).
+    families : tuple of str
+        The families to evaluate.
+    rows : (I, K+1) int array, optional
+        :func:`interval_rows` of ``d``, when the caller has it.
+
+    Returns
+    -------
+    dict
+        family → (n_c, dim) array, in the family's units (acc_norm [m/s²], zaru [rad/s],
+        level [rad], zupt [m/s], mag and mag_datum [mGauss]).
+    """
     m = matrices(x)
     a = correct_acc(d.acc, m)
     w = correct_gyr(d.gyr, a, m)

@@ -21,6 +21,18 @@ def check_coverage(mag: np.ndarray, min_spread: float = 0.25) -> None:
     Each principal standard deviation of the raw samples must reach ``min_spread`` × their median
     magnitude: a uniform sphere gives 1/√3 ≈ 0.58, one still pose only the noise, a turn about
     one axis a flat disc.
+
+    Parameters
+    ----------
+    mag : (n, 3) array
+        Raw samples [mGauss].
+    min_spread : float
+        Least principal standard deviation, as a fraction of the median magnitude.
+
+    Raises
+    ------
+    ApmcalError
+        When the samples do not spread enough along their flattest direction.
     """
     spread = np.sqrt(np.clip(np.linalg.eigvalsh(np.cov(mag.T)), 0, None))
     scale = float(np.median(np.linalg.norm(mag, axis=1)))
@@ -42,6 +54,27 @@ def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: floa
     from a sphere fit, which ties the overall scale to the data's own mean radius (offsets and
     shape are unaffected). ``when`` is the recording's date (the field drifts ~0.1 %/year);
     today when unknown.
+
+    Parameters
+    ----------
+    mag : (n, 3) array
+        Raw sensor-frame samples [mGauss].
+    lat_deg, lon_deg : float or None
+        Site [deg], for the World Magnetic Model.
+    report : CalibrationReport
+        Filled in place.
+    when : datetime.date, optional
+        Recording date.
+
+    Returns
+    -------
+    SensorCalibration
+        Offset (3,) [mGauss], matrix (3, 3) with their sigmas, second-order bias removed.
+
+    Raises
+    ------
+    ApmcalError
+        When the samples do not turn through space (:func:`check_coverage`) or the fit fails.
     """
     check_coverage(mag)
     sphere = sphere_fit(mag)           # seed 000 step 1: the field check and the fit's box
@@ -83,6 +116,19 @@ def field_mismatch(measured_mgauss: float, wmm_mgauss: float, lat_deg: float,
     The WMM value sets the calibration's scale, so a wrong site (a sign slip: south and west are
     negative) scales the compass wrongly; a right site with a distorted field means iron,
     magnets or currents near the vehicle.
+
+    Parameters
+    ----------
+    measured_mgauss : float
+        Sphere-fit radius of the samples [mGauss].
+    wmm_mgauss : float
+        World Magnetic Model total intensity [mGauss].
+    lat_deg, lon_deg : float
+        The site [deg] (for the message).
+
+    Returns
+    -------
+    str or None
     """
     apart = abs(measured_mgauss - wmm_mgauss) / wmm_mgauss
     if apart <= MAX_FIELD_MISMATCH:
@@ -107,6 +153,24 @@ def held_out_score(mag: np.ndarray, radius: float, parameterisation: str,
     ``start`` and ``f_scale`` [mGauss]: the fit on every sample and its Huber scale, so that the
     half-fit starts next to its minimum (a few steps instead of a search from the quadric).
     A half that cannot be fitted gives NaN scores and the reason in ``failed``.
+
+    Parameters
+    ----------
+    mag : (n, 3) array
+        Raw samples [mGauss].
+    radius : float
+        Field magnitude [mGauss].
+    parameterisation : str
+        As the full fit used ("symmetric", "upper", "diagonal").
+    n_blocks : int
+        Number of consecutive blocks.
+    start : SensorCalibration, optional
+    f_scale : float, optional
+
+    Returns
+    -------
+    MseScore
+        Relative MSE raw and calibrated (dimensionless).
     """
     blocks = np.array_split(np.arange(len(mag)), n_blocks)
     train = mag[np.concatenate(blocks[0::2])]

@@ -81,13 +81,27 @@ class HoldMisfit:
         return float(np.sqrt(self.chi2 / self.dof)) if self.dof > 0 else float("nan")
 
     def to_dict(self) -> dict:
+        """The fields and the Birge ratio as a dict (arrays kept as numpy)."""
         return {"tau": self.tau, "offset_spread": self.offset_spread, "chi2": self.chi2,
                 "dof": self.dof, "n_holds": self.n_holds, "birge_ratio": self.birge_ratio,
                 "worst_residual": self.worst}
 
 
 def check_holds(poses: dict, segments) -> list:
-    """The six holds the fit uses, then every other hold near a face (each once)."""
+    """The six holds the fit uses, then every other hold near a face (each once).
+
+    Parameters
+    ----------
+    poses : dict
+        pose ("x_p" … "z_a") → StaticSegment.
+    segments : list of StaticSegment or None
+        Every hold of the session.
+
+    Returns
+    -------
+    list of StaticSegment
+        x_p, x_a, y_p, y_a, z_p, z_a, then the further checks.
+    """
     used = [poses[p] for a in AXES for p in PAIR[a]]
     ids = {id(s) for s in used}
     extra = [s for s in (segments or []) if id(s) not in ids and s.pose is not None
@@ -101,6 +115,17 @@ def axis_map(holds: list, axis: int) -> np.ndarray:
     Holds 0..5 are x_p, x_a, y_p, y_a, z_p, z_a as the fit used them. A hold on face j with sign
     s is predicted as b_i + s·g·(K R)_ij = (y_ip + y_ia)/2 + s·(y_jp − y_ja)/2, with i = ``axis``
     and y the readings on that axis: linear in the readings, hence a matrix.
+
+    Parameters
+    ----------
+    holds : list of StaticSegment
+        From :func:`check_holds` (n of them).
+    axis : int
+        Sensor axis, 0..2.
+
+    Returns
+    -------
+    (n, n) array
     """
     n = len(holds)
     h = np.zeros((n, n))
@@ -125,6 +150,18 @@ def repeat_scatter(holds: list, var: np.ndarray) -> np.ndarray | None:
 
     A repeat h of the fitted hold u differs from it by d = y_h − y_u; with an extra scatter τ
     per hold, E[d²] = var_h + var_u + 2τ².
+
+    Parameters
+    ----------
+    holds : list of StaticSegment
+        From :func:`check_holds` (n of them).
+    var : (n, 3) array
+        Noise variance of each hold mean [(m/s²)²].
+
+    Returns
+    -------
+    (3,) array or None
+        τ [m/s²].
     """
     used = {seg.pose: k for k, seg in enumerate(holds[:6])}
     pairs = [(k, used[seg.pose]) for k, seg in enumerate(holds[6:], start=6)]
@@ -184,14 +221,38 @@ FIT_P_VALUE = 0.01     # χ² beyond its 99th percentile: the checks disagree be
 
 
 def model_fits(chi2: float, dof: int) -> bool:
-    """True when χ² on ``dof`` checks is within what noise alone gives 99 % of the time."""
+    """True when χ² on ``dof`` checks is within what noise alone gives 99 % of the time.
+
+    Parameters
+    ----------
+    chi2 : float
+    dof : int
+
+    Returns
+    -------
+    bool
+        Also True when ``dof`` ≤ 0 (nothing to check).
+    """
     return dof <= 0 or chi2_survival(chi2, dof) >= FIT_P_VALUE
 
 
 def chi2_survival(x: float, dof: int) -> float:
     """P(χ²_dof ≥ x) for a whole number of degrees of freedom, in closed form (Abramowitz &
     Stegun 26.4.4 for even, 26.4.5 for odd ``dof``): finite sums, equal to scipy.stats.chi2.sf
-    to rounding, without loading scipy.stats (1 s of a 2 s `apmcal log`)."""
+    to rounding, without loading scipy.stats (1 s of a 2 s `apmcal log`).
+
+    Parameters
+    ----------
+    x : float
+        χ² value (negative counts as 0).
+    dof : int
+        Degrees of freedom, ≥ 1.
+
+    Returns
+    -------
+    float
+        The probability, 0..1.
+    """
     half = 0.5 * max(float(x), 0.0)
     if dof % 2 == 0:
         terms = [j * math.log(half) - math.lgamma(j + 1) for j in range(dof // 2)] \

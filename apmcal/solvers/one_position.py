@@ -44,7 +44,17 @@ from apmcal.solvers.result import Calibration, SensorCalibration
 
 
 def c_ecef_to_ned(lat_deg: float, lon_deg: float) -> np.ndarray:
-    """Direction-cosine matrix ECEF → NED (seed 002 §5.2, 'C_ecef^ned')."""
+    """Direction-cosine matrix ECEF → NED (seed 002 §5.2, 'C_ecef^ned').
+
+    Parameters
+    ----------
+    lat_deg, lon_deg : float
+        Position [deg].
+
+    Returns
+    -------
+    (3, 3) array
+    """
     la, lo = np.radians(lat_deg), np.radians(lon_deg)
     sla, cla, slo, clo = np.sin(la), np.cos(la), np.sin(lo), np.cos(lo)
     return np.array([[-sla * clo, -sla * slo, cla],
@@ -64,6 +74,22 @@ def accelerometer_one_position(acc: np.ndarray, fs: float, cutoff_hz: float = 0.
     """Seed 002 §5.1 steps 1-9 on level, still specific-force samples (n, 3) [m/s², body FRD].
 
     Returns the SensorCalibration (offset = b, matrix = F⁻¹) and the intermediate quantities.
+
+    Parameters
+    ----------
+    acc : (n, 3) array
+        Specific force [m/s²], body FRD, level and still.
+    fs : float
+        Sample rate [Hz].
+    cutoff_hz : float
+        High-pass cut-off [Hz].
+
+    Returns
+    -------
+    SensorCalibration
+        offset b (3,) [m/s²], matrix F⁻¹ (3, 3); no sigma.
+    OnePositionAcc
+        The intermediate quantities.
     """
     m = acc.mean(axis=0)                                   # step 1
     norm = float(np.linalg.norm(m))
@@ -94,6 +120,29 @@ def gyroscope_one_position(gyr: np.ndarray, fs: float, cutoff_hz: float = 0.5,
     Returns SensorCalibration (offset = b, matrix = I) and the intermediate quantities. The
     paper's E is computed and reported but never applied: its terms are set by the Earth rate
     and the latitude, not by the gyro (module docstring), so E⁻¹ would distort every reading.
+
+    Parameters
+    ----------
+    gyr : (n, 3) array
+        Angular rate [rad/s], still, x north, z down.
+    fs : float
+        Sample rate [Hz].
+    cutoff_hz : float
+        High-pass cut-off [Hz].
+    lat_deg, lon_deg : float, optional
+        Position [deg]; without the latitude E is not computed.
+
+    Returns
+    -------
+    SensorCalibration
+        offset b (3,) [rad/s], identity matrix, sigma["offset"] (3,) [rad/s].
+    OnePositionGyr
+        The intermediate quantities.
+
+    Raises
+    ------
+    ApmcalError
+        At the equator (E undefined).
     """
     R = gyr.mean(axis=0)                                   # mean
     Rf = highpass(gyr, fs, cutoff_hz).mean(axis=0)         # high-pass mean
@@ -125,14 +174,27 @@ def one_position_calibration(t, acc, gyr, *, lat_deg: float | None = None,
     Parameters
     ----------
     t : (n,) array [s]
-    acc : (n, 3) array [m/s²], body FRD, vehicle level and still (ArduPilot: z ≈ −g)
-    gyr : (n, 3) array [rad/s], same samples, x pointing north
+    acc : (n, 3) array [m/s²]
+        Body FRD, vehicle level and still (ArduPilot: z ≈ −g).
+    gyr : (n, 3) array [rad/s]
+        Same samples, x pointing north.
     lat_deg, lon_deg : float, optional
         Position (seed 002 uses GPS); only latitude matters for the Earth-rate vector.
     cutoff_hz : float
         High-pass cut-off (seed 002: 0.5 Hz, from Lötters et al.).
     fs : float, optional
         Sample rate [Hz]; from ``t`` when omitted.
+
+    Returns
+    -------
+    Calibration
+        Method "static": sensors "acc" and "gyr", report with the OnePositionFit.
+
+    Raises
+    ------
+    ApmcalError
+        On mismatched shapes, non-finite samples, bad sample times, too short a record for the
+        high-pass, or the equator.
     """
     t = np.asarray(t, dtype=float)
     acc = np.asarray(acc, dtype=float)

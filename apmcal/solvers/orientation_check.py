@@ -26,7 +26,16 @@ BLOCK_S = 1.0     # reference: mean over this much of each pose next to the turn
 
 @dataclass
 class PosePair:
-    """Two consecutive still poses: reference sample ranges and the centre samples k0, k1."""
+    """Two consecutive still poses: reference sample ranges and the centre samples k0, k1.
+
+    Attributes
+    ----------
+    ref_i, ref_j : int array
+        Sample indices of the last ``BLOCK_S`` of pose i and the first of pose j.
+    k0, k1 : int
+        Centre samples of ``ref_i`` and ``ref_j``: the orientation change is integrated
+        between them.
+    """
 
     ref_i: np.ndarray
     ref_j: np.ndarray
@@ -35,7 +44,20 @@ class PosePair:
 
 
 def pose_pairs(t: np.ndarray, holds) -> list[PosePair]:
-    """Consecutive still poses (StaticSegments in time order) as :class:`PosePair`."""
+    """Consecutive still poses (StaticSegments in time order) as :class:`PosePair`.
+
+    Parameters
+    ----------
+    t : (n,) array
+        Sample times [s].
+    holds : list of StaticSegment
+        In time order.
+
+    Returns
+    -------
+    list of PosePair
+        One fewer than the holds.
+    """
     pairs = []
     for h0, h1 in zip(holds, holds[1:]):
         a, b = h0.kept(), h1.kept()
@@ -48,7 +70,23 @@ def pose_pairs(t: np.ndarray, holds) -> list[PosePair]:
 def corrected(cal, t, acc, gyr, mag, holds):
     """Calibrated specific force, rate (bias re-measured on ``holds``) and field, or the raw
     samples for a sensor the calibration lacks. The gyro's g-sensitivity, when the calibration
-    has one, acts on the calibrated specific force (:class:`SensorCalibration` convention)."""
+    has one, acts on the calibrated specific force (:class:`SensorCalibration` convention).
+
+    Parameters
+    ----------
+    cal : Calibration
+    t : (n,) array, s
+    acc : (n, 3) array, m/s²
+    gyr : (n, 3) array, rad/s
+    mag : (n, 3) array, mGauss, or None
+    holds : list of StaticSegment
+
+    Returns
+    -------
+    a : (n, 3) array, m/s²
+    w : (n, 3) array, rad/s
+    m : (n, 3) array, mGauss, or None
+    """
     a = cal.apply("acc", acc, t) if "acc" in cal.sensors else np.asarray(acc, float)
     w = cal.sensors["gyr"].apply(gyr, t, acc=a) if "gyr" in cal.sensors else np.asarray(gyr, float)
     still = np.concatenate([h.kept() for h in holds])
@@ -60,7 +98,20 @@ def corrected(cal, t, acc, gyr, mag, holds):
 
 
 def triad(a: np.ndarray, m: np.ndarray) -> np.ndarray:
-    """C = [north east down] in the sensor frame from specific force a and field m."""
+    """C = [north east down] in the sensor frame from specific force a and field m.
+
+    Parameters
+    ----------
+    a : (3,) array
+        Specific force at rest [m/s²].
+    m : (3,) array
+        Magnetic field [mGauss].
+
+    Returns
+    -------
+    (3, 3) array
+        Columns north, east, down (unit vectors).
+    """
     down = -a / np.linalg.norm(a)
     east = np.cross(down, m)
     east /= np.linalg.norm(east)
@@ -68,7 +119,17 @@ def triad(a: np.ndarray, m: np.ndarray) -> np.ndarray:
 
 
 def rotation_angle_deg(r: np.ndarray) -> float:
-    """Angle [deg] of a rotation matrix (via the chord, accurate near 0)."""
+    """Angle [deg] of a rotation matrix (via the chord, accurate near 0).
+
+    Parameters
+    ----------
+    r : (3, 3) array
+
+    Returns
+    -------
+    float
+        0..180 deg.
+    """
     chord = np.linalg.norm(r - np.eye(3)) / (2 * np.sqrt(2))
     return float(np.degrees(2 * np.arcsin(min(1.0, chord))))
 
@@ -78,15 +139,23 @@ def orientation_errors(cal, t, acc, gyr, mag, holds, pairs=None) -> dict:
 
     Parameters
     ----------
-    cal : Calibration (sensors acc, gyr, mag as available; identity for "raw")
-    t (n,) s; acc (n, 3) m/s²; gyr (n, 3) rad/s; mag (n, 3) mGauss or None — raw samples of
-        the session checked (not the one fitted)
-    holds : its still periods; pairs : :func:`pose_pairs` of them by default
+    cal : Calibration
+        Sensors acc, gyr, mag as available; identity for "raw".
+    t : (n,) array, s
+    acc : (n, 3) array, m/s²
+    gyr : (n, 3) array, rad/s
+    mag : (n, 3) array, mGauss, or None
+        Raw samples of the session checked (not the one fitted).
+    holds : list of StaticSegment
+        Its still periods.
+    pairs : list of PosePair, optional
+        :func:`pose_pairs` of them by default.
 
     Returns
     -------
-    dict with "turn_deg" and "error_deg" (arrays over pairs) and "kind" ("attitude" with a
-    compass, "tilt" without).
+    dict
+        "turn_deg" and "error_deg" (arrays over pairs) and "kind" ("attitude" with a
+        compass, "tilt" without).
     """
     t = np.asarray(t, float)
     pairs = pose_pairs(t, holds) if pairs is None else pairs

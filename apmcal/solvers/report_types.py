@@ -48,12 +48,20 @@ class Turn:
 class SixFaceFit:
     """The Ferraris accelerometer stage (seed 002 §4.1-4.2).
 
-    u_plus, u_minus : (3, 3) m/s², hold means of x_p, y_p, z_p / x_a, y_a, z_a as columns
-    q : mean column norm of U+ [m/s²] (seed 002 eq. 4)
-    gravity : the g the scale was fitted to [m/s²]; gravity_source says where it came from
-    misfit : the six-face model against its redundant holds (:mod:`apmcal.solvers.misfit`)
-    sigma_noise_only : "offset" (3,) m/s², "matrix" (3, 3): σ from the noise alone, before the
-        misfit widened it
+    Attributes
+    ----------
+    u_plus, u_minus : (3, 3) array, m/s²
+        Hold means of x_p, y_p, z_p / x_a, y_a, z_a as columns.
+    q : float
+        Mean column norm of U+ [m/s²] (seed 002 eq. 4).
+    gravity : float
+        The g the scale was fitted to [m/s²]; gravity_source says where it came from.
+    gravity_source : str
+    misfit : HoldMisfit
+        The six-face model against its redundant holds (:mod:`apmcal.solvers.misfit`).
+    sigma_noise_only : dict
+        "offset" (3,) m/s², "matrix" (3, 3): σ from the noise alone, before the
+        misfit widened it.
     """
 
     u_plus: np.ndarray
@@ -69,11 +77,17 @@ class SixFaceFit:
 class GyroTurns:
     """The Ferraris gyro stage (seed 002 §4.3-4.4).
 
-    t_ref : time [s] at which the gyro offset holds (drift is referred to it)
-    earth_rate_left : horizontal Earth rate Ω cos φ [rad/s] left in the bias when the vertical
-        part was removed; None when it was not removed
-    integrals_rad : (3, 3) bias-corrected integral of each turn (column j: turn about axis j)
-    angles_deg : (3,) the angle each turn is taken to be
+    Attributes
+    ----------
+    t_ref : float
+        Time [s] at which the gyro offset holds (drift is referred to it).
+    earth_rate_left : float or None
+        Horizontal Earth rate Ω cos φ [rad/s] left in the bias when the vertical
+        part was removed; None when it was not removed.
+    integrals_rad : (3, 3) array or None
+        Bias-corrected integral of each turn (column j: turn about axis j).
+    angles_deg : (3,) array or None
+        The angle each turn is taken to be.
     """
 
     t_ref: float = 0.0
@@ -106,9 +120,16 @@ class Residuals:
 class MseScore:
     """Seed 000's figure of merit (§VI.B): relative MSE of |calibrated| raw and calibrated.
 
-    scored_on : "fitting" or "held-out" samples, or "held-out blocks" (the odd ones of
-        ``blocks`` consecutive blocks, fitted on the even ones)
-    failed : why no score could be given (then raw and calibrated are NaN)
+    Attributes
+    ----------
+    raw, calibrated : float
+        The relative MSE (dimensionless) of the raw and the calibrated samples.
+    scored_on : str
+        "fitting" or "held-out" samples, or "held-out blocks" (the odd ones of
+        ``blocks`` consecutive blocks, fitted on the even ones).
+    blocks : int
+    failed : str
+        Why no score could be given (then raw and calibrated are NaN).
     """
 
     raw: float
@@ -133,17 +154,34 @@ class Debias:
 class EllipsoidFit:
     """Quality of one sensor's ellipsoid fit (seed 000 and its robust successor).
 
-    radius : field magnitude fitted to [sensor units]
-    method : the estimator; parameterisation : "symmetric", "upper" or "diagonal"
-    samples : samples fitted; n_params : parameters fitted (None: the paper's fits)
-    rms, cond, rank, start, f_scale, outlier_fraction : the fit's internals (rms and f_scale in
-        sensor units), None when the estimator does not give them
-    notes : the fit's own findings (diagonal fallback, outliers, bounds), as messages
-    coverage : of the calibrated samples (eigenvalues: the smaller of their scatter and of the
-        raw samples' own shape)
-    residuals : |calibrated| − field on the fitted samples
-    score : relative MSE on the fitting or held-out samples; held_out : on held-out blocks
-    debias : the second-order bias removed (robust magnetometer fit)
+    Attributes
+    ----------
+    radius : float
+        Field magnitude fitted to [sensor units].
+    method : str
+        The estimator.
+    parameterisation : str
+        "symmetric", "upper" or "diagonal".
+    samples : int
+        Samples fitted.
+    n_params : int or None
+        Parameters fitted (None: the paper's fits).
+    rms, cond, rank, start, f_scale, outlier_fraction : float, int or str, or None
+        The fit's internals (rms and f_scale in
+        sensor units), None when the estimator does not give them.
+    notes : list of str
+        The fit's own findings (diagonal fallback, outliers, bounds), as messages.
+    coverage : Coverage or None
+        Of the calibrated samples (eigenvalues: the smaller of their scatter and of the
+        raw samples' own shape).
+    residuals : Residuals or None
+        |calibrated| − field on the fitted samples.
+    score : MseScore or None
+        Relative MSE on the fitting or held-out samples.
+    held_out : MseScore or None
+        On held-out blocks.
+    debias : Debias or None
+        The second-order bias removed (robust magnetometer fit).
     """
 
     radius: float
@@ -181,7 +219,27 @@ class MagneticField:
 class OnePositionAcc:
     """Seed 002 §5.1 on the level hold (body FRD, m/s²): step-1 ``mean`` (3,), g := ‖mean‖,
     step-3 mean ``R`` and high-pass mean ``R_f`` (3,), ``bias`` (3,), F (3, 3) and its β, γ, μ,
-    μ read literally (a_s = R), F in the paper's sign convention, tilt from level [deg]."""
+    μ read literally (a_s = R), F in the paper's sign convention, tilt from level [deg].
+
+    Attributes
+    ----------
+    mean : (3,) array, m/s²
+        Step-1 mean.
+    g : float
+        ‖mean‖ [m/s²].
+    R, R_f : (3,) array, m/s²
+        Step-3 mean and high-pass mean.
+    bias : (3,) array, m/s²
+    F : (3, 3) array
+    beta_gamma_mu : (3,) array
+        β, γ, μ of F (dimensionless).
+    mu_literal : float
+        μ read literally (a_s = R).
+    F_paper_convention : (3, 3) array
+        F in the paper's sign convention.
+    tilt_deg : float
+        Tilt from level [deg].
+    """
 
     mean: np.ndarray
     g: float
@@ -198,7 +256,18 @@ class OnePositionAcc:
 @dataclass
 class OnePositionGyr:
     """Seed 002 §5.2 (rad/s): mean ``R``, high-pass mean ``R_f``, ``bias``; with a latitude the
-    Earth-rate input ``omega_p`` (3,), E (3, 3) and its τ, ξ, ν (reported, never applied)."""
+    Earth-rate input ``omega_p`` (3,), E (3, 3) and its τ, ξ, ν (reported, never applied).
+
+    Attributes
+    ----------
+    R, R_f, bias : (3,) array, rad/s
+        Mean, high-pass mean, bias.
+    omega_p : (3,) array, rad/s, or None
+        Earth-rate input (with a latitude).
+    E : (3, 3) array or None
+    tau_xi_nu : (3,) array or None
+        τ, ξ, ν of E (dimensionless).
+    """
 
     R: np.ndarray
     R_f: np.ndarray
@@ -229,7 +298,29 @@ class JointFit:
     and what ArduPilot cannot hold: the gyro matrix's cost [deg per 360° turn] and the
     g-sensitivity's largest effect at 1 g [rad/s]. ``block_samples`` > 1: the fit ran on
     means of that many samples of a ``recorded_rate_hz`` recording; ``compass_own_fit``: the
-    compass result is the compass's own ellipsoid fit (``auto``), not the joint fit's."""
+    compass result is the compass's own ellipsoid fit (``auto``), not the joint fit's.
+
+    Attributes
+    ----------
+    conditions, rejected : dict
+        family → number of conditions, of robust rejections.
+    noise_scale : dict
+        family → noise scale (1 = the still periods' white noise).
+    n_estimated, n_params : int
+        Parameters estimated, of all.
+    parameters : dict
+        name → [value, σ] in the units of :data:`apmcal.solvers.joint_model.UNITS`.
+    fixed, dropped_t_test : list of str
+        Parameters held fixed, and those the t-test dropped.
+    gyr_matrix_cost_deg_per_turn : float
+        The gyro matrix's cost [deg per 360° turn].
+    gyr_g_sensitivity_at_1g : float
+        The g-sensitivity's largest effect at 1 g [rad/s].
+    block_samples : int
+    recorded_rate_hz : float or None
+        [Hz].
+    compass_own_fit : bool
+    """
 
     conditions: dict[str, int]
     rejected: dict[str, int]
@@ -250,15 +341,31 @@ class JointFit:
 class CalibrationReport:
     """Everything a calibration run found besides the corrections themselves.
 
-    recording : which record was calibrated ("RAW_IMU (IMU instance 0)")
-    warnings : messages for the user
-    undetermined : sensor → why its values cannot be trusted (never sent to a vehicle)
-    not_calibrated : sensor → why it was not calibrated at all
-    holds, rotations : the still periods and full turns used (rotations: axis → :class:`Turn`)
-    six_face, gyro_turns : the Ferraris stages; one_position, joint : those methods' stages
-    gyro_offset_only : the gyro offset is a mean at rest (ellipsoid method: no matrix)
-    ellipsoids : sensor → quality of its ellipsoid fit
-    magnetic_field : the compass's field and coverage
+    Attributes
+    ----------
+    recording : str or None
+        Which record was calibrated ("RAW_IMU (IMU instance 0)").
+    warnings : list of str
+        Messages for the user.
+    undetermined : dict
+        sensor → why its values cannot be trusted (never sent to a vehicle).
+    not_calibrated : dict
+        sensor → why it was not calibrated at all.
+    holds : Holds
+    rotations : dict
+        The still periods and full turns used (rotations: axis → :class:`Turn`).
+    six_face : SixFaceFit or None
+    gyro_turns : GyroTurns or None
+        The Ferraris stages.
+    one_position : OnePositionFit or None
+    joint : JointFit or None
+        Those methods' stages.
+    gyro_offset_only : bool
+        The gyro offset is a mean at rest (ellipsoid method: no matrix).
+    ellipsoids : dict
+        sensor → quality of its ellipsoid fit (:class:`EllipsoidFit`).
+    magnetic_field : MagneticField or None
+        The compass's field and coverage.
     """
 
     recording: str | None = None
@@ -276,16 +383,30 @@ class CalibrationReport:
     magnetic_field: MagneticField | None = None
 
     def to_dict(self) -> dict:
+        """The report as plain JSON values (:func:`to_plain`)."""
         return to_plain(self)
 
     @classmethod
     def from_dict(cls, d: dict) -> "CalibrationReport":
+        """The report from :meth:`to_dict`'s output (:func:`from_plain`)."""
         return from_plain(cls, d)
 
 
 # --------------------------------------------------------------------------- plain values
 def to_plain(obj):
-    """Dataclasses, numpy arrays and scalars → dicts, lists and plain numbers, recursively."""
+    """Dataclasses, numpy arrays and scalars → dicts, lists and plain numbers, recursively.
+
+    Parameters
+    ----------
+    obj : object
+        A dataclass, dict, list, tuple, numpy array or scalar, or a plain value.
+
+    Returns
+    -------
+    object
+        The same with dataclasses as dicts (one key per field), dict keys as str, tuples and
+        arrays as (nested) lists and numpy scalars as Python numbers.
+    """
     if is_dataclass(obj):
         return {f.name: to_plain(getattr(obj, f.name)) for f in fields(obj)}
     if isinstance(obj, dict):
@@ -301,7 +422,19 @@ def to_plain(obj):
 
 def from_plain(cls, data: dict):
     """The dataclass ``cls`` from :func:`to_plain`'s output (keys it does not know: ignored;
-    missing ones: the default). Arrays come back as float arrays."""
+    missing ones: the default). Arrays come back as float arrays.
+
+    Parameters
+    ----------
+    cls : type
+        A dataclass.
+    data : dict
+        :func:`to_plain`'s output for an instance of it.
+
+    Returns
+    -------
+    cls
+    """
     hints = typing.get_type_hints(cls)
     kwargs = {f.name: _typed(hints[f.name], data[f.name]) for f in fields(cls) if f.name in data}
     return cls(**kwargs)

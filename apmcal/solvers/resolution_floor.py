@@ -22,6 +22,15 @@ def add_resolution_floor(calibration: Calibration, steps: dict[str, float],
     ``field`` gives the magnitude the matrix was fitted to (|g| m/s², |B| mGauss): a step error in
     a mean is a relative error step/|field| in the matrix terms it feeds. Only sigmas the method
     gave are widened: an estimate without one (undetermined) stays without.
+
+    Parameters
+    ----------
+    calibration : Calibration
+        Changed in place (each widened sensor gets a new ``sigma`` dict).
+    steps : dict
+        sensor → resolution step of its samples [sensor units: m/s², rad/s, mGauss].
+    field : dict
+        sensor → field magnitude the matrix was fitted to [sensor units].
     """
     for sensor, step in steps.items():
         cal = calibration.sensors.get(sensor)

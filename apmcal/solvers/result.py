@@ -46,12 +46,14 @@ class SensorCalibration:
     ----------
     offset : (3,) array, sensor units
     matrix : (3, 3) array, dimensionless
-    drift : (3,) array, sensor units per second (gyro bias drift), zeros otherwise
-    t_ref : float, time [s] at which ``offset`` holds
-    sigma : dict of name -> array, one-sigma uncertainties ("offset", "matrix", "drift",
-        "g_sensitivity")
-    g_sensitivity : (3, 3) array, rad/s per m/s² of calibrated specific force (gyro), zeros when
-        not estimated
+    drift : (3,) array, sensor units per second
+        Gyro bias drift, zeros otherwise.
+    t_ref : float
+        Time [s] at which ``offset`` holds.
+    sigma : dict of name -> array
+        One-sigma uncertainties ("offset", "matrix", "drift", "g_sensitivity").
+    g_sensitivity : (3, 3) array, rad/s per m/s²
+        Of calibrated specific force (gyro), zeros when not estimated.
     """
 
     offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -88,18 +90,51 @@ class SensorCalibration:
 
         ``t`` (n,) [s] is needed only when drift is non-zero, ``acc`` (n, 3) — the CALIBRATED
         specific force [m/s²] at the same times — only when g_sensitivity is non-zero.
+
+        Parameters
+        ----------
+        samples : (n, 3) or (3,) array
+            Raw sensor-frame samples [sensor units].
+        t : (n,) array, optional
+            Sample times [s].
+        acc : (n, 3) array, optional
+            Calibrated specific force [m/s²].
+
+        Returns
+        -------
+        (n, 3) or (3,) array
+            ``matrix @ (samples − offset − drift·(t − t_ref) − G·acc)`` [sensor units].
+
+        Raises
+        ------
+        ValueError
+            When the drift needs ``t`` or the g-sensitivity needs ``acc`` and it is missing.
         """
         x = np.asarray(samples, dtype=float)
         return (x - self._bias(len(np.atleast_2d(x)), t, acc)) @ self.matrix.T
 
     def invert(self, calibrated: np.ndarray, t: np.ndarray | None = None,
                acc: np.ndarray | None = None) -> np.ndarray:
-        """The measured samples that :meth:`apply` maps to ``calibrated`` (used by the simulator)."""
+        """The measured samples that :meth:`apply` maps to ``calibrated`` (used by the simulator).
+
+        Parameters
+        ----------
+        calibrated : (n, 3) or (3,) array
+            Calibrated samples [sensor units].
+        t, acc
+            As for :meth:`apply`.
+
+        Returns
+        -------
+        (n, 3) or (3,) array
+            Raw samples [sensor units].
+        """
         c = np.asarray(calibrated, dtype=float)
         x = np.linalg.solve(self.matrix, c.T).T
         return x + self._bias(len(np.atleast_2d(c)), t, acc)
 
     def to_dict(self) -> dict:
+        """Offset, matrix and sigmas as plain lists; drift and t_ref, g_sensitivity when non-zero."""
         d = {"offset": self.offset.tolist(), "matrix": self.matrix.tolist(),
              "sigma": {k: np.asarray(v).tolist() for k, v in self.sigma.items()}}
         if np.any(self.drift):
@@ -111,6 +146,7 @@ class SensorCalibration:
 
     @classmethod
     def from_dict(cls, d: dict) -> "SensorCalibration":
+        """Read :meth:`to_dict`'s output (missing drift, g-sensitivity: zeros)."""
         return cls(offset=d["offset"], matrix=d["matrix"], drift=d.get("drift", np.zeros(3)),
                    t_ref=d.get("t_ref", 0.0), sigma=d.get("sigma", {}),
                    g_sensitivity=d.get("g_sensitivity", np.zeros((3, 3))))
@@ -123,6 +159,16 @@ class Calibration:
     ``sensors`` maps "acc", "gyr", "mag" to :class:`SensorCalibration`. ``params`` holds the
     ArduPilot parameters proposed for this result (filled by :mod:`apmcal.vehicle.params`),
     ``report`` what the run found (:class:`~apmcal.solvers.report_types.CalibrationReport`).
+
+    Attributes
+    ----------
+    method : str
+        The method that produced it ("ferraris", "ellipsoid", "static", "joint", ...).
+    sensors : dict
+        "acc", "gyr", "mag" → :class:`SensorCalibration`.
+    params : dict
+        ArduPilot parameter name → proposed value.
+    report : CalibrationReport
     """
 
     method: str
@@ -141,6 +187,29 @@ class Calibration:
         this result calibrates replaced by its calibrated values (columns of
         :data:`apmcal.recording.SENSOR_COLUMNS`, times from "t"). The samples must be raw and in
         the sensor frame (:func:`apmcal.pipeline.prepare` undoes a firmware correction).
+
+        Parameters
+        ----------
+        data : str, Recording or pandas.DataFrame
+            Sensor name ("acc", "gyr", "mag"), or a table of raw sensor-frame samples.
+        samples : (n, 3) array, optional
+            With a sensor name: its raw samples [sensor units].
+        t : (n,) array, optional
+            Sample times [s].
+        acc : (n, 3) array, optional
+            RAW accelerometer samples, for a gyro g-sensitivity.
+
+        Returns
+        -------
+        (n, 3) array, or Recording / DataFrame
+            Calibrated samples [m/s², rad/s, mGauss], or a calibrated copy of ``data``.
+
+        Raises
+        ------
+        KeyError
+            For a sensor name this result does not calibrate.
+        ValueError
+            For a firmware-corrected or body-frame Recording, or a missing ``t``/``acc``.
         """
         if isinstance(data, str):
             force = None if acc is None else self.specific_force(acc, t)
@@ -149,7 +218,19 @@ class Calibration:
 
     def specific_force(self, acc: np.ndarray, t: np.ndarray | None = None) -> np.ndarray:
         """Raw accelerometer samples (n, 3) → calibrated specific force [m/s²] (raw when this
-        result has no accelerometer calibration)."""
+        result has no accelerometer calibration).
+
+        Parameters
+        ----------
+        acc : (n, 3) array
+            Raw accelerometer samples [m/s²].
+        t : (n,) array, optional
+            Sample times [s], for a drift.
+
+        Returns
+        -------
+        (n, 3) array, m/s²
+        """
         if "acc" in self.sensors:
             return self.sensors["acc"].apply(acc, t)
         return np.asarray(acc, dtype=float)
@@ -165,7 +246,24 @@ class Calibration:
 
     @classmethod
     def from_dict(cls, d: dict, path: str | Path | None = None) -> "Calibration":
-        """Read :meth:`to_dict`'s output (or a version-1 file, which has no "schema")."""
+        """Read :meth:`to_dict`'s output (or a version-1 file, which has no "schema").
+
+        Parameters
+        ----------
+        d : dict
+            The JSON values.
+        path : str or Path, optional
+            The file they came from, for the error message.
+
+        Returns
+        -------
+        Calibration
+
+        Raises
+        ------
+        ApmcalError
+            For a schema this version does not know.
+        """
         schema = d.get("schema")
         if schema is not None and schema != SCHEMA:
             raise ApmcalError(f"unknown calibration schema {schema!r}: this apmcal reads "
@@ -182,7 +280,21 @@ class Calibration:
     def save(self, path: str | Path, extra: dict | None = None) -> None:
         """Write the result as JSON (schema, units, sensors, params, report); ``extra`` adds
         the caller's own top-level fields (the CLI's summary and verdict), which :meth:`load`
-        ignores. An OSError becomes a one-line ApmcalError."""
+        ignores. An OSError becomes a one-line ApmcalError.
+
+        Parameters
+        ----------
+        path : str or Path
+        extra : dict, optional
+            Further top-level fields.
+
+        Raises
+        ------
+        ApmcalError
+            When the file cannot be written.
+        ValueError
+            When ``extra`` would overwrite one of the calibration's fields.
+        """
         d = self.to_dict()
         clash = set(d) & set(extra or {})
         if clash:
@@ -196,7 +308,21 @@ class Calibration:
     @classmethod
     def load(cls, path: str | Path) -> "Calibration":
         """Read a file written by :meth:`save` (or a version-1 file); one-line ApmcalError when
-        it is not a calibration or has a schema this version does not know."""
+        it is not a calibration or has a schema this version does not know.
+
+        Parameters
+        ----------
+        path : str or Path
+
+        Returns
+        -------
+        Calibration
+
+        Raises
+        ------
+        ApmcalError
+            When the file cannot be read, is not a calibration or has an unknown schema.
+        """
         try:
             d = json.loads(Path(path).read_text())
             return cls.from_dict(d, path)
@@ -229,7 +355,19 @@ def _apply_to_table(cal: Calibration, data):
 
 def report_from_v1(old: dict, sensors: dict[str, SensorCalibration]) -> CalibrationReport:
     """What a version-1 file's free-form report still says, in the typed report; its gyro
-    g-sensitivity moves into the gyro's SensorCalibration (it is part of the applied model)."""
+    g-sensitivity moves into the gyro's SensorCalibration (it is part of the applied model).
+
+    Parameters
+    ----------
+    old : dict
+        The version-1 file's "report".
+    sensors : dict
+        sensor → SensorCalibration read from the same file; the gyro's is changed in place.
+
+    Returns
+    -------
+    CalibrationReport
+    """
     rep = CalibrationReport(recording=old.get("recording"),
                             warnings=list(old.get("warnings", [])),
                             undetermined=dict(old.get("undetermined", {})),
@@ -268,7 +406,19 @@ def _six_face_from_v1(old: dict) -> SixFaceFit:
 
 def jsonable(obj, nan_as_null: bool = False):
     """numpy arrays and scalars → plain lists and numbers, recursively; with ``nan_as_null``
-    NaN and infinity → None (strict JSON has neither)."""
+    NaN and infinity → None (strict JSON has neither).
+
+    Parameters
+    ----------
+    obj : object
+        Dicts, lists, tuples, numpy arrays and scalars, nested.
+    nan_as_null : bool
+
+    Returns
+    -------
+    object
+        The same with plain lists, numbers and str keys.
+    """
     if isinstance(obj, dict):
         return {str(k): jsonable(v, nan_as_null) for k, v in obj.items()}
     if isinstance(obj, np.ndarray):

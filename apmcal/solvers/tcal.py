@@ -63,6 +63,7 @@ class TcalFit:
     random_walk: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def to_dict(self) -> dict:
+        """The fit as plain JSON values (coefficients in ArduPilot's parameter units)."""
         return {"c1_c2_c3_xyz": self.coeffs.tolist(), "sigma": self.sigma.tolist(),
                 "residual_rms": self.residual_rms.tolist(),
                 "sigma_inflation": self.inflation.tolist(),
@@ -87,6 +88,11 @@ def fit_tcal(temp_c: np.ndarray, values: np.ndarray, weights: np.ndarray,
     t_s : (m,) array, optional
         Time of each block [s]: with it, a random walk read from the residuals is added to the
         covariance (:func:`random_walk_q2`).
+
+    Returns
+    -------
+    TcalFit
+        Coefficients c1..c3 (3, 3) and their σ in ArduPilot's parameter units.
 
     Raises
     ------
@@ -148,6 +154,20 @@ def random_walk_q2(t_s: np.ndarray, r: np.ndarray, max_lag: int | None = None) -
     0.3 × the white part at the longest lag (WALK_SHOWS): V(k) of white noise scatters by
     about 10 %, so noise alone seldom passes. A walk confounds with the drift whenever the
     temperature rises monotonically in time; the residual scatter alone cannot see it.
+
+    Parameters
+    ----------
+    t_s : (m,) array
+        Time of each block [s], increasing.
+    r : (m,) array
+        Residuals of one axis [unit].
+    max_lag : int, optional
+        Longest lag in blocks.
+
+    Returns
+    -------
+    float
+        q² [unit²/s], ≥ 0.
     """
     m = len(r)
     lags = [k for k in range(1, max(3, (max_lag or m // 10)) + 1) if k < m - 1]

@@ -74,10 +74,13 @@ def covariance_from_normal_equations(A: np.ndarray, weighted_rss: float, dof: fl
         Σ w·r² [residual units²].
     dof : float
         Σ w − number of parameters.
+    rcond : float
+        Relative singular-value cut-off, as in :func:`covariance_from_jacobian`.
 
     Returns
     -------
-    cov : (p, p) array, rank : int
+    cov : (p, p) array
+    rank : int
     """
     A = 0.5 * (A + A.T)
     p = A.shape[0]
@@ -141,7 +144,24 @@ def bootstrap(fit_fn: Callable[[np.ndarray], object], samples: np.ndarray, n: in
 
 
 def jacobian_sigma(fun, x: np.ndarray, sx: np.ndarray, rel_step: float = 1e-6) -> np.ndarray:
-    """First-order propagation of independent input sigmas ``sx`` through ``fun`` (central differences)."""
+    """First-order propagation of independent input sigmas ``sx`` through ``fun`` (central differences).
+
+    Parameters
+    ----------
+    fun : callable
+        (k,) array → array of any shape (m values).
+    x : (k,) array
+        The inputs (flattened).
+    sx : (k,) array
+        Their one-sigma, in their units.
+    rel_step : float
+        Difference step relative to max(|x_i|, 1).
+
+    Returns
+    -------
+    (m,) array
+        One-sigma of each output, in its units.
+    """
     x = np.asarray(x, dtype=float).ravel()
     y0 = np.asarray(fun(x)).ravel()
     var = np.zeros_like(y0)
