@@ -308,7 +308,7 @@ def test_reproduces_imucal_calibrated_example_output(shared_data, imucal_session
     acc_cal = cal.sensors["acc"].apply(acc[:n])
     g = cal.sensors["gyr"]
     # the g-sensitivity acts on the calibrated specific force (imucal's order)
-    gyr_cal = g.apply(np.radians(gyr_deg[:n]), acc=acc_cal)
+    gyr_cal = g.apply(np.radians(gyr_deg[:n]), force=acc_cal)
     np.testing.assert_allclose(cal.apply("gyr", np.radians(gyr_deg[:n]), acc=acc[:n]), gyr_cal)
     np.testing.assert_allclose(acc_cal, expected[["acc_x", "acc_y", "acc_z"]], rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(np.degrees(gyr_cal), expected[["gyr_x", "gyr_y", "gyr_z"]],

@@ -123,7 +123,7 @@ def test_apply_on_a_recording_and_a_dataframe(ferraris_with_compass):
     acc = cal.apply("acc", rec.xyz("acc"))
     np.testing.assert_allclose(out.xyz("acc"), acc)
     np.testing.assert_allclose(out.xyz("gyr"),
-                               cal.sensors["gyr"].apply(rec.xyz("gyr"), t, acc=acc))
+                               cal.sensors["gyr"].apply(rec.xyz("gyr"), t, force=acc))
     np.testing.assert_allclose(out.xyz("gyr"), cal.apply("gyr", rec.xyz("gyr"), t,
                                                          acc=rec.xyz("acc")))
     np.testing.assert_allclose(out.xyz("mag"), cal.apply("mag", rec.xyz("mag")))
@@ -148,8 +148,8 @@ def test_g_sensitivity_needs_the_specific_force_and_inverts_exactly():
     t = np.linspace(0, 60, 500)
     raw = rng.normal(size=(500, 3))
     force = rng.normal(size=(500, 3)) * 9.8
-    w = gyr.apply(raw, t, acc=force)
-    np.testing.assert_allclose(gyr.invert(w, t, acc=force), raw, atol=1e-12)
+    w = gyr.apply(raw, t, force=force)
+    np.testing.assert_allclose(gyr.invert(w, t, force=force), raw, atol=1e-12)
     without = replace(gyr, g_sensitivity=np.zeros((3, 3)))
     np.testing.assert_allclose(w, without.apply(raw - force @ gyr.g_sensitivity.T, t),
                                atol=1e-12)
@@ -168,8 +168,8 @@ def test_sitl_truth_is_the_exact_inverse_of_the_simulated_gyro():
     true_gyr = truth.sensor_calibrations()["gyr"]
     assert np.any(true_gyr.g_sensitivity) and np.any(true_gyr.drift)
     w, f = s["w_body"] @ v.board_rot, s["f_body"] @ v.board_rot
-    np.testing.assert_allclose(true_gyr.invert(w, rec.t, acc=f), rec.xyz("gyr"), atol=1e-12)
-    np.testing.assert_allclose(true_gyr.apply(rec.xyz("gyr"), rec.t, acc=f), w, atol=1e-12)
+    np.testing.assert_allclose(true_gyr.invert(w, rec.t, force=f), rec.xyz("gyr"), atol=1e-12)
+    np.testing.assert_allclose(true_gyr.apply(rec.xyz("gyr"), rec.t, force=f), w, atol=1e-12)
 
 
 @pytest.mark.parametrize("method, script", [("ferraris", "ferraris"), ("joint", "handheld")])

@@ -139,7 +139,7 @@ def correct_mag(y_m: np.ndarray, mats: dict) -> np.ndarray:
     return (np.asarray(y_m) - mats["o_m"]) @ np.linalg.inv(mats["D_m"]).T
 
 
-def calibration_parts(x: np.ndarray) -> dict[str, np.ndarray]:
+def calibration_parts(x: np.ndarray) -> np.ndarray:
     """The result in the project's convention ``calibrated = matrix @ (measured − offset)``:
     flat vector of acc offset, acc matrix, gyro offset, gyro matrix, g-sensitivity, mag offset,
     mag matrix (see :func:`unflatten_parts`).

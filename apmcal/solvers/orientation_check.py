@@ -88,7 +88,7 @@ def corrected(cal, t, acc, gyr, mag, holds):
     m : (n, 3) array, mGauss, or None
     """
     a = cal.apply("acc", acc, t) if "acc" in cal.sensors else np.asarray(acc, float)
-    w = cal.sensors["gyr"].apply(gyr, t, acc=a) if "gyr" in cal.sensors else np.asarray(gyr, float)
+    w = cal.sensors["gyr"].apply(gyr, t, force=a) if "gyr" in cal.sensors else np.asarray(gyr, float)
     still = np.concatenate([h.kept() for h in holds])
     w = w - w[still].mean(axis=0)
     m = None

@@ -70,25 +70,25 @@ class SensorCalibration:
         self.g_sensitivity = np.asarray(self.g_sensitivity, dtype=float).reshape(3, 3)
         self.sigma = {k: np.asarray(v, dtype=float) for k, v in self.sigma.items()}
 
-    def _bias(self, n: int, t, acc) -> np.ndarray:
-        """offset + drift·(t − t_ref) + G·acc for n samples, (n, 3) (or (3,) when constant)."""
+    def _bias(self, n: int, t, force) -> np.ndarray:
+        """offset + drift·(t − t_ref) + G·force for n samples, (n, 3) (or (3,) when constant)."""
         bias = self.offset
         if np.any(self.drift):
             if t is None:
                 raise ValueError("this calibration has a bias drift: pass the sample times t")
             bias = bias + np.outer(np.asarray(t, dtype=float) - self.t_ref, self.drift)
         if np.any(self.g_sensitivity):
-            if acc is None:
+            if force is None:
                 raise ValueError("this calibration has a gyro g-sensitivity: pass the "
-                                 "calibrated specific force acc [m/s²]")
-            bias = bias + np.asarray(acc, dtype=float).reshape(n, 3) @ self.g_sensitivity.T
+                                 "calibrated specific force (force=, m/s²)")
+            bias = bias + np.asarray(force, dtype=float).reshape(n, 3) @ self.g_sensitivity.T
         return bias
 
     def apply(self, samples: np.ndarray, t: np.ndarray | None = None,
-              acc: np.ndarray | None = None) -> np.ndarray:
+              force: np.ndarray | None = None) -> np.ndarray:
         """Calibrate (n, 3) ``samples``.
 
-        ``t`` (n,) [s] is needed only when drift is non-zero, ``acc`` (n, 3) — the CALIBRATED
+        ``t`` (n,) [s] is needed only when drift is non-zero, ``force`` (n, 3) — the CALIBRATED
         specific force [m/s²] at the same times — only when g_sensitivity is non-zero.
 
         Parameters
@@ -97,31 +97,32 @@ class SensorCalibration:
             Raw sensor-frame samples [sensor units].
         t : (n,) array, optional
             Sample times [s].
-        acc : (n, 3) array, optional
-            Calibrated specific force [m/s²].
+        force : (n, 3) array, optional
+            Calibrated specific force [m/s²] (the calibrated accelerometer, not its raw samples:
+            :meth:`Calibration.apply` takes the raw ones as ``acc``).
 
         Returns
         -------
         (n, 3) or (3,) array
-            ``matrix @ (samples − offset − drift·(t − t_ref) − G·acc)`` [sensor units].
+            ``matrix @ (samples − offset − drift·(t − t_ref) − G·force)`` [sensor units].
 
         Raises
         ------
         ValueError
-            When the drift needs ``t`` or the g-sensitivity needs ``acc`` and it is missing.
+            When the drift needs ``t`` or the g-sensitivity needs ``force`` and it is missing.
         """
         x = np.asarray(samples, dtype=float)
-        return (x - self._bias(len(np.atleast_2d(x)), t, acc)) @ self.matrix.T
+        return (x - self._bias(len(np.atleast_2d(x)), t, force)) @ self.matrix.T
 
     def invert(self, calibrated: np.ndarray, t: np.ndarray | None = None,
-               acc: np.ndarray | None = None) -> np.ndarray:
+               force: np.ndarray | None = None) -> np.ndarray:
         """The measured samples that :meth:`apply` maps to ``calibrated`` (used by the simulator).
 
         Parameters
         ----------
         calibrated : (n, 3) or (3,) array
             Calibrated samples [sensor units].
-        t, acc
+        t, force
             As for :meth:`apply`.
 
         Returns
@@ -131,7 +132,7 @@ class SensorCalibration:
         """
         c = np.asarray(calibrated, dtype=float)
         x = np.linalg.solve(self.matrix, c.T).T
-        return x + self._bias(len(np.atleast_2d(c)), t, acc)
+        return x + self._bias(len(np.atleast_2d(c)), t, force)
 
     def to_dict(self) -> dict:
         """Offset, matrix and sigmas as plain lists; drift and t_ref, g_sensitivity when non-zero."""
@@ -213,7 +214,7 @@ class Calibration:
         """
         if isinstance(data, str):
             force = None if acc is None else self.specific_force(acc, t)
-            return self.sensors[data].apply(samples, t, acc=force)
+            return self.sensors[data].apply(samples, t, force=force)
         return _apply_to_table(self, data)
 
     def specific_force(self, acc: np.ndarray, t: np.ndarray | None = None) -> np.ndarray:
@@ -349,7 +350,7 @@ def _apply_to_table(cal: Calibration, data):
         if not has.get(sensor):
             continue
         force = cal.specific_force(raw["acc"], t) if has["acc"] and sensor == "gyr" else None
-        df[SENSOR_COLUMNS[sensor]] = sc.apply(raw[sensor], t, acc=force)
+        df[SENSOR_COLUMNS[sensor]] = sc.apply(raw[sensor], t, force=force)
     return df
 
 
