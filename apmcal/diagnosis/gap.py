@@ -252,13 +252,15 @@ def _block_cells(rc: BlockCoefficients, tc: BlockCoefficients, keep, in_sample):
     levels pool into cells) is worked out once per block, not once per channel."""
     level_masks, mean_mask, _ = rc.masks(keep)
     block = rc.block
-    real_lv = [c.values[m] for c, m in zip(rc.levels, level_masks)]
-    twin_lv = [c.values[m] for c, m in zip(tc.levels, level_masks)]
-    piece_lv = [block.piece[c.piece[m]] for c, m in zip(rc.levels, level_masks)]
-    center_lv = [c.center[m] for c, m in zip(rc.levels, level_masks)]
-    histogram = bool(block.shape and real_lv and len(real_lv[0]) >= MIN_SHAPE)
+    kept = [np.flatnonzero(m) for m in level_masks]
+    # per level (c, k): the kept coefficients channel by channel, each channel contiguous
+    real_lv = [np.take(c.values.T, i, axis=1) for c, i in zip(rc.levels, kept)]
+    twin_lv = [np.take(c.values.T, i, axis=1) for c, i in zip(tc.levels, kept)]
+    piece_lv = [block.piece[c.piece[i]] for c, i in zip(rc.levels, kept)]
+    center_lv = [c.center[i] for c, i in zip(rc.levels, kept)]
+    histogram = bool(block.shape and real_lv and len(kept[0]) >= MIN_SHAPE)
     groups = []
-    for group in level_groups([len(v) for v in twin_lv]):
+    for group in level_groups([len(i) for i in kept]):
         if histogram and 1 in group:    # level 1 is scored by its histogram
             group = [j for j in group if j != 1]
         if group:
@@ -268,14 +270,14 @@ def _block_cells(rc: BlockCoefficients, tc: BlockCoefficients, keep, in_sample):
     score_means = block.shape and block.radial is None and mean_mask.sum() - loss > 2
     for col, name in enumerate(block.names):
         if histogram:      # level 1 scored by its whole distribution: width and shape
-            real, twin = real_lv[0][:, col], twin_lv[0][:, col]
+            real, twin = real_lv[0][col], twin_lv[0][col]
             yield CellShare(name, 1, (1,), len(real), float(np.mean(real ** 2)),
                             float(np.mean(twin ** 2)), shape_shares(real, twin),
                             piece_lv[0], center_lv[0], block, kind="histogram")
         for group, piece, center in groups:
-            real = np.concatenate([real_lv[j - 1][:, col] for j in group])
+            real = np.concatenate([real_lv[j - 1][col] for j in group])
             share, v_r, v_t = variance_shares(
-                real, np.concatenate([twin_lv[j - 1][:, col] for j in group]))
+                real, np.concatenate([twin_lv[j - 1][col] for j in group]))
             yield CellShare(name, group[0], tuple(group), len(real), v_r, v_t, share, piece,
                             center, block)
         if score_means:
