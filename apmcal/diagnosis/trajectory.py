@@ -11,6 +11,7 @@ the twin passes through the same readings as the real board.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -82,17 +83,32 @@ def prefix_products(q: np.ndarray, segment: np.ndarray | None = None) -> np.ndar
     the product from the first quaternion of i's segment) — many short sequences scanned in
     one pass instead of one Python loop each (the moves of a session: 50× fewer calls)."""
     p = q.copy()
-    d = 1
-    while d < len(p):
-        if segment is None:
+    if segment is None:
+        d = 1
+        while d < len(p):
             p[d:] = quat_multiply(p[:-d], p[d:])
-        else:
-            later = np.flatnonzero(segment[d:] == segment[:-d]) + d
-            if not len(later):
-                break
-            p[later] = quat_multiply(p[later - d], p[later])
-        d *= 2
+            d *= 2
+        return p
+    segment = np.asarray(segment)
+    for earlier, later in _segment_rounds(segment.tobytes(), segment.dtype.str):
+        p[later] = quat_multiply(p[earlier], p[later])
     return p
+
+
+@functools.lru_cache(maxsize=16)
+def _segment_rounds(segment_bytes: bytes, dtype: str) -> tuple:
+    """Each round of the segmented scan (d = 1, 2, 4, ...): the indices whose quaternion d
+    places back lies in the same segment, and those d places back. The same for every scan
+    over the same moves (each least-squares step of a move fit), so found once."""
+    segment = np.frombuffer(segment_bytes, dtype)
+    rounds, d = [], 1
+    while d < len(segment):
+        later = np.flatnonzero(segment[d:] == segment[:-d]) + d
+        if not len(later):
+            break
+        rounds.append((later - d, later))
+        d *= 2
+    return tuple(rounds)
 
 
 def integrate_attitude(r0: np.ndarray, rate: np.ndarray, dt: np.ndarray) -> np.ndarray:
