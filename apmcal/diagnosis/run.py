@@ -63,10 +63,13 @@ def _diagnose(session, names, seed: int, progress) -> Diagnosis:
     ranked, selection = _rank_and_select(ev, names, say)
     selected = selection.order()
     say("selected model")
-    # the selected model's full evaluation (for its breakdown), and beside it the noise
-    # structure and the nominal model's breakdown, which need nothing more
-    final, (structure, nominal_gap) = ev.beside([("noise_structure", ()), ("gap_of", ((),))],
-                                                lambda: ev.evaluate(tuple(selected)))
+    # the selected model's full evaluation and breakdown here (its folds side by side), and
+    # beside them, each in a worker of its own, the noise structure and the nominal model's
+    # breakdown, which need nothing more
+    beside = [("noise_structure", ())] + ([("gap_of", ((),))] if selected else [])
+    (final, final_gap), (structure, *nominal_gap) = ev.beside(
+        beside, lambda: _evaluated_with_gap(ev, tuple(selected)))
+    nominal_gap = nominal_gap[0] if nominal_gap else final_gap   # nothing selected: the same
     params = {s.name: s.params for s in ranked if s.tested}     # each alone ...
     params.update(ev.summary(tuple(selected)).params)    # ... the selected within the combination
     # best first: the combination, then the rest as ranked
@@ -75,10 +78,15 @@ def _diagnose(session, names, seed: int, progress) -> Diagnosis:
     effects = [_effect_entry(s, selection, params.get(s.name, {})) for s in ranked]
     white = white_noise_of_folds([f.noise for f in nominal.folds])
     result = GapResult(session.source, session_summary(session, ev),
-                       nominal_gap, effects, selected,
-                       gap_summary(final, session), white, structure,
+                       nominal_gap, effects, selected, final_gap, white, structure,
                        notes=list(session.notes))
     return Diagnosis(result, ev, nominal, final)
+
+
+def _evaluated_with_gap(ev: Evaluator, effects: tuple) -> tuple[Evaluation, dict]:
+    """The model's evaluation and its gaps with their breakdowns."""
+    evaluation = ev.evaluate(effects)
+    return evaluation, gap_summary(evaluation, ev.session)
 
 
 def _rank_and_select(ev: Evaluator, names, say):

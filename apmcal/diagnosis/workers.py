@@ -36,11 +36,11 @@ def run(target, jobs: list[tuple[str, tuple]]) -> list:
 
 
 def beside(target, jobs: list[tuple[str, tuple]], work):
-    """``work()`` in this process while ``jobs`` (as for :func:`run`) run in one forked worker;
-    returns (work's result, the jobs' results)."""
+    """``work()`` in this process while ``jobs`` (as for :func:`run`) run in forked workers,
+    one per job up to one per core; returns (work's result, the jobs' results)."""
     if not parallel():
         return work(), [getattr(target, method)(*args) for method, args in jobs]
-    with _pool(target, 1) as pool:
+    with _pool(target, max(1, min(len(jobs), os.cpu_count() or 1))) as pool:
         pending = pool.map_async(_call, jobs, chunksize=1)
         return work(), [_unship(r) for r in pending.get()]
 
