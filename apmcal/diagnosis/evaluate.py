@@ -212,8 +212,11 @@ class Evaluator:
         return fit, noise, holds + moves
 
     def _nominal(self, fold: int):
+        """The nominal fit and noise of ``fold`` (with σ: the very fit the nominal model's own
+        evaluation makes, :meth:`_fold`)."""
         if ("nominal", fold) not in self._motion:
-            self._motion[("nominal", fold)] = self.fit(self.session, self.reduced, (), fold)[:2]
+            self._motion[("nominal", fold)] = self.fit(self.session, self.reduced, (), fold,
+                                                       with_sigma=True)[:2]
         return self._motion[("nominal", fold)]
 
     def _motion_path(self, fold: int):
@@ -258,6 +261,13 @@ class Evaluator:
         # the slowest models first, so that the last jobs are short ones and no core waits
         # long for the other (longest-processing-time-first scheduling)
         todo.sort(key=lambda key: -len(key & SLOW_TO_FIT))
+        if frozenset() in todo and self._cold():
+            # the nominal model's folds warm the evaluator: its fit is each fold's nominal fit
+            results = self.map([("_nominal_fold", (fold, True)) for fold in FOLDS])
+            self._summaries[frozenset()] = Summary.of_folds(frozenset(), [r for r, _ in results])
+            for _, entries in results:
+                self._motion.update(entries)
+            todo.remove(frozenset())
         self.warm()
         parts = self.map([("fold_summary", (key, fold)) for key in todo for fold in FOLDS])
         for i, key in enumerate(todo):
@@ -281,6 +291,16 @@ class Evaluator:
     def _warm_fold(self, fold: int) -> dict:
         self._motion_path(fold)
         return {key: self._motion[key] for key in (fold, ("nominal", fold))}
+
+    def _cold(self) -> bool:
+        return all(fold not in self._motion for fold in FOLDS)
+
+    def _nominal_fold(self, fold: int, summary: bool) -> tuple:
+        """Fold ``fold`` of the nominal model (its summary, or all of it but the residual
+        coefficients) and what warming the fold keeps, which its fit gives on the way."""
+        result = self._fold(frozenset(), fold)
+        result = FoldSummary.of(result) if summary else replace(result, real=None, twin=None)
+        return result, self._warm_fold(fold)
 
     def map(self, jobs: list[tuple[str, tuple]]) -> list:
         """``[self.method(*args) for method, args in jobs]``, spread over every core
@@ -312,6 +332,12 @@ class Evaluator:
         beside it in a worker, which sends back all of it but the residual coefficients (the
         plots and the noise structure read fold 0's only)."""
         key = frozenset(effects)
+        if key not in self._cache and not key and self._cold():
+            # the nominal model's folds warm the evaluator (one fit for both, :meth:`_fold`)
+            first, ((second, entries),) = self.beside([("_nominal_fold", (1, False))],
+                                                      lambda: self._fold(key, 0))
+            self._motion.update(entries)
+            self._cache[key] = Evaluation(key, [first, second])
         if key not in self._cache:
             self.warm()
             first, (second,) = self.beside([("_fold_without_coefficients", (key, 1))],
@@ -326,6 +352,8 @@ class Evaluator:
     def _fold(self, effects, fold: int) -> FoldResult:
         s = self.session
         fit, noise, real = self.fit(s, self.reduced, effects, fold, with_sigma=True)
+        if not effects:     # the fold's nominal fit: its motion path starts here (no refit)
+            self._motion.setdefault(("nominal", fold), (fit, noise))
         # the same twin noise for every model (common random numbers): differences between
         # models are not drowned in differences between noise draws
         twin, _ = simulate(s, fit, noise, seed=self.seed + fold,
