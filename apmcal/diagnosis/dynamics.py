@@ -149,15 +149,15 @@ def predicted(session, fit, dyn: Dynamics, moves: Moves, rate_cal: np.ndarray,
     rate = rate_cal @ np.linalg.inv(dyn.forward).T
     rel = relative_attitudes(rate, session.t, moves, step)
     idx, hold = move_index(moves, step)
-    f = rel.apply(hold_f[hold], inverse=True)           # R(t)ᵀ·f_k
+    f = rel.apply(np.take(hold_f, hold, axis=0), inverse=True)     # R(t)ᵀ·f_k
     if dyn.time_offset_s:          # the accelerometer samples the past: f(t − τ) = Exp(ωτ)·f(t)
-        f = Rotation.from_rotvec(rate[idx] * dyn.time_offset_s).apply(f)
+        f = Rotation.from_rotvec(np.take(rate, idx, axis=0) * dyn.time_offset_s).apply(f)
     temp = session.temp[idx] if session.temp is not None else None
     geo = fit.acc if dyn.acc_terms is None else acc_with_terms(fit.acc, dyn.acc_terms)
     acc = geo.predict(f / _radius(geo), fit.acc_columns(session.t[idx], temp))
     mag = None
     if hold_b is not None and fit.mag is not None:
-        b = rel.apply(hold_b[hold], inverse=True)
+        b = rel.apply(np.take(hold_b, hold, axis=0), inverse=True)
         cur = session.current[idx] if session.current is not None else None
         mag = fit.mag.predict(b / _radius(fit.mag), fit.mag_columns(session.t[idx], cur))
     return idx, acc, mag
@@ -178,10 +178,12 @@ def move_residuals(session, fit, dyn: Dynamics, rate_cal, hold_f, hold_b) -> lis
     starts = ends - (moves.i1 - moves.i0)
     t = session.t[idx]
     temp = session.temp[idx] if session.temp is not None else None
-    blocks = [ResidualBlock([f"acc_{a}" for a in AXES], session.acc[idx] - acc, starts, ends,
+    blocks = [ResidualBlock([f"acc_{a}" for a in AXES], np.take(session.acc, idx, axis=0) - acc,
+                            starts, ends,
                             moves.piece, t, temp, shape=False)]
     if mag is not None and session.mag is not None and session.mag.t is session.t:
-        blocks.append(ResidualBlock([f"mag_{a}" for a in AXES], session.mag.values[idx] - mag,
+        blocks.append(ResidualBlock([f"mag_{a}" for a in AXES],
+                                    np.take(session.mag.values, idx, axis=0) - mag,
                                     starts, ends, moves.piece, t, None, shape=False))
     return blocks
 
@@ -235,12 +237,15 @@ def fit_dynamics(session, fit, effects, train: np.ndarray, rate_cal, hold_f, hol
     offset = np.concatenate([start[name] if name in start else np.zeros(size)
                              for name, (size, _) in layout.items()])
 
+    acc_seen = np.take(session.acc, idx, axis=0)        # the same in every step
+    mag_seen = np.take(session.mag.values, idx, axis=0) if with_mag else None
+
     def residuals(p):
         d = _unpack(p, layout, start)
         _, acc, mag = predicted(session, fit, d, moves, rate_cal, hold_f, hold_b, step)
-        r = [((session.acc[idx] - acc) * weight["acc"]).ravel()]
+        r = [((acc_seen - acc) * weight["acc"]).ravel()]
         if with_mag:
-            r.append(((session.mag.values[idx] - mag) * weight["mag"]).ravel())
+            r.append(((mag_seen - mag) * weight["mag"]).ravel())
         r.append((p + offset) / prior_sigma)
         return np.concatenate(r)
 

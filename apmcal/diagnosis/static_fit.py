@@ -123,7 +123,7 @@ class GeometryFit:
         through the sensor model once per group rather than once per sample."""
         truth = self.truth_of(u_rows)
         if group is not None:
-            truth = truth[group]
+            truth = np.take(truth, group, axis=0)     # faster than truth[group]
         return truth + self.offset + columns @ self.theta
 
 

@@ -182,7 +182,7 @@ def _mag(session, traj, hold_rot, b_hold, model, noise, still_holds: bool) -> np
     idx = np.clip(np.searchsorted(session.t, m.t), 0, len(session.t) - 1)
     throttle = (m.current / FULL_THROTTLE_CURRENT_A if m.current is not None
                 else np.zeros(len(m.t)))
-    values = model.mag(b_imu[idx], throttle)
+    values = model.mag(np.take(b_imu, idx, axis=0), throttle)
     step = noise["mag"].step if "mag" in noise else None
     if step is not None:    # the log's integer mGauss (dataflash MAG, RAW_IMU): the vehicle's
         values = np.round(values / step) * step     # rounding, not the sensor's (sitl's writer)
