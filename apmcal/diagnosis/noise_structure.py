@@ -42,16 +42,17 @@ def allan_line_terms(pieces: list, fs: float, unit: str) -> dict:
             "random_walk": {"value": lines.random_walk, "unit": f"{unit}/√s"}}
 
 
-def noise_structure(evaluation, fs_of: dict) -> dict:
+def noise_structure(evaluation, fs_of: dict, sensors=None) -> dict:
     """{sensor: {axis: {"real": terms, "twin": terms, "real_allan_lines": terms}}} of the
-    hold residuals of ``evaluation`` (an :class:`~apmcal.diagnosis.evaluate.Evaluation`)."""
+    hold residuals of ``evaluation`` (an :class:`~apmcal.diagnosis.evaluate.Evaluation`), of
+    every sensor or of those in ``sensors``."""
     fold = evaluation.folds[0]
     twin_blocks = {c.block.names[0].split("_")[0]: c.block for c in fold.twin if c.block.shape}
     out = {}
     for coeffs in fold.real:
         block = coeffs.block
         sensor = block.names[0].split("_")[0]
-        if not block.shape or sensor not in twin_blocks:
+        if not block.shape or sensor not in twin_blocks or sensors and sensor not in sensors:
             continue
         out[sensor] = {}
         for axis, name in enumerate("xyz"):

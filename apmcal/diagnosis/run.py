@@ -64,12 +64,15 @@ def _diagnose(session, names, seed: int, progress) -> Diagnosis:
     selected = selection.order()
     say("selected model")
     # the selected model's full evaluation and breakdown here (its folds side by side), and
-    # beside them, each in a worker of its own, the noise structure and the nominal model's
-    # breakdown, which need nothing more
-    beside = [("noise_structure", ())] + ([("gap_of", ((),))] if selected else [])
-    (final, final_gap), (structure, *nominal_gap) = ev.beside(
-        beside, lambda: _evaluated_with_gap(ev, tuple(selected)))
-    nominal_gap = nominal_gap[0] if nominal_gap else final_gap   # nothing selected: the same
+    # beside them, spread over workers, the nominal model's breakdown and its noise structure
+    # sensor by sensor, which need nothing more
+    sensors = ("acc", "gyr", "mag")
+    beside = ([("gap_of", ((),))] if selected else []) + \
+        [("noise_structure", ((sensor,),)) for sensor in sensors]
+    (final, final_gap), results = ev.beside(beside,
+                                            lambda: _evaluated_with_gap(ev, tuple(selected)))
+    nominal_gap = results.pop(0) if selected else final_gap   # nothing selected: the same
+    structure = {sensor: axes for part in results for sensor, axes in part.items()}
     params = {s.name: s.params for s in ranked if s.tested}     # each alone ...
     params.update(ev.summary(tuple(selected)).params)    # ... the selected within the combination
     # best first: the combination, then the rest as ranked
