@@ -332,19 +332,35 @@ class Evaluator:
         """The model nominal + ``effects`` scored both ways round (cached): fold 0 here, fold 1
         beside it in a worker, which sends back all of it but the residual coefficients (the
         plots and the noise structure read fold 0's only)."""
+        return self.evaluate_with(effects, [])[0]
+
+    def evaluate_with(self, effects, jobs: list, then=None) -> tuple:
+        """:meth:`evaluate`, with ``jobs`` (as for :meth:`map`) in the same workers, queued
+        behind its fold 1; returns (``then(evaluation)``, here as soon as the evaluation is
+        complete while the jobs may still run — the evaluation itself by default —, the jobs'
+        results)."""
+        then = then or (lambda evaluation: evaluation)
         key = frozenset(effects)
-        if key not in self._cache and not key and self._cold():
-            # the nominal model's folds warm the evaluator (one fit for both, :meth:`_fold`)
-            first, ((second, entries),) = self.beside([("_nominal_fold", (1, False))],
-                                                      lambda: self._fold(key, 0))
-            self._motion.update(entries)
-            self._cache[key] = Evaluation(key, [first, second])
-        if key not in self._cache:
+        if key in self._cache:
+            done = lambda: then(self._cache[key])  # noqa: E731
+            return self.beside(jobs, done) if jobs else (done(), [])
+        # on a cold evaluator the nominal model's folds are what warm it (one fit for both)
+        cold_nominal = not key and self._cold()
+        if not cold_nominal:
             self.warm()
-            first, (second,) = self.beside([("_fold_without_coefficients", (key, 1))],
-                                           lambda: self._fold(key, 0))
+        fold_1 = ("_nominal_fold", (1, False)) if cold_nominal else \
+            ("_fold_without_coefficients", (key, 1))
+
+        def both_folds(result):
+            first, second = self._fold(key, 0), result(0)
+            if cold_nominal:
+                second, entries = second
+                self._motion.update(entries)
             self._cache[key] = Evaluation(key, [first, second])
-        return self._cache[key]
+            return then(self._cache[key])
+
+        out, results = workers.beside(self, [fold_1] + list(jobs), both_folds, hand_over=True)
+        return out, results[1:]
 
     def _fold_without_coefficients(self, key: frozenset, fold: int) -> FoldResult:
         result = self._fold(key, fold)

@@ -63,14 +63,15 @@ def _diagnose(session, names, seed: int, progress) -> Diagnosis:
     ranked, selection = _rank_and_select(ev, names, say)
     selected = selection.order()
     say("selected model")
-    # the selected model's full evaluation and breakdown here (its folds side by side), and
-    # beside them, spread over workers, the nominal model's breakdown and its noise structure
-    # sensor by sensor, which need nothing more
+    # the selected model's evaluation (fold 0 here, fold 1 in a worker) and then its
+    # breakdown here; in the same workers, after its fold 1, the nominal model's breakdown and
+    # its noise structure sensor by sensor, which need nothing more
     sensors = ("acc", "gyr", "mag")
     beside = ([("gap_of", ((),))] if selected else []) + \
         [("noise_structure", ((sensor,),)) for sensor in sensors]
-    (final, final_gap), results = ev.beside(beside,
-                                            lambda: _evaluated_with_gap(ev, tuple(selected)))
+    (final, final_gap), results = ev.evaluate_with(
+        tuple(selected), beside, then=lambda evaluation: (evaluation,
+                                                          gap_summary(evaluation, session)))
     nominal_gap = results.pop(0) if selected else final_gap   # nothing selected: the same
     structure = {sensor: axes for part in results for sensor, axes in part.items()}
     params = {s.name: s.params for s in ranked if s.tested}     # each alone ...
@@ -84,12 +85,6 @@ def _diagnose(session, names, seed: int, progress) -> Diagnosis:
                        nominal_gap, effects, selected, final_gap, white, structure,
                        notes=list(session.notes))
     return Diagnosis(result, ev, nominal, final)
-
-
-def _evaluated_with_gap(ev: Evaluator, effects: tuple) -> tuple[Evaluation, dict]:
-    """The model's evaluation and its gaps with their breakdowns."""
-    evaluation = ev.evaluate(effects)
-    return evaluation, gap_summary(evaluation, ev.session)
 
 
 def _rank_and_select(ev: Evaluator, names, say):
