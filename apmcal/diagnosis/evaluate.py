@@ -320,13 +320,13 @@ class Evaluator:
 
         return gap_summary(self.evaluate(effects), self.session)
 
-    def noise_structure(self, sensors=None) -> dict:
+    def noise_structure(self, parts=None) -> dict:
         """White noise, bias instability and random walk of the nominal model's hold
-        residuals, real and twin (:mod:`apmcal.diagnosis.noise_structure`; of ``sensors``
-        only, when given)."""
+        residuals, real and twin (:mod:`apmcal.diagnosis.noise_structure`; of the (sensor,
+        axis) pairs ``parts`` only, when given)."""
         from apmcal.diagnosis.noise_structure import noise_structure
 
-        return noise_structure(self.evaluate(()), self.fs_of, sensors)
+        return noise_structure(self.evaluate(()), self.fs_of, parts)
 
     def evaluate(self, effects) -> Evaluation:
         """The model nominal + ``effects`` scored both ways round (cached): fold 0 here, fold 1
