@@ -139,15 +139,24 @@ def move_index(moves: Moves, step: int = 1) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(idx), np.concatenate(hold)
 
 
+def move_turns(session, forward: np.ndarray, moves: Moves, rate_cal: np.ndarray,
+               step: int = 1) -> tuple:
+    """The body rate (the gyro through its matrix ``forward``) at every session sample, and
+    the moves' attitudes relative to the hold before (:func:`relative_attitudes`)."""
+    rate = rate_cal @ np.linalg.inv(forward).T
+    return rate, relative_attitudes(rate, session.t, moves, step)
+
+
 def predicted(session, fit, dyn: Dynamics, moves: Moves, rate_cal: np.ndarray,
-              hold_f: np.ndarray, hold_b: np.ndarray | None, step: int = 1) -> tuple:
+              hold_f: np.ndarray, hold_b: np.ndarray | None, step: int = 1,
+              turns: tuple | None = None) -> tuple:
     """Predicted acc (and mag at the IMU times) of every ``step``-th move sample.
 
     ``rate_cal`` is the gyro minus its fitted bias terms at every session sample; ``hold_f`` /
-    ``hold_b`` the calibrated specific force and field of each hold.
+    ``hold_b`` the calibrated specific force and field of each hold; ``turns``: what
+    :func:`move_turns` gives for ``dyn``'s gyro matrix, when known.
     """
-    rate = rate_cal @ np.linalg.inv(dyn.forward).T
-    rel = relative_attitudes(rate, session.t, moves, step)
+    rate, rel = turns or move_turns(session, dyn.forward, moves, rate_cal, step)
     idx, hold = move_index(moves, step)
     f = rel.apply(np.take(hold_f, hold, axis=0), inverse=True)     # R(t)ᵀ·f_k
     if dyn.time_offset_s:          # the accelerometer samples the past: f(t − τ) = Exp(ωτ)·f(t)
@@ -240,9 +249,17 @@ def fit_dynamics(session, fit, effects, train: np.ndarray, rate_cal, hold_f, hol
     acc_seen = np.take(session.acc, idx, axis=0)        # the same in every step
     mag_seen = np.take(session.mag.values, idx, axis=0) if with_mag else None
 
+    turns: dict = {}    # by gyro matrix: the steps of the other parameters turn the moves alike
+
     def residuals(p):
         d = _unpack(p, layout, start)
-        _, acc, mag = predicted(session, fit, d, moves, rate_cal, hold_f, hold_b, step)
+        key = d.forward.tobytes()
+        if key not in turns:
+            if len(turns) >= 2:             # a gyro fit's matrices are new step after step
+                turns.pop(next(iter(turns)))
+            turns[key] = move_turns(session, d.forward, moves, rate_cal, step)
+        _, acc, mag = predicted(session, fit, d, moves, rate_cal, hold_f, hold_b, step,
+                                turns[key])
         r = [((acc_seen - acc) * weight["acc"]).ravel()]
         if with_mag:
             r.append(((mag_seen - mag) * weight["mag"]).ravel())
