@@ -30,8 +30,9 @@ from apmcal.diagnosis.model import (
     reduce_session,
     set_acc_terms,
 )
-from apmcal.diagnosis.noise_fit import NoiseModel, fit_noise, lattice_step
+from apmcal.diagnosis.noise_fit import NoiseModel, fit_noise
 from apmcal.diagnosis.params import effect_params, mean_of_folds
+from apmcal.diagnosis.session_facts import earth_field, lattice_steps, sample_sigma
 from apmcal.diagnosis.static_fit import count_orientations
 from apmcal.diagnosis.twin import motion_of, simulate
 
@@ -152,10 +153,10 @@ class Evaluator:
         self.session = session
         self.seed = seed
         self.reduced = reduce_session(session)
-        self.field_mgauss, self.declination_rad = _earth_field(session)
-        self.steps = _lattice_steps(session)
+        self.field_mgauss, self.declination_rad = earth_field(session)
+        self.steps = lattice_steps(session)
         self.context = Context(count_orientations(self.reduced.acc, "acc"), self.steps)
-        self.sample_sigma = _sample_sigma(session)
+        self.sample_sigma = sample_sigma(session)
         self.fs_of = {"acc": session.fs, "gyr": session.fs}
         if session.mag is not None:
             self.fs_of["mag"] = float(1.0 / np.median(np.diff(session.mag.t)))
@@ -381,52 +382,3 @@ class Evaluator:
         return FoldResult(fold, fit, noise, real, tw, compare(real, tw, train, in_sample=True),
                           compare(real, tw, test, in_sample=False),
                           {name: effect_params(name, fit, noise) for name in effects})
-
-
-def _earth_field(session) -> tuple[float | None, float]:
-    """WMM field magnitude [mGauss] and declination [rad] at the site, when it is known."""
-    if session.mag is None or session.lat_deg is None or session.lon_deg is None:
-        return None, 0.0
-    import datetime
-
-    from apmcal.geomag import decimal_year, earth_field_ned
-
-    when = session.date or datetime.date.today()
-    ned, _ = earth_field_ned(session.lat_deg, session.lon_deg, 0.0, decimal_year(when))
-    return float(np.linalg.norm(ned)), float(np.arctan2(ned[1], ned[0]))
-
-
-def _sample_sigma(session) -> dict:
-    """Per-sample noise of the accelerometer and compass in the holds (robust: successive
-    differences, which cancel slow changes), to weight the move fits."""
-    from apmcal.preprocessing.resolution import noise_std
-
-    pc = session.pieces
-    ids = pc.select(hold=True)
-    out = {"acc": np.mean([noise_std(session.acc[a:b]) for a, b in zip(pc.i0[ids], pc.i1[ids])])}
-    if session.mag is not None:
-        m = session.mag
-        out["mag"] = np.mean([noise_std(m.values[a:b]) for a, b in zip(m.i0[ids], m.i1[ids])
-                              if b - a > 2])
-    return {k: float(v) for k, v in out.items()}
-
-
-def _lattice_steps(session) -> dict:
-    """Quantization step per axis of each sensor's hold samples (None: not on a lattice). In
-    block means of rounded readings it is the step over the block length, which the twin's
-    rounding then reproduces (apmcal.diagnosis.decimate)."""
-    pc = session.pieces
-    ids = pc.select(hold=True)
-    idx = np.concatenate([np.arange(a, b) for a, b in zip(pc.i0[ids], pc.i1[ids])])
-    out = {}
-    for sensor, x in (("acc", session.acc), ("gyr", session.gyr)):
-        out[sensor] = _steps(x[idx])
-    if session.mag is not None:
-        m = session.mag
-        out["mag"] = _steps(np.concatenate([m.values[a:b] for a, b in zip(m.i0[ids], m.i1[ids])]))
-    return out
-
-
-def _steps(x: np.ndarray) -> np.ndarray | None:
-    steps = [lattice_step(x[:, k]) for k in range(3)]
-    return None if any(s is None for s in steps) else np.array(steps)
