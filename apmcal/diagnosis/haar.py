@@ -78,7 +78,7 @@ class _Level:
     center: np.ndarray          # sample index at the middle of its support (read-only)
 
 
-@functools.lru_cache(maxsize=64)
+@functools.lru_cache(maxsize=16)     # a diagnosis uses a handful (a few MB each at 400 Hz)
 def _layout(i0_bytes: bytes, i1_bytes: bytes) -> tuple[_Level, ...]:
     """Which blocks pair up at each level, and where each coefficient lies: the same for every
     residual cut into the same pieces (every model, real and twin), so worked out once.
