@@ -66,13 +66,13 @@ def test_a_decimated_session_keeps_its_holds_pieces_and_folds():
 
 def test_block_means_of_rounded_readings_lie_on_the_step_over_the_block_length():
     """The twin's rounding then reproduces the block means' finer lattice."""
-    from apmcal.diagnosis.evaluate import _lattice_steps
+    from apmcal.diagnosis.session_facts import lattice_steps
 
     s = _session()
     step = 0.01
     s.acc = np.round(s.acc / step) * step
     s.mag.values = np.round(s.mag.values)       # 1 mGauss, as dataflash MAG stores it
-    full, coarse = _lattice_steps(s), _lattice_steps(decimated(s, 4))
+    full, coarse = lattice_steps(s), lattice_steps(decimated(s, 4))
     np.testing.assert_allclose(full["acc"], step, rtol=1e-6)
     np.testing.assert_allclose(coarse["acc"], step / 4, rtol=1e-6)
     np.testing.assert_allclose(coarse["mag"], 0.25, rtol=1e-6)

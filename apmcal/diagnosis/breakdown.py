@@ -48,10 +48,18 @@ def _edges(lo: float, hi: float, bins: int) -> np.ndarray:
     return np.linspace(lo, hi if hi > lo else lo + 1e-9, bins + 1)
 
 
-def _binned(values: np.ndarray, nats: np.ndarray, edges: np.ndarray, fmt: str) -> dict:
+def _labels(edges: np.ndarray, fmt: str) -> dict:
+    """{bin label: index of the bin} (bins whose labels coincide: the last one's), in order."""
+    return {fmt.format(edges[i], edges[i + 1]): i for i in range(len(edges) - 1)}
+
+
+def _add_binned(out: dict, labels: dict, values: np.ndarray, nats: np.ndarray,
+                edges: np.ndarray) -> None:
+    """Add the sums of ``nats`` over the bins of ``values`` to ``out`` by bin label."""
     idx = np.clip(np.searchsorted(edges, values, side="right") - 1, 0, len(edges) - 2)
     sums = np.bincount(idx, nats, minlength=len(edges) - 1)
-    return {fmt.format(edges[i], edges[i + 1]): float(sums[i]) for i in range(len(edges) - 1)}
+    for label, i in labels.items():
+        out[label] += float(sums[i])
 
 
 def breakdown(cells: list, n_samples: int, session) -> dict:
@@ -86,26 +94,35 @@ def breakdown(cells: list, n_samples: int, session) -> dict:
 def _time_parts(cells, session, scale) -> dict:
     t0, t1 = float(session.t[0]), float(session.t[-1])
     edges = _edges(t0, t1, TIME_BINS)
+    labels = _labels(edges, "{:.0f}-{:.0f} s")     # formatted once, not once per cell
     out: dict = defaultdict(float)
     for c in cells:
-        for k, v in _binned(c.time, c.nats * scale, edges, "{:.0f}-{:.0f} s").items():
-            out[k] += v
+        _add_binned(out, labels, c.time, c.nats * scale, edges)
     return dict(out)
 
 
 def _temp_parts(cells, session, scale) -> dict:
     edges = _edges(float(np.nanmin(session.temp)), float(np.nanmax(session.temp)), TEMP_BINS)
+    labels = _labels(edges, "{:.1f}-{:.1f} °C")
+    imu_temp: dict = {}     # per block without temperature: the IMU's at its samples
     out: dict = defaultdict(float)
     for c in cells:
         temp = c.temp
         ok = np.isfinite(temp)
         if not ok.any():       # a compass block without temperature: by the IMU's
-            temp = np.interp(c.time, session.t, session.temp)
+            temp = _imu_temp(c, session, imu_temp)
             ok = np.ones(len(temp), bool)
-        for k, v in _binned(temp[ok], c.nats[ok] * scale, edges,
-                            "{:.1f}-{:.1f} °C").items():
-            out[k] += v
+        _add_binned(out, labels, temp[ok], c.nats[ok] * scale, edges)
     return dict(out)
+
+
+def _imu_temp(cell, session, known: dict) -> np.ndarray:
+    """The IMU's temperature at the cell's coefficients (np.interp, point by point: once per
+    block, then read off at each cell's centres — hundreds of cells share a block)."""
+    block = cell.block
+    if id(block) not in known:
+        known[id(block)] = np.interp(block.t, session.t, session.temp)
+    return known[id(block)][np.clip(cell.center, 0, len(block.t) - 1)]
 
 
 def gap_summary(evaluation, session) -> dict:

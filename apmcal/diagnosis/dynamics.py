@@ -139,25 +139,34 @@ def move_index(moves: Moves, step: int = 1) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(idx), np.concatenate(hold)
 
 
+def move_turns(session, forward: np.ndarray, moves: Moves, rate_cal: np.ndarray,
+               step: int = 1) -> tuple:
+    """The body rate (the gyro through its matrix ``forward``) at every session sample, and
+    the moves' attitudes relative to the hold before (:func:`relative_attitudes`)."""
+    rate = rate_cal @ np.linalg.inv(forward).T
+    return rate, relative_attitudes(rate, session.t, moves, step)
+
+
 def predicted(session, fit, dyn: Dynamics, moves: Moves, rate_cal: np.ndarray,
-              hold_f: np.ndarray, hold_b: np.ndarray | None, step: int = 1) -> tuple:
+              hold_f: np.ndarray, hold_b: np.ndarray | None, step: int = 1,
+              turns: tuple | None = None) -> tuple:
     """Predicted acc (and mag at the IMU times) of every ``step``-th move sample.
 
     ``rate_cal`` is the gyro minus its fitted bias terms at every session sample; ``hold_f`` /
-    ``hold_b`` the calibrated specific force and field of each hold.
+    ``hold_b`` the calibrated specific force and field of each hold; ``turns``: what
+    :func:`move_turns` gives for ``dyn``'s gyro matrix, when known.
     """
-    rate = rate_cal @ np.linalg.inv(dyn.forward).T
-    rel = relative_attitudes(rate, session.t, moves, step)
+    rate, rel = turns or move_turns(session, dyn.forward, moves, rate_cal, step)
     idx, hold = move_index(moves, step)
-    f = rel.apply(hold_f[hold], inverse=True)           # R(t)ᵀ·f_k
+    f = rel.apply(np.take(hold_f, hold, axis=0), inverse=True)     # R(t)ᵀ·f_k
     if dyn.time_offset_s:          # the accelerometer samples the past: f(t − τ) = Exp(ωτ)·f(t)
-        f = Rotation.from_rotvec(rate[idx] * dyn.time_offset_s).apply(f)
+        f = Rotation.from_rotvec(np.take(rate, idx, axis=0) * dyn.time_offset_s).apply(f)
     temp = session.temp[idx] if session.temp is not None else None
     geo = fit.acc if dyn.acc_terms is None else acc_with_terms(fit.acc, dyn.acc_terms)
     acc = geo.predict(f / _radius(geo), fit.acc_columns(session.t[idx], temp))
     mag = None
     if hold_b is not None and fit.mag is not None:
-        b = rel.apply(hold_b[hold], inverse=True)
+        b = rel.apply(np.take(hold_b, hold, axis=0), inverse=True)
         cur = session.current[idx] if session.current is not None else None
         mag = fit.mag.predict(b / _radius(fit.mag), fit.mag_columns(session.t[idx], cur))
     return idx, acc, mag
@@ -178,10 +187,12 @@ def move_residuals(session, fit, dyn: Dynamics, rate_cal, hold_f, hold_b) -> lis
     starts = ends - (moves.i1 - moves.i0)
     t = session.t[idx]
     temp = session.temp[idx] if session.temp is not None else None
-    blocks = [ResidualBlock([f"acc_{a}" for a in AXES], session.acc[idx] - acc, starts, ends,
+    blocks = [ResidualBlock([f"acc_{a}" for a in AXES], np.take(session.acc, idx, axis=0) - acc,
+                            starts, ends,
                             moves.piece, t, temp, shape=False)]
     if mag is not None and session.mag is not None and session.mag.t is session.t:
-        blocks.append(ResidualBlock([f"mag_{a}" for a in AXES], session.mag.values[idx] - mag,
+        blocks.append(ResidualBlock([f"mag_{a}" for a in AXES],
+                                    np.take(session.mag.values, idx, axis=0) - mag,
                                     starts, ends, moves.piece, t, None, shape=False))
     return blocks
 
@@ -235,12 +246,23 @@ def fit_dynamics(session, fit, effects, train: np.ndarray, rate_cal, hold_f, hol
     offset = np.concatenate([start[name] if name in start else np.zeros(size)
                              for name, (size, _) in layout.items()])
 
+    acc_seen = np.take(session.acc, idx, axis=0)        # the same in every step
+    mag_seen = np.take(session.mag.values, idx, axis=0) if with_mag else None
+
+    turns: dict = {}    # by gyro matrix: the steps of the other parameters turn the moves alike
+
     def residuals(p):
         d = _unpack(p, layout, start)
-        _, acc, mag = predicted(session, fit, d, moves, rate_cal, hold_f, hold_b, step)
-        r = [((session.acc[idx] - acc) * weight["acc"]).ravel()]
+        key = d.forward.tobytes()
+        if key not in turns:
+            if len(turns) >= 2:             # a gyro fit's matrices are new step after step
+                turns.pop(next(iter(turns)))
+            turns[key] = move_turns(session, d.forward, moves, rate_cal, step)
+        _, acc, mag = predicted(session, fit, d, moves, rate_cal, hold_f, hold_b, step,
+                                turns[key])
+        r = [((acc_seen - acc) * weight["acc"]).ravel()]
         if with_mag:
-            r.append(((session.mag.values[idx] - mag) * weight["mag"]).ravel())
+            r.append(((mag_seen - mag) * weight["mag"]).ravel())
         r.append((p + offset) / prior_sigma)
         return np.concatenate(r)
 

@@ -30,8 +30,9 @@ from apmcal.diagnosis.model import (
     reduce_session,
     set_acc_terms,
 )
-from apmcal.diagnosis.noise_fit import NoiseModel, fit_noise, lattice_step
+from apmcal.diagnosis.noise_fit import NoiseModel, fit_noise
 from apmcal.diagnosis.params import effect_params, mean_of_folds
+from apmcal.diagnosis.session_facts import earth_field, lattice_steps, sample_sigma
 from apmcal.diagnosis.static_fit import count_orientations
 from apmcal.diagnosis.twin import motion_of, simulate
 
@@ -152,10 +153,10 @@ class Evaluator:
         self.session = session
         self.seed = seed
         self.reduced = reduce_session(session)
-        self.field_mgauss, self.declination_rad = _earth_field(session)
-        self.steps = _lattice_steps(session)
+        self.field_mgauss, self.declination_rad = earth_field(session)
+        self.steps = lattice_steps(session)
         self.context = Context(count_orientations(self.reduced.acc, "acc"), self.steps)
-        self.sample_sigma = _sample_sigma(session)
+        self.sample_sigma = sample_sigma(session)
         self.fs_of = {"acc": session.fs, "gyr": session.fs}
         if session.mag is not None:
             self.fs_of["mag"] = float(1.0 / np.median(np.diff(session.mag.t)))
@@ -212,8 +213,11 @@ class Evaluator:
         return fit, noise, holds + moves
 
     def _nominal(self, fold: int):
+        """The nominal fit and noise of ``fold`` (with σ: the very fit the nominal model's own
+        evaluation makes, :meth:`_fold`)."""
         if ("nominal", fold) not in self._motion:
-            self._motion[("nominal", fold)] = self.fit(self.session, self.reduced, (), fold)[:2]
+            self._motion[("nominal", fold)] = self.fit(self.session, self.reduced, (), fold,
+                                                       with_sigma=True)[:2]
         return self._motion[("nominal", fold)]
 
     def _motion_path(self, fold: int):
@@ -258,6 +262,13 @@ class Evaluator:
         # the slowest models first, so that the last jobs are short ones and no core waits
         # long for the other (longest-processing-time-first scheduling)
         todo.sort(key=lambda key: -len(key & SLOW_TO_FIT))
+        if frozenset() in todo and self._cold():
+            # the nominal model's folds warm the evaluator: its fit is each fold's nominal fit
+            results = self.map([("_nominal_fold", (fold, True)) for fold in FOLDS])
+            self._summaries[frozenset()] = Summary.of_folds(frozenset(), [r for r, _ in results])
+            for _, entries in results:
+                self._motion.update(entries)
+            todo.remove(frozenset())
         self.warm()
         parts = self.map([("fold_summary", (key, fold)) for key in todo for fold in FOLDS])
         for i, key in enumerate(todo):
@@ -282,6 +293,16 @@ class Evaluator:
         self._motion_path(fold)
         return {key: self._motion[key] for key in (fold, ("nominal", fold))}
 
+    def _cold(self) -> bool:
+        return all(fold not in self._motion for fold in FOLDS)
+
+    def _nominal_fold(self, fold: int, summary: bool) -> tuple:
+        """Fold ``fold`` of the nominal model (its summary, or all of it but the residual
+        coefficients) and what warming the fold keeps, which its fit gives on the way."""
+        result = self._fold(frozenset(), fold)
+        result = FoldSummary.of(result) if summary else replace(result, real=None, twin=None)
+        return result, self._warm_fold(fold)
+
     def map(self, jobs: list[tuple[str, tuple]]) -> list:
         """``[self.method(*args) for method, args in jobs]``, spread over every core
         (:func:`apmcal.diagnosis.workers.run`)."""
@@ -300,24 +321,47 @@ class Evaluator:
 
         return gap_summary(self.evaluate(effects), self.session)
 
-    def noise_structure(self) -> dict:
+    def noise_structure(self, parts=None) -> dict:
         """White noise, bias instability and random walk of the nominal model's hold
-        residuals, real and twin (:mod:`apmcal.diagnosis.noise_structure`)."""
+        residuals, real and twin (:mod:`apmcal.diagnosis.noise_structure`; of the (sensor,
+        axis) pairs ``parts`` only, when given)."""
         from apmcal.diagnosis.noise_structure import noise_structure
 
-        return noise_structure(self.evaluate(()), self.fs_of)
+        return noise_structure(self.evaluate(()), self.fs_of, parts)
 
     def evaluate(self, effects) -> Evaluation:
         """The model nominal + ``effects`` scored both ways round (cached): fold 0 here, fold 1
         beside it in a worker, which sends back all of it but the residual coefficients (the
         plots and the noise structure read fold 0's only)."""
+        return self.evaluate_with(effects, [])[0]
+
+    def evaluate_with(self, effects, jobs: list, then=None) -> tuple:
+        """:meth:`evaluate`, with ``jobs`` (as for :meth:`map`) in the same workers, queued
+        behind its fold 1; returns (``then(evaluation)``, here as soon as the evaluation is
+        complete while the jobs may still run — the evaluation itself by default —, the jobs'
+        results)."""
+        then = then or (lambda evaluation: evaluation)
         key = frozenset(effects)
-        if key not in self._cache:
+        if key in self._cache:
+            done = lambda: then(self._cache[key])  # noqa: E731
+            return self.beside(jobs, done) if jobs else (done(), [])
+        # on a cold evaluator the nominal model's folds are what warm it (one fit for both)
+        cold_nominal = not key and self._cold()
+        if not cold_nominal:
             self.warm()
-            first, (second,) = self.beside([("_fold_without_coefficients", (key, 1))],
-                                           lambda: self._fold(key, 0))
+        fold_1 = ("_nominal_fold", (1, False)) if cold_nominal else \
+            ("_fold_without_coefficients", (key, 1))
+
+        def both_folds(result):
+            first, second = self._fold(key, 0), result(0)
+            if cold_nominal:
+                second, entries = second
+                self._motion.update(entries)
             self._cache[key] = Evaluation(key, [first, second])
-        return self._cache[key]
+            return then(self._cache[key])
+
+        out, results = workers.beside(self, [fold_1] + list(jobs), both_folds, hand_over=True)
+        return out, results[1:]
 
     def _fold_without_coefficients(self, key: frozenset, fold: int) -> FoldResult:
         result = self._fold(key, fold)
@@ -326,6 +370,8 @@ class Evaluator:
     def _fold(self, effects, fold: int) -> FoldResult:
         s = self.session
         fit, noise, real = self.fit(s, self.reduced, effects, fold, with_sigma=True)
+        if not effects:     # the fold's nominal fit: its motion path starts here (no refit)
+            self._motion.setdefault(("nominal", fold), (fit, noise))
         # the same twin noise for every model (common random numbers): differences between
         # models are not drowned in differences between noise draws
         twin, _ = simulate(s, fit, noise, seed=self.seed + fold,
@@ -336,52 +382,3 @@ class Evaluator:
         return FoldResult(fold, fit, noise, real, tw, compare(real, tw, train, in_sample=True),
                           compare(real, tw, test, in_sample=False),
                           {name: effect_params(name, fit, noise) for name in effects})
-
-
-def _earth_field(session) -> tuple[float | None, float]:
-    """WMM field magnitude [mGauss] and declination [rad] at the site, when it is known."""
-    if session.mag is None or session.lat_deg is None or session.lon_deg is None:
-        return None, 0.0
-    import datetime
-
-    from apmcal.geomag import decimal_year, earth_field_ned
-
-    when = session.date or datetime.date.today()
-    ned, _ = earth_field_ned(session.lat_deg, session.lon_deg, 0.0, decimal_year(when))
-    return float(np.linalg.norm(ned)), float(np.arctan2(ned[1], ned[0]))
-
-
-def _sample_sigma(session) -> dict:
-    """Per-sample noise of the accelerometer and compass in the holds (robust: successive
-    differences, which cancel slow changes), to weight the move fits."""
-    from apmcal.preprocessing.resolution import noise_std
-
-    pc = session.pieces
-    ids = pc.select(hold=True)
-    out = {"acc": np.mean([noise_std(session.acc[a:b]) for a, b in zip(pc.i0[ids], pc.i1[ids])])}
-    if session.mag is not None:
-        m = session.mag
-        out["mag"] = np.mean([noise_std(m.values[a:b]) for a, b in zip(m.i0[ids], m.i1[ids])
-                              if b - a > 2])
-    return {k: float(v) for k, v in out.items()}
-
-
-def _lattice_steps(session) -> dict:
-    """Quantization step per axis of each sensor's hold samples (None: not on a lattice). In
-    block means of rounded readings it is the step over the block length, which the twin's
-    rounding then reproduces (apmcal.diagnosis.decimate)."""
-    pc = session.pieces
-    ids = pc.select(hold=True)
-    idx = np.concatenate([np.arange(a, b) for a, b in zip(pc.i0[ids], pc.i1[ids])])
-    out = {}
-    for sensor, x in (("acc", session.acc), ("gyr", session.gyr)):
-        out[sensor] = _steps(x[idx])
-    if session.mag is not None:
-        m = session.mag
-        out["mag"] = _steps(np.concatenate([m.values[a:b] for a, b in zip(m.i0[ids], m.i1[ids])]))
-    return out
-
-
-def _steps(x: np.ndarray) -> np.ndarray | None:
-    steps = [lattice_step(x[:, k]) for k in range(3)]
-    return None if any(s is None for s in steps) else np.array(steps)

@@ -25,6 +25,7 @@ scale (frequency band), piece (hold or rotation), time and temperature.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -197,13 +198,32 @@ def level_groups(counts: list[int], min_cell: int = MIN_CELL) -> list[list[int]]
 def variance_shares(real: np.ndarray, twin: np.ndarray, dof_loss: float = 0.0
                     ) -> tuple[np.ndarray, float, float]:
     """Per-coefficient shares of ½Σ(x − 1 − ln x) − E[...] for one cell; V_real, V_twin."""
-    n = len(real)
-    v_r = max(float(np.mean(real ** 2)), _TINY)
-    v_t = max(float(np.mean(twin ** 2)), _TINY)
-    share = 0.5 * (real ** 2 * (1.0 / v_t - 1.0 / v_r) + np.log(v_t / v_r))
+    (out,) = variance_shares_by_row(real[None], twin[None], dof_loss)
+    return out
+
+
+def variance_shares_by_row(real: np.ndarray, twin: np.ndarray, dof_loss: float = 0.0
+                           ) -> list[tuple[np.ndarray, float, float]]:
+    """:func:`variance_shares` of each row of (c, n) arrays (one cell per channel, all of n
+    coefficients), the arithmetic shared by the rows done once."""
+    n = real.shape[1]
+    sq = real ** 2
+    v_real = np.mean(sq, axis=1)        # each row as np.mean of the row alone would
+    v_twin = np.mean(twin ** 2, axis=1)
     dof = n - dof_loss
-    expected = expected_variance_kl(n, dof, dof) if dof > 2 else 0.0
-    return share - expected / n, v_r, v_t
+    expected = _expected_variance_kl(n, dof) if dof > 2 else 0.0
+    out = []
+    for row, v_r, v_t in zip(sq, v_real, v_twin):
+        v_r, v_t = max(float(v_r), _TINY), max(float(v_t), _TINY)
+        share = 0.5 * (row * (1.0 / v_t - 1.0 / v_r) + np.log(v_t / v_r))
+        out.append((share - expected / n, v_r, v_t))
+    return out
+
+
+@functools.lru_cache(maxsize=4096)
+def _expected_variance_kl(n: int, dof: float) -> float:
+    """:func:`expected_variance_kl` with equal degrees of freedom (cells recur fold after fold)."""
+    return expected_variance_kl(n, dof, dof)
 
 
 def shape_shares(real: np.ndarray, twin: np.ndarray) -> np.ndarray:
@@ -215,14 +235,47 @@ def shape_shares(real: np.ndarray, twin: np.ndarray) -> np.ndarray:
     have near-empty tails where one coefficient is worth nats; a rounding lattice in the
     twin gives tied quantiles, which merge into fewer bins.
     """
-    edges = np.unique(np.quantile(twin, np.arange(1, SHAPE_BINS) / SHAPE_BINS))
-    b_r, b_t = np.searchsorted(edges, real), np.searchsorted(edges, twin)
+    twin_sorted = np.sort(twin)     # the quantiles and the twin's bin counts both read it
+    edges = np.unique(sorted_quantiles(twin_sorted, np.arange(1, SHAPE_BINS) / SHAPE_BINS))
     bins = len(edges) + 1
+    b_r = bin_index(edges, real)
+    # twin values at or below each edge, hence per bin (the bins of searchsorted(edges, twin))
+    t_counts = np.diff(np.searchsorted(twin_sorted, edges, side="right"), prepend=0,
+                       append=len(twin))
     n_r, n_t = len(real), len(twin)
     p = (np.bincount(b_r, minlength=bins) + 0.5) / (n_r + 0.5 * bins)
-    q = (np.bincount(b_t, minlength=bins) + 0.5) / (n_t + 0.5 * bins)
+    q = (t_counts + 0.5) / (n_t + 0.5 * bins)
     expected = 0.5 * (bins - 1) * (1.0 + n_r / n_t)
     return np.log(p / q)[b_r] - expected / n_r
+
+
+def sorted_quantiles(x_sorted: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """``np.quantile(x, q)`` (its default linear interpolation) of an already sorted ``x``,
+    value for value: numpy's own steps — index (n − 1)·q, its floor and the next, the lerp
+    from the nearer end — without numpy partitioning the sorted array again (as slow as the
+    sort itself)."""
+    n = len(x_sorted)
+    if n == 0 or np.isnan(x_sorted[-1]):        # numpy: an error, or NaN for every q
+        return np.quantile(x_sorted, q)
+    virtual = (n - 1) * np.asarray(q, dtype=float)
+    below = np.floor(virtual)
+    gamma = virtual - below
+    i = below.astype(np.intp)
+    lo, hi = x_sorted[i], x_sorted[np.minimum(i + 1, n - 1)]
+    diff = hi - lo
+    return np.where(gamma >= 0.5, hi - diff * (1 - gamma), lo + diff * gamma)
+
+
+def bin_index(edges: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``np.searchsorted(edges, x)`` for a few sorted edges (at most 255), bin for bin (NaN in
+    the last bin, where numpy sorts it): the count of edges below each value, one comparison
+    pass per edge — hand-written because numpy's binary search per value is 3-4× slower on
+    tens of thousands of values and 31 edges."""
+    x = np.ascontiguousarray(x)     # a column of a (k, 3) array: strided passes are 2× slower
+    b = np.full(len(x), len(edges), np.uint8)
+    for e in edges:
+        b -= x <= e
+    return b
 
 
 def _dof_loss(block: ResidualBlock, in_sample: bool) -> int:
@@ -236,13 +289,15 @@ def _block_cells(rc: BlockCoefficients, tc: BlockCoefficients, keep, in_sample):
     levels pool into cells) is worked out once per block, not once per channel."""
     level_masks, mean_mask, _ = rc.masks(keep)
     block = rc.block
-    real_lv = [c.values[m] for c, m in zip(rc.levels, level_masks)]
-    twin_lv = [c.values[m] for c, m in zip(tc.levels, level_masks)]
-    piece_lv = [block.piece[c.piece[m]] for c, m in zip(rc.levels, level_masks)]
-    center_lv = [c.center[m] for c, m in zip(rc.levels, level_masks)]
-    histogram = bool(block.shape and real_lv and len(real_lv[0]) >= MIN_SHAPE)
+    kept = [np.flatnonzero(m) for m in level_masks]
+    # per level (c, k): the kept coefficients channel by channel, each channel contiguous
+    real_lv = [np.take(c.values.T, i, axis=1) for c, i in zip(rc.levels, kept)]
+    twin_lv = [np.take(c.values.T, i, axis=1) for c, i in zip(tc.levels, kept)]
+    piece_lv = [block.piece[c.piece[i]] for c, i in zip(rc.levels, kept)]
+    center_lv = [c.center[i] for c, i in zip(rc.levels, kept)]
+    histogram = bool(block.shape and real_lv and len(kept[0]) >= MIN_SHAPE)
     groups = []
-    for group in level_groups([len(v) for v in twin_lv]):
+    for group in level_groups([len(i) for i in kept]):
         if histogram and 1 in group:    # level 1 is scored by its histogram
             group = [j for j in group if j != 1]
         if group:
@@ -250,17 +305,19 @@ def _block_cells(rc: BlockCoefficients, tc: BlockCoefficients, keep, in_sample):
                            np.concatenate([center_lv[j - 1] for j in group])))
     loss = _dof_loss(block, in_sample)
     score_means = block.shape and block.radial is None and mean_mask.sum() - loss > 2
+    # every channel's variance cells at once, per group of levels
+    group_shares = [variance_shares_by_row(
+        np.concatenate([real_lv[j - 1] for j in group], axis=1),
+        np.concatenate([twin_lv[j - 1] for j in group], axis=1)) for group, _, _ in groups]
     for col, name in enumerate(block.names):
         if histogram:      # level 1 scored by its whole distribution: width and shape
-            real, twin = real_lv[0][:, col], twin_lv[0][:, col]
+            real, twin = real_lv[0][col], twin_lv[0][col]
             yield CellShare(name, 1, (1,), len(real), float(np.mean(real ** 2)),
                             float(np.mean(twin ** 2)), shape_shares(real, twin),
                             piece_lv[0], center_lv[0], block, kind="histogram")
-        for group, piece, center in groups:
-            real = np.concatenate([real_lv[j - 1][:, col] for j in group])
-            share, v_r, v_t = variance_shares(
-                real, np.concatenate([twin_lv[j - 1][:, col] for j in group]))
-            yield CellShare(name, group[0], tuple(group), len(real), v_r, v_t, share, piece,
+        for (group, piece, center), shares in zip(groups, group_shares):
+            share, v_r, v_t = shares[col]
+            yield CellShare(name, group[0], tuple(group), len(share), v_r, v_t, share, piece,
                             center, block)
         if score_means:
             real = rc.means.values[mean_mask, col]

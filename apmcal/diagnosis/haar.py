@@ -16,6 +16,7 @@ across two pieces, so logging holes and the moves between holds never enter them
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,7 +29,8 @@ class Coefficients:
     Attributes
     ----------
     values : (k, c) array
-        Coefficients, one column per channel, in the residual's unit.
+        Coefficients, one column per channel, in the residual's unit (from :func:`details`
+        column-major: ``values.T`` is a C-ordered (c, k) array, one contiguous row per channel).
     piece : (k,) int array
         Index of the piece each coefficient comes from.
     center : (k,) int array
@@ -55,24 +57,55 @@ def details(x: np.ndarray, i0: np.ndarray, i1: np.ndarray) -> list[Coefficients]
     list of Coefficients, element ``j - 1`` for level ``j``, up to the coarsest level any piece
     reaches.
     """
-    x2 = np.asarray(x, dtype=float).reshape(len(x), -1)
-    i0, i1 = np.asarray(i0, int), np.asarray(i1, int)
-    counts = np.maximum(i1 - i0, 0)
-    # the current level's block sums of every piece, one after the other
-    sums = np.concatenate([x2[a:b] for a, b in zip(i0, i1)]) if len(i0) else x2[:0]
+    # channel by channel, each channel's samples contiguous: gathers and arithmetic on every
+    # third element (one column of an (n, 3) array) were several times slower
+    sums = np.ascontiguousarray(np.asarray(x, dtype=float).reshape(len(x), -1).T)
     out, m = [], 1
+    for level in _layout(np.asarray(i0, int).tobytes(), np.asarray(i1, int).tobytes()):
+        even, odd_blocks = np.take(sums, level.even, axis=1), np.take(sums, level.odd, axis=1)
+        # (k, c) as documented, each channel's column contiguous (values.T is C-ordered)
+        out.append(Coefficients(((odd_blocks - even) / np.sqrt(2.0 * m)).T, level.piece,
+                                level.center))
+        sums, m = even + odd_blocks, 2 * m
+    return out
+
+
+@dataclass(frozen=True)
+class _Level:
+    even: np.ndarray            # rows of the previous level's block sums: first of each pair
+    odd: np.ndarray             # ... second of each pair
+    piece: np.ndarray           # piece of each coefficient (read-only: shared by every call)
+    center: np.ndarray          # sample index at the middle of its support (read-only)
+
+
+@functools.lru_cache(maxsize=16)     # a diagnosis uses a handful (a few MB each at 400 Hz)
+def _layout(i0_bytes: bytes, i1_bytes: bytes) -> tuple[_Level, ...]:
+    """Which blocks pair up at each level, and where each coefficient lies: the same for every
+    residual cut into the same pieces (every model, real and twin), so worked out once.
+
+    Blocks pair up from each piece's start; a piece's odd last block is left out of its level.
+    Level 1's blocks are the samples themselves (rows of ``x``); level j's are the pair sums of
+    level j − 1, one after the other in piece order.
+    """
+    i0, i1 = np.frombuffer(i0_bytes, int), np.frombuffer(i1_bytes, int)
+    counts = np.maximum(i1 - i0, 0)
+    first = i0.copy()               # each piece's first block among the current level's blocks
+    levels, m = [], 1
     while np.any(counts >= 2):
-        # blocks pair up from each piece's start; an odd last block is left out of this level
         pairs = counts // 2
-        first = np.cumsum(counts) - counts          # each piece's first block in ``sums``
         piece = np.repeat(np.arange(len(i0)), pairs)
         k = np.arange(len(piece)) - np.repeat(np.cumsum(pairs) - pairs, pairs)
         even_index = first[piece] + 2 * k
-        even, odd_blocks = sums[even_index], sums[even_index + 1]
-        out.append(Coefficients((odd_blocks - even) / np.sqrt(2.0 * m), piece,
-                                i0[piece] + 2 * m * k + m))
-        sums, counts, m = even + odd_blocks, pairs, 2 * m
-    return out
+        levels.append(_Level(_read_only(even_index), _read_only(even_index + 1), _read_only(piece),
+                             _read_only(i0[piece] + 2 * m * k + m)))
+        counts, m = pairs, 2 * m
+        first = np.cumsum(counts) - counts
+    return tuple(levels)
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
 
 
 def piece_means(x: np.ndarray, i0: np.ndarray, i1: np.ndarray) -> Coefficients:

@@ -42,27 +42,40 @@ def allan_line_terms(pieces: list, fs: float, unit: str) -> dict:
             "random_walk": {"value": lines.random_walk, "unit": f"{unit}/√s"}}
 
 
-def noise_structure(evaluation, fs_of: dict) -> dict:
+def noise_structure(evaluation, fs_of: dict, parts=None) -> dict:
     """{sensor: {axis: {"real": terms, "twin": terms, "real_allan_lines": terms}}} of the
-    hold residuals of ``evaluation`` (an :class:`~apmcal.diagnosis.evaluate.Evaluation`)."""
+    hold residuals of ``evaluation`` (an :class:`~apmcal.diagnosis.evaluate.Evaluation`), of
+    every sensor axis or of the (sensor, axis) pairs in ``parts`` (e.g. ("gyr", "x"))."""
+    wanted = None if parts is None else {tuple(p) for p in parts}
     fold = evaluation.folds[0]
     twin_blocks = {c.block.names[0].split("_")[0]: c.block for c in fold.twin if c.block.shape}
     out = {}
     for coeffs in fold.real:
         block = coeffs.block
         sensor = block.names[0].split("_")[0]
-        if not block.shape or sensor not in twin_blocks:
+        if not block.shape or sensor not in twin_blocks or \
+                wanted is not None and not any(s == sensor for s, _ in wanted):
             continue
         out[sensor] = {}
         for axis, name in enumerate("xyz"):
             real = _pieces(block, axis)
-            if not real:
+            if not real or wanted is not None and (sensor, name) not in wanted:
                 continue
             unit, fs = UNITS[sensor], fs_of[sensor]
             out[sensor][name] = {
                 "real": gmwm_terms(real, fs, unit),
                 "twin": gmwm_terms(_pieces(twin_blocks[sensor], axis), fs, unit),
                 "real_allan_lines": allan_line_terms(real, fs, unit)}
+    return out
+
+
+def merged(parts: list[dict]) -> dict:
+    """Noise structures of separate sensor axes (:func:`noise_structure` with ``parts``) as
+    one, in the order given."""
+    out: dict = {}
+    for part in parts:
+        for sensor, axes in part.items():
+            out.setdefault(sensor, {}).update(axes)
     return out
 
 

@@ -14,6 +14,7 @@ import numpy as np
 from apmcal.diagnosis.breakdown import gap_summary
 from apmcal.diagnosis.decimate import FINE_EFFECTS, SHAPES_BLOCK_MEANS, block_factor, decimated
 from apmcal.diagnosis.evaluate import Evaluation, Evaluator
+from apmcal.diagnosis.noise_structure import merged as merged_structure
 from apmcal.diagnosis.params import white_noise_of_folds
 from apmcal.diagnosis.result import GapResult
 from apmcal.diagnosis.select import candidates, forward_selection, merged, rank, rank_effects
@@ -63,10 +64,17 @@ def _diagnose(session, names, seed: int, progress) -> Diagnosis:
     ranked, selection = _rank_and_select(ev, names, say)
     selected = selection.order()
     say("selected model")
-    # the selected model's full evaluation (for its breakdown), and beside it the noise
-    # structure and the nominal model's breakdown, which need nothing more
-    final, (structure, nominal_gap) = ev.beside([("noise_structure", ()), ("gap_of", ((),))],
-                                                lambda: ev.evaluate(tuple(selected)))
+    # the selected model's evaluation (fold 0 here, fold 1 in a worker) and then its
+    # breakdown here; in the same workers, after its fold 1, the nominal model's breakdown and
+    # its noise structure axis by axis, which need nothing more
+    axes = [(sensor, axis) for sensor in ("acc", "gyr", "mag") for axis in "xyz"]
+    beside = ([("gap_of", ((),))] if selected else []) + \
+        [("noise_structure", ([axis],)) for axis in axes]
+    (final, final_gap), results = ev.evaluate_with(
+        tuple(selected), beside, then=lambda evaluation: (evaluation,
+                                                          gap_summary(evaluation, session)))
+    nominal_gap = results.pop(0) if selected else final_gap   # nothing selected: the same
+    structure = merged_structure(results)
     params = {s.name: s.params for s in ranked if s.tested}     # each alone ...
     params.update(ev.summary(tuple(selected)).params)    # ... the selected within the combination
     # best first: the combination, then the rest as ranked
@@ -75,8 +83,7 @@ def _diagnose(session, names, seed: int, progress) -> Diagnosis:
     effects = [_effect_entry(s, selection, params.get(s.name, {})) for s in ranked]
     white = white_noise_of_folds([f.noise for f in nominal.folds])
     result = GapResult(session.source, session_summary(session, ev),
-                       nominal_gap, effects, selected,
-                       gap_summary(final, session), white, structure,
+                       nominal_gap, effects, selected, final_gap, white, structure,
                        notes=list(session.notes))
     return Diagnosis(result, ev, nominal, final)
 

@@ -51,11 +51,25 @@ def symmetric(p) -> np.ndarray:
 def distinct_directions(vectors: np.ndarray, min_chord: float = MIN_CHORD) -> int:
     """Number of directions at least ``min_chord`` apart (greedy clustering of unit vectors)."""
     units = vectors / np.linalg.norm(vectors, axis=1, keepdims=True)
-    centres: list[np.ndarray] = []
-    for u in units:
-        if all(np.linalg.norm(u - c) >= min_chord for c in centres):
-            centres.append(u)
+    apart = _apart(units, min_chord)
+    centres: list[int] = []
+    for i in range(len(units)):
+        if all(apart[i, j] for j in centres):
+            centres.append(i)
     return len(centres)
+
+
+def _apart(units: np.ndarray, min_chord: float) -> np.ndarray:
+    """(k, k) bool: ``np.linalg.norm(units[i] - units[j]) >= min_chord``, every pair at once
+    (a norm per pair in Python made the clustering a few per cent of every fit); a distance
+    within 1e-9 of the chord — where the two ways of summing the squares, a few units in the
+    last place apart, could disagree — is decided by np.linalg.norm itself."""
+    diff = units[:, None, :] - units[None, :, :]
+    dist = np.sqrt(np.sum(diff * diff, axis=-1))
+    apart = dist >= min_chord
+    for i, j in zip(*np.nonzero(np.abs(dist - min_chord) < 1e-9)):
+        apart[i, j] = np.linalg.norm(units[i] - units[j]) >= min_chord
+    return apart
 
 
 def count_orientations(blocks: Blocks, kind: str) -> int:
@@ -123,7 +137,7 @@ class GeometryFit:
         through the sensor model once per group rather than once per sample."""
         truth = self.truth_of(u_rows)
         if group is not None:
-            truth = truth[group]
+            truth = np.take(truth, group, axis=0)     # faster than truth[group]
         return truth + self.offset + columns @ self.theta
 
 

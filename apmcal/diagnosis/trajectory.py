@@ -11,6 +11,7 @@ the twin passes through the same readings as the real board.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -64,14 +65,17 @@ def hold_attitudes(holds, up_per_hold: np.ndarray, north_per_hold: np.ndarray | 
 
 def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton products a·b of (n, 4) quaternions in scipy's scalar-last (x, y, z, w) order."""
-    ax, ay, az, aw = a[:, 0], a[:, 1], a[:, 2], a[:, 3]
-    bx, by, bz, bw = b[:, 0], b[:, 1], b[:, 2], b[:, 3]
-    out = np.empty_like(a)
-    out[:, 0] = aw * bx + ax * bw + ay * bz - az * by
-    out[:, 1] = aw * by - ax * bz + ay * bw + az * bx
-    out[:, 2] = aw * bz + ax * by - ay * bx + az * bw
-    out[:, 3] = aw * bw - ax * bx - ay * by - az * bz
-    return out
+    return np.stack(_hamilton(a.T, b.T), axis=1)
+
+
+def _hamilton(a, b) -> tuple:
+    """The components (x, y, z, w) of a·b from those of a and b (arrays of any shape)."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return (aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz)
 
 
 def prefix_products(q: np.ndarray, segment: np.ndarray | None = None) -> np.ndarray:
@@ -81,18 +85,36 @@ def prefix_products(q: np.ndarray, segment: np.ndarray | None = None) -> np.ndar
     ``segment`` (m,) int, non-decreasing: the products restart where it changes (P_i is then
     the product from the first quaternion of i's segment) — many short sequences scanned in
     one pass instead of one Python loop each (the moves of a session: 50× fewer calls)."""
-    p = q.copy()
-    d = 1
-    while d < len(p):
-        if segment is None:
+    if segment is None:
+        p = q.copy()
+        d = 1
+        while d < len(p):
             p[d:] = quat_multiply(p[:-d], p[d:])
-        else:
-            later = np.flatnonzero(segment[d:] == segment[:-d]) + d
-            if not len(later):
-                break
-            p[later] = quat_multiply(p[later - d], p[later])
+            d *= 2
+        return p
+    segment = np.asarray(segment)
+    # component by component, each contiguous: gathers and products on (m, 4) rows were
+    # several times slower
+    parts = np.ascontiguousarray(q.T)
+    for earlier, later in _segment_rounds(segment.tobytes(), segment.dtype.str):
+        parts[:, later] = _hamilton(np.take(parts, earlier, axis=1), np.take(parts, later, axis=1))
+    return np.ascontiguousarray(parts.T)
+
+
+@functools.lru_cache(maxsize=16)
+def _segment_rounds(segment_bytes: bytes, dtype: str) -> tuple:
+    """Each round of the segmented scan (d = 1, 2, 4, ...): the indices whose quaternion d
+    places back lies in the same segment, and those d places back. The same for every scan
+    over the same moves (each least-squares step of a move fit), so found once."""
+    segment = np.frombuffer(segment_bytes, dtype)
+    rounds, d = [], 1
+    while d < len(segment):
+        later = np.flatnonzero(segment[d:] == segment[:-d]) + d
+        if not len(later):
+            break
+        rounds.append((later - d, later))
         d *= 2
-    return p
+    return tuple(rounds)
 
 
 def integrate_attitude(r0: np.ndarray, rate: np.ndarray, dt: np.ndarray) -> np.ndarray:
@@ -171,7 +193,7 @@ def carried(traj: Trajectory, hold_rot: list[np.ndarray], vectors: np.ndarray,
     ``still_holds``: the attitude is exactly the hold's outside the moves (no tremor added), so
     those samples take the hold's vector as it is and only the moves are rotated.
     """
-    out = np.asarray(vectors)[traj.hold].copy()
+    out = np.take(np.asarray(vectors), traj.hold, axis=0)     # faster than [traj.hold]
     turning = traj.blend > 0 if still_holds else np.ones(len(out), bool)
     k = traj.hold[turning]
     k_next = np.minimum(k + 1, len(hold_rot) - 1)

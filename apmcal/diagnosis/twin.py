@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from apmcal.constants import EARTH_RATE
 from apmcal.diagnosis import trajectory
+from apmcal.diagnosis.draws import replayed
 from apmcal.diagnosis.model import ModelFit, calibrated_rate, hold_vectors, per_hold
 
 DEG = np.pi / 180.0
@@ -151,6 +152,8 @@ def simulate(session, fit: ModelFit, noise, seed: int = 0, motion_path=None):
     tau = fit.dynamics.time_offset_s
     f_acc = Rotation.from_rotvec(rate * tau).apply(f_body) if tau else f_body
     model = ImuErrorModel(truth, session.fs, TWIN_SEEDS + seed)
+    # the same seed model after model: its draws are made once (the same samples)
+    model.rng = replayed(model.rng, TWIN_SEEDS + seed)
     acc = model.accel(t, f_acc, temperature=session.temp)
     gyr = model.gyro(t, w_body, f_body, temperature=session.temp)
     twin = replace(session, acc=acc, gyr=gyr)
@@ -179,7 +182,7 @@ def _mag(session, traj, hold_rot, b_hold, model, noise, still_holds: bool) -> np
     idx = np.clip(np.searchsorted(session.t, m.t), 0, len(session.t) - 1)
     throttle = (m.current / FULL_THROTTLE_CURRENT_A if m.current is not None
                 else np.zeros(len(m.t)))
-    values = model.mag(b_imu[idx], throttle)
+    values = model.mag(np.take(b_imu, idx, axis=0), throttle)
     step = noise["mag"].step if "mag" in noise else None
     if step is not None:    # the log's integer mGauss (dataflash MAG, RAW_IMU): the vehicle's
         values = np.round(values / step) * step     # rounding, not the sensor's (sitl's writer)

@@ -35,14 +35,34 @@ def run(target, jobs: list[tuple[str, tuple]]) -> list:
         return [_unship(r) for r in pool.map(_call, jobs, chunksize=1)]
 
 
-def beside(target, jobs: list[tuple[str, tuple]], work):
-    """``work()`` in this process while ``jobs`` (as for :func:`run`) run in one forked worker;
-    returns (work's result, the jobs' results)."""
+def beside(target, jobs: list[tuple[str, tuple]], work, hand_over: bool = False):
+    """``work()`` in this process while ``jobs`` (as for :func:`run`) run in forked workers,
+    one per job up to one per core; returns (work's result, the jobs' results).
+
+    ``hand_over``: ``work`` is called with a function that returns job i's result as soon as
+    that job is done, while the others may still run (work that needs one of them)."""
     if not parallel():
-        return work(), [getattr(target, method)(*args) for method, args in jobs]
-    with _pool(target, 1) as pool:
-        pending = pool.map_async(_call, jobs, chunksize=1)
-        return work(), [_unship(r) for r in pending.get()]
+        done: dict = {}
+
+        def result_here(i: int):
+            if i not in done:
+                method, args = jobs[i]
+                done[i] = getattr(target, method)(*args)
+            return done[i]
+
+        out = work(result_here) if hand_over else work()
+        return out, [result_here(i) for i in range(len(jobs))]
+    with _pool(target, max(1, min(len(jobs), os.cpu_count() or 1))) as pool:
+        pending = [pool.apply_async(_call, (job,)) for job in jobs]     # in order, one each
+        got: dict = {}
+
+        def result(i: int):
+            if i not in got:
+                got[i] = _unship(pending[i].get())
+            return got[i]
+
+        out = work(result) if hand_over else work()
+        return out, [result(i) for i in range(len(jobs))]
 
 
 @contextlib.contextmanager
