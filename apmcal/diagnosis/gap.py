@@ -1,7 +1,7 @@
 """The gap: how much worse the real residuals fit the model than its simulated twin's do.
 
 Definition (the number ``apmcal gap`` reports, in nats per sample)
------------------------------------------------------------------
+------------------------------------------------------------------
 Real and twin go through the same fit; their residuals (measured − predicted) are cut into the
 same pieces and turned into Haar coefficients (:mod:`apmcal.diagnosis.haar`). Coefficients are
 grouped into *cells*: one cell per channel (sensor axis) and scale level, and one per channel
