@@ -33,7 +33,26 @@ QUICK = (("temperature_drift",), ("gyro_scale",), ("mag_interference",), ())
 
 @dataclass
 class Case:
-    """One simulated session and what the blind diagnosis made of it."""
+    """One simulated session and what the blind diagnosis made of it.
+
+    Attributes
+    ----------
+    withheld : tuple of str
+        The effects switched on in the "real" data and not told to the twin (empty: null case).
+    seed : int
+        Seed of the simulated session.
+    top : str or None
+        The effect ranked first when it is significant, else None.
+    selected : list of str
+        The selected combination.
+    gap_heldout : float
+        Held-out gap of the nominal model [nats per sample].
+    shrink : float
+        Held-out shrink of the withheld effect(s) (1 − gap_after / gap_before; the largest
+        of a pair's), NaN for a null case.
+    seconds : float
+        Wall time of the case, simulation included [s].
+    """
 
     withheld: tuple
     seed: int
@@ -75,6 +94,19 @@ def simulate_log(withheld: tuple, seed: int, path: Path, rate_hz: float, fs: flo
     as on a board whose IMU is filtered and read at the loop rate (sitl at a higher rate
     reports single samples without averaging: white noise far above the log's band would
     alias into it, several times noisier than a real MPU-6000 behind its low-pass).
+
+    Parameters
+    ----------
+    withheld : tuple of str
+        Effects switched on besides the nominal errors.
+    seed : int
+        Seed of the board's errors and of the simulation.
+    path : Path
+        The dataflash log to write.
+    rate_hz : float
+        Logging rate [Hz].
+    fs : float
+        sitl's sensor rate [Hz].
     """
     from sitl.makelog import write_bin
     from sitl.vehicle import SimVehicle
@@ -88,7 +120,23 @@ def simulate_log(withheld: tuple, seed: int, path: Path, rate_hz: float, fs: flo
 
 
 def run_case(withheld: tuple, seed: int, rate_hz: float, fs: float) -> Case:
-    """Simulate, diagnose blind, score."""
+    """Simulate, diagnose blind, score.
+
+    Parameters
+    ----------
+    withheld : tuple of str
+        Effects switched on besides the nominal errors (empty: a null case).
+    seed : int
+        Seed of the board's errors, the simulation and the diagnosis.
+    rate_hz : float
+        Logging rate [Hz].
+    fs : float
+        sitl's sensor rate [Hz].
+
+    Returns
+    -------
+    Case
+    """
     from apmcal.diagnosis.run import diagnose
     from apmcal.diagnosis.session import session_from_log
     from apmcal.pipeline import Options
@@ -111,6 +159,8 @@ def run_case(withheld: tuple, seed: int, rate_hz: float, fs: float) -> Case:
 
 
 def cases(quick: bool) -> list[tuple]:
+    """The (withheld effects, seed) pairs to run: a few with ``quick``, else every single
+    effect on two seeds, the pairs, and ten null sessions."""
     if quick:
         return [(w, 1) for w in QUICK]
     singles = [((e,), s) for e in SINGLE for s in (1, 2)]

@@ -58,7 +58,22 @@ class BiasTrack:
 
 def default_block(lengths, target_steps: int = 1000, min_blocks: int = 50) -> int:
     """Block length [samples]: about ``target_steps`` blocks in all, and at least
-    ``min_blocks`` blocks in the median piece (never below one sample)."""
+    ``min_blocks`` blocks in the median piece (never below one sample).
+
+    Parameters
+    ----------
+    lengths : (P,) int array
+        Lengths of the pieces [samples].
+    target_steps : int
+        Number of blocks aimed at over all pieces.
+    min_blocks : int
+        Blocks the median piece holds at least.
+
+    Returns
+    -------
+    int
+        Block length [samples], ≥ 1.
+    """
     lengths = np.asarray(lengths)
     return int(max(1, min(lengths.sum() // target_steps, np.median(lengths) // min_blocks)))
 
@@ -171,6 +186,12 @@ def random_walk_loglik(pieces, fs: float, sigma_white: float, q: float,
 
     Parameters and model as in :func:`random_walk_bias`; pieces without a whole block add
     nothing.
+
+    Returns
+    -------
+    float
+        Sum over the pieces of the innovations log-likelihood (each piece's first block, the
+        diffuse start, excluded).
     """
     xs, block, kf = _walk_setup(pieces, fs, sigma_white, q, block)
     ys = [_block_means(x, block) for _, x in xs]

@@ -19,6 +19,25 @@ class Blocks:
 
     ``group`` numbers the (hold, fold) pairs: blocks of one group share one orientation, the
     nuisance the geometric fits estimate for each of them.
+
+    Attributes
+    ----------
+    values : (b, 3) array
+        Block means of the samples, sensor units.
+    t : (b,) array
+        Mean time of each block [s].
+    count : (b,) int array
+        Samples per block.
+    piece : (b,) int array
+        Session-wide piece id of each block.
+    group : (b,) int array
+        (hold, fold) group number, 0 .. n_groups − 1.
+    temp : (b,) array or None
+        Mean temperature [°C].
+    current : (b,) array or None
+        Mean battery current [A].
+    groups_total : int or None
+        Number of groups when some have no block here.
     """
 
     values: np.ndarray      # (b, 3) sensor units
@@ -32,12 +51,25 @@ class Blocks:
 
     @property
     def n_groups(self) -> int:
+        """Number of (hold, fold) groups (``groups_total`` when given)."""
         if self.groups_total is not None:
             return self.groups_total
         return int(self.group.max()) + 1 if len(self.group) else 0
 
     def select(self, pieces: np.ndarray) -> "Blocks":
-        """The blocks of the given pieces, groups renumbered."""
+        """The blocks of the given pieces, groups renumbered.
+
+        Parameters
+        ----------
+        pieces : (k,) int array
+            Session-wide piece ids to keep.
+
+        Returns
+        -------
+        Blocks
+            The kept blocks; their groups numbered 0, 1, ... in order (``groups_total`` not
+            carried over).
+        """
         keep = np.isin(self.piece, pieces)
         _, group = np.unique(self.group[keep], return_inverse=True)
         pick = lambda a: None if a is None else a[keep]  # noqa: E731
@@ -45,7 +77,19 @@ class Blocks:
                       group, pick(self.temp), pick(self.current))
 
     def group_means(self, values: np.ndarray) -> np.ndarray:
-        """Count-weighted mean of (b, 3) ``values`` over each group → (n_groups, 3)."""
+        """Count-weighted mean of (b, 3) ``values`` over each group → (n_groups, 3).
+
+        Parameters
+        ----------
+        values : (b, c) array
+            One row per block (the readings, c = 3, or any other per-block columns, such as
+            the slow regressors).
+
+        Returns
+        -------
+        (n_groups, c) array
+            NaN rows for groups without a block here.
+        """
         w = self.count.astype(float)
         sums = np.column_stack([np.bincount(self.group, values[:, c] * w, minlength=self.n_groups)
                                 for c in range(values.shape[1])])
@@ -55,7 +99,22 @@ class Blocks:
 
 
 def block_starts(i0: np.ndarray, i1: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
-    """Start indices of blocks of ``size`` samples inside each piece, and each block's piece."""
+    """Start indices of blocks of ``size`` samples inside each piece, and each block's piece.
+
+    Parameters
+    ----------
+    i0, i1 : (p,) int arrays
+        Half-open sample ranges of the pieces.
+    size : int
+        Block length [samples].
+
+    Returns
+    -------
+    starts : (b,) int array
+        First sample of each block.
+    piece : (b,) int array
+        Index (into ``i0``) of each block's piece.
+    """
     counts = np.maximum((i1 - i0 + size - 1) // size, 0)
     piece = np.repeat(np.arange(len(i0)), counts)
     k = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
@@ -65,7 +124,26 @@ def block_starts(i0: np.ndarray, i1: np.ndarray, size: int) -> tuple[np.ndarray,
 def block_means(x: np.ndarray, i0: np.ndarray, i1: np.ndarray, size: int
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Means of ``x`` (n,) or (n, c) over blocks of ``size`` samples within pieces ``[i0, i1)``
-    (the last block of a piece may be shorter). Returns (means, counts, piece of each block)."""
+    (the last block of a piece may be shorter). Returns (means, counts, piece of each block).
+
+    Parameters
+    ----------
+    x : (n,) or (n, c) array
+        Samples (any unit).
+    i0, i1 : (p,) int arrays
+        Half-open sample ranges of the pieces.
+    size : int
+        Block length [samples].
+
+    Returns
+    -------
+    means : (b,) or (b, c) array
+        Block means, in the unit of ``x``.
+    counts : (b,) int array
+        Samples in each block.
+    piece : (b,) int array
+        Index (into ``i0``) of each block's piece.
+    """
     starts, piece = block_starts(i0, i1, size)
     ends = np.minimum(starts + size, i1[piece])
     # reduceat sums between consecutive boundaries: add the ends so gaps between pieces are
@@ -86,6 +164,31 @@ def make_blocks(t, values, i0, i1, piece_ids, group_of_piece, fs: float,
 
     ``piece_ids`` are the session-wide ids of the pieces ``[i0, i1)``; ``group_of_piece`` maps a
     session-wide piece id to its (hold, fold) group number.
+
+    Parameters
+    ----------
+    t : (n,) array
+        Sample times of the axis [s].
+    values : (n, 3) array
+        Samples, sensor units.
+    i0, i1 : (p,) int arrays
+        Half-open sample ranges of the pieces on this axis (empty ones are skipped).
+    piece_ids : (p,) int array
+        Session-wide id of each piece.
+    group_of_piece : (P,) int array
+        (hold, fold) group number of every session-wide piece id.
+    fs : float
+        Sample rate of the axis [Hz].
+    temp, current : (n,) arrays, optional
+        Temperature [°C] and battery current [A] at the samples.
+    block_s : float
+        Block length [s].
+    groups_total : int, optional
+        Number of groups (when some have no block among these pieces).
+
+    Returns
+    -------
+    Blocks
     """
     i0, i1 = np.asarray(i0, int), np.asarray(i1, int)
     ok = i1 > i0

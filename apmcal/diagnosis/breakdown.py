@@ -27,7 +27,20 @@ def _rate(cell, rates: dict | None = None) -> float:
 
 
 def band_label(cell, rates: dict | None = None) -> str:
-    """A cell's frequency band: level j covers fs/2^(j+1) .. fs/2^j Hz."""
+    """A cell's frequency band: level j covers fs/2^(j+1) .. fs/2^j Hz.
+
+    Parameters
+    ----------
+    cell : CellShare
+        The cell (:class:`apmcal.diagnosis.gap.CellShare`).
+    rates : dict, optional
+        Sample rates [Hz] known by block, filled here.
+
+    Returns
+    -------
+    str
+        "lo-hi Hz" over the cell's pooled levels, or the piece means' label.
+    """
     if cell.level == LEVEL_MEANS:
         return "slower than a piece (piece means)"
     fs = _rate(cell, rates)
@@ -63,7 +76,24 @@ def _add_binned(out: dict, labels: dict, values: np.ndarray, nats: np.ndarray,
 
 
 def breakdown(cells: list, n_samples: int, session) -> dict:
-    """The gap of ``cells`` [nats per sample over ``n_samples``] split every way."""
+    """The gap of ``cells`` [nats per sample over ``n_samples``] split every way.
+
+    Parameters
+    ----------
+    cells : list of CellShare
+        The cells of one or more comparisons.
+    n_samples : int
+        Residual samples the gap is per (0: every part is 0).
+    session : Session
+        The session the cells come from (segments, sample times, temperature).
+
+    Returns
+    -------
+    dict
+        {split: {part: gap [nats per sample]}} for the splits "sensor", "axis", "segment",
+        "band", "scale", "kind", "time" and, with a temperature, "temperature"; each split
+        adds up to the total.
+    """
     scale = 1.0 / n_samples if n_samples else 0.0
     parts: dict = {k: defaultdict(float) for k in ("sensor", "axis", "segment", "band",
                                                    "scale", "kind")}
@@ -127,7 +157,14 @@ def _imu_temp(cell, session, known: dict) -> np.ndarray:
 
 def gap_summary(evaluation, session) -> dict:
     """In-sample and held-out gap of an evaluation (:class:`apmcal.diagnosis.evaluate.
-    Evaluation`), each with its breakdown."""
+    Evaluation`), each with its breakdown.
+
+    Returns
+    -------
+    dict
+        "total" and "heldout" [nats per sample], "breakdown" and "breakdown_heldout"
+        (:func:`breakdown`).
+    """
     n_in = sum(f.gap_in.n_samples for f in evaluation.folds)
     n_out = sum(f.gap_out.n_samples for f in evaluation.folds)
     cells_in = [c for f in evaluation.folds for c in f.gap_in.cells]

@@ -7,7 +7,23 @@ from apmcal.errors import ApmcalError
 
 
 def parse_effects(text: str | None) -> list[str] | None:
-    """The --effects list, checked against the candidate names."""
+    """The --effects list, checked against the candidate names.
+
+    Parameters
+    ----------
+    text : str or None
+        Comma-separated effect names, as given (None: option not given).
+
+    Returns
+    -------
+    list of str or None
+        The names, or None for every candidate.
+
+    Raises
+    ------
+    ApmcalError
+        When a name is not a candidate effect or the list is empty.
+    """
     if text is None:
         return None
     from apmcal.diagnosis.effects import NAMES
@@ -21,7 +37,14 @@ def parse_effects(text: str | None) -> list[str] | None:
 
 
 def check_outputs(args) -> None:
-    """Every output path checked before the (long) work starts."""
+    """Every output path checked before the (long) work starts.
+
+    Raises
+    ------
+    ApmcalError
+        When the JSON or twin file cannot be written, or the report path is not a directory
+        or its parent does not exist.
+    """
     from apmcal.cli import check_writable
 
     check_writable(args.json, "JSON file")
@@ -36,7 +59,14 @@ def check_outputs(args) -> None:
 
 
 def run_gap(args, console) -> int:
-    """Run the diagnosis (or its benchmark) and write what was asked for."""
+    """Run the diagnosis (or its benchmark) and write what was asked for.
+
+    Raises
+    ------
+    ApmcalError
+        When --lon comes without --lat, no log file is given (and no --benchmark), or an
+        effect name or output path is not usable.
+    """
     if args.lon is not None and args.lat is None:
         raise ApmcalError("--lon needs --lat")
     if args.benchmark:

@@ -26,7 +26,20 @@ SHAPES_BLOCK_MEANS = ("lowpass_filter",)
 
 def block_factor(fs: float, target_hz: float = SLOW_RATE_HZ) -> int:
     """Samples per block that bring ``fs`` [Hz] down to between ``target_hz`` and twice it (a
-    power of two, so that the blocks are whole Haar levels; 1: below twice ``target_hz``)."""
+    power of two, so that the blocks are whole Haar levels; 1: below twice ``target_hz``).
+
+    Parameters
+    ----------
+    fs : float
+        Recorded sample rate [Hz].
+    target_hz : float
+        Lowest rate the blocks may bring it down to [Hz] (within 1 %).
+
+    Returns
+    -------
+    int
+        Block length k [samples], a power of two.
+    """
     k = 1
     while fs / (2 * k) >= target_hz * 0.99:
         k *= 2
@@ -34,7 +47,20 @@ def block_factor(fs: float, target_hz: float = SLOW_RATE_HZ) -> int:
 
 
 def block_means(x: np.ndarray | None, k: int) -> np.ndarray | None:
-    """Means of ``k`` consecutive rows (a trailing partial block is dropped)."""
+    """Means of ``k`` consecutive rows (a trailing partial block is dropped).
+
+    Parameters
+    ----------
+    x : (n, ...) array or None
+        Samples, one per row (any unit).
+    k : int
+        Block length [samples].
+
+    Returns
+    -------
+    (n // k, ...) array or None
+        Block means in the unit of ``x``; None when ``x`` is.
+    """
     if x is None:
         return None
     n = len(x) // k
@@ -65,7 +91,22 @@ def decimated(session: Session, k: int) -> Session:
     inside it. The mean of ``k`` readings rounded to a step lies on a lattice of step / ``k``:
     a sensor the log stores as integers stays one, on that finer lattice (left out, the twin's
     continuous block means would differ from the real ones at the finest scale by the lattice
-    alone)."""
+    alone).
+
+    Parameters
+    ----------
+    session : Session
+        The session at its recorded rate.
+    k : int
+        Block length [samples] (:func:`block_factor`).
+
+    Returns
+    -------
+    Session
+        Times, samples, temperature and current as block means (rate fs / k), sample
+        ranges in blocks; a compass on its own slower time axis is kept as it is, its pieces
+        remapped.
+    """
     if k == 1:
         return session
     pc = session.pieces

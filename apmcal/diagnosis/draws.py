@@ -28,9 +28,23 @@ class ReplayedGenerator:
         self._skipped: list = []    # calls served from the cache, not yet made by _rng
 
     def standard_normal(self, size=None):
+        """``Generator.standard_normal(size)``, served from the cache when drawn before.
+
+        Returns
+        -------
+        float or array of shape ``size``
+            Read-only when an array (shared by every later replay).
+        """
         return self._draw("standard_normal", (size,))
 
     def uniform(self, low=0.0, high=1.0, size=None):
+        """``Generator.uniform(low, high, size)``, served from the cache when drawn before.
+
+        Returns
+        -------
+        float or array of shape ``size``
+            Read-only when an array (shared by every later replay).
+        """
         return self._draw("uniform", (low, high, size))
 
     def _draw(self, method: str, args: tuple):

@@ -28,7 +28,20 @@ FIT_RATE_HZ = 50.0      # the dynamic fits integrate the moves in steps of about
 
 def gyro_forward(scale, gamma) -> np.ndarray:
     """sitl's F_g = diag(scale)·T_g⁻¹ with seed 002's six misalignment angles γ (yz, zy, zx,
-    xz, xy, yx) [rad] (:meth:`sitl.truth.Truth.gyro_forward`)."""
+    xz, xy, yx) [rad] (:meth:`sitl.truth.Truth.gyro_forward`).
+
+    Parameters
+    ----------
+    scale : (3,) array
+        Gyro scale factors (1: none).
+    gamma : (6,) array
+        Misalignment angles γ [rad].
+
+    Returns
+    -------
+    (3, 3) array
+        F_g: measured rate = F_g · true rate.
+    """
     g_yz, g_zy, g_zx, g_xz, g_xy, g_yx = gamma
     t_g = np.array([[1, -g_yz, g_zy], [g_xz, 1, -g_zx], [-g_xy, g_yx, 1.0]])
     return np.diag(scale) @ np.linalg.inv(t_g)
@@ -39,7 +52,22 @@ class Dynamics:
     """The parameters the moves determine: gyro scale and misalignment, accelerometer delay
     [s], and the accelerometer terms that holds in fitted orientations hardly see — its
     non-orthogonality α [rad] and quadratic scale k2 [1/(m/s²)] (``acc_terms``, None when
-    neither is modelled; moved into the accelerometer itself once fitted)."""
+    neither is modelled; moved into the accelerometer itself once fitted).
+
+    Attributes
+    ----------
+    gyro_scale : (3,) array
+        Gyro scale factors (1: none).
+    gyro_gamma : (6,) array
+        Gyro misalignment angles γ (yz, zy, zx, xz, xy, yx) [rad].
+    time_offset_s : float
+        Accelerometer delay behind the gyro [s].
+    acc_terms : dict or None
+        "alpha" (3,) [rad] and/or "k2" (3,) [1/(m/s²)].
+    sigma : dict
+        One-sigma of the fitted parameters: "params" (values) and "names" (the parameter
+        block of each value).
+    """
 
     gyro_scale: np.ndarray = field(default_factory=lambda: np.ones(3))
     gyro_gamma: np.ndarray = field(default_factory=lambda: np.zeros(6))
@@ -49,6 +77,7 @@ class Dynamics:
 
     @property
     def forward(self) -> np.ndarray:
+        """The gyro matrix F_g (3, 3) of ``gyro_scale`` and ``gyro_gamma``."""
         return gyro_forward(self.gyro_scale, self.gyro_gamma)
 
 
@@ -65,7 +94,20 @@ BOUND = {"gyro_scale": 0.1, "gyro_gamma": 0.05, "time_offset": 0.05, "alpha": 0.
 
 def acc_with_terms(geo, terms: dict):
     """The accelerometer geometry with its non-orthogonality ``alpha`` and/or quadratic scale
-    ``k2`` replaced by the given values."""
+    ``k2`` replaced by the given values.
+
+    Parameters
+    ----------
+    geo : GeometryFit
+        The accelerometer's fit (:class:`apmcal.diagnosis.static_fit.GeometryFit`).
+    terms : dict
+        "alpha" (3,) [rad] and/or "k2" (3,) [1/(m/s²)].
+
+    Returns
+    -------
+    GeometryFit
+        A copy; ``geo`` is left as it is.
+    """
     from dataclasses import replace
 
     from apmcal.diagnosis.static_fit import non_orthogonality
@@ -83,7 +125,17 @@ def acc_with_terms(geo, terms: dict):
 
 @dataclass
 class Moves:
-    """The move pieces to evaluate: session sample ranges, the hold before each, piece ids."""
+    """The move pieces to evaluate: session sample ranges, the hold before each, piece ids.
+
+    Attributes
+    ----------
+    i0, i1 : (k,) int arrays
+        Half-open session sample ranges of the moves.
+    hold : (k,) int array
+        Index (into ``Session.holds``) of the hold before each move.
+    piece : (k,) int array
+        Session-wide piece id of each move.
+    """
 
     i0: np.ndarray
     i1: np.ndarray
@@ -92,6 +144,7 @@ class Moves:
 
     @classmethod
     def of(cls, session, pieces: np.ndarray | None = None) -> "Moves":
+        """The move pieces of ``session``, or of those among the piece ids ``pieces``."""
         ids = session.pieces.select(hold=False)
         if pieces is not None:
             ids = ids[np.isin(ids, pieces)]
@@ -110,7 +163,24 @@ def relative_attitudes(rate: np.ndarray, t: np.ndarray, moves: Moves, step: int 
     sample on. Each sample interval turns by the mean of its two end rates (trapezoid: the
     rectangle rule's O(Δt) error would be a gap of the real data only); ``step`` > 1 joins
     ``step`` intervals into one rotation (their summed rotation vectors, second-order error),
-    for the fits' cheaper passes."""
+    for the fits' cheaper passes.
+
+    Parameters
+    ----------
+    rate : (n, 3) array
+        Body rate at every session sample [rad/s].
+    t : (n,) array
+        Session sample times [s].
+    moves : Moves
+    step : int
+        Keep every ``step``-th move sample.
+
+    Returns
+    -------
+    Rotation
+        One rotation per kept move sample (the samples of :func:`move_index`), body frame
+        relative to the hold before.
+    """
     turns, segment = [], []
     for m, (a, b) in enumerate(zip(moves.i0, moves.i1)):
         dt = t[a:b] - t[a - 1:b - 1]
@@ -128,7 +198,15 @@ def relative_attitudes(rate: np.ndarray, t: np.ndarray, moves: Moves, step: int 
 
 def move_index(moves: Moves, step: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Session sample index of every ``step``-th move sample (the ones relative_attitudes
-    returns), and the hold before it."""
+    returns), and the hold before it.
+
+    Returns
+    -------
+    index : (k,) int array
+        Session sample indices.
+    hold : (k,) int array
+        Index of the hold before each sample.
+    """
     idx, hold = [], []
     for a, b, k in zip(moves.i0, moves.i1, moves.hold):
         i = np.arange(a, b) if step == 1 else np.arange(a + step - 1, b, step)
@@ -142,7 +220,26 @@ def move_index(moves: Moves, step: int = 1) -> tuple[np.ndarray, np.ndarray]:
 def move_turns(session, forward: np.ndarray, moves: Moves, rate_cal: np.ndarray,
                step: int = 1) -> tuple:
     """The body rate (the gyro through its matrix ``forward``) at every session sample, and
-    the moves' attitudes relative to the hold before (:func:`relative_attitudes`)."""
+    the moves' attitudes relative to the hold before (:func:`relative_attitudes`).
+
+    Parameters
+    ----------
+    session : Session
+    forward : (3, 3) array
+        Gyro matrix F_g.
+    moves : Moves
+    rate_cal : (n, 3) array
+        Gyro minus its fitted bias terms at every session sample [rad/s].
+    step : int
+        Keep every ``step``-th move sample.
+
+    Returns
+    -------
+    rate : (n, 3) array
+        Body rate [rad/s].
+    rel : Rotation
+        Attitudes relative to the hold before, one per kept move sample.
+    """
     rate = rate_cal @ np.linalg.inv(forward).T
     return rate, relative_attitudes(rate, session.t, moves, step)
 
@@ -155,6 +252,32 @@ def predicted(session, fit, dyn: Dynamics, moves: Moves, rate_cal: np.ndarray,
     ``rate_cal`` is the gyro minus its fitted bias terms at every session sample; ``hold_f`` /
     ``hold_b`` the calibrated specific force and field of each hold; ``turns``: what
     :func:`move_turns` gives for ``dyn``'s gyro matrix, when known.
+
+    Parameters
+    ----------
+    session : Session
+    fit : ModelFit
+    dyn : Dynamics
+    moves : Moves
+    rate_cal : (n, 3) array
+        Gyro minus its fitted bias terms at every session sample [rad/s].
+    hold_f : (n_holds, 3) array
+        Specific force of each hold [m/s²] (:func:`apmcal.diagnosis.model.hold_vectors`).
+    hold_b : (n_holds, 3) array or None
+        Field of each hold [mGauss].
+    step : int
+        Keep every ``step``-th move sample.
+    turns : tuple, optional
+        (rate, rel) of :func:`move_turns`.
+
+    Returns
+    -------
+    idx : (k,) int array
+        Session sample index of each predicted sample.
+    acc : (k, 3) array
+        Predicted accelerometer [m/s²].
+    mag : (k, 3) array or None
+        Predicted compass [mGauss] (None without a compass fit or hold fields).
     """
     rate, rel = turns or move_turns(session, dyn.forward, moves, rate_cal, step)
     idx, hold = move_index(moves, step)
@@ -178,7 +301,26 @@ def _radius(geo) -> float:
 
 def move_residuals(session, fit, dyn: Dynamics, rate_cal, hold_f, hold_b) -> list:
     """Residual blocks of every move piece: accelerometer, and compass when it shares the
-    IMU's sample times (a separate, slower compass is left out of the moves)."""
+    IMU's sample times (a separate, slower compass is left out of the moves).
+
+    Parameters
+    ----------
+    session : Session
+    fit : ModelFit
+    dyn : Dynamics
+    rate_cal : (n, 3) array
+        Gyro minus its fitted bias terms at every session sample [rad/s].
+    hold_f : (n_holds, 3) array
+        Specific force of each hold [m/s²].
+    hold_b : (n_holds, 3) array or None
+        Field of each hold [mGauss].
+
+    Returns
+    -------
+    list of ResidualBlock
+        Not scored by their distribution nor by their piece means (``shape`` False); empty
+        without moves.
+    """
     moves = Moves.of(session)
     if not len(moves):
         return []
@@ -229,7 +371,33 @@ def _unpack(p: np.ndarray, layout: dict, start: dict) -> Dynamics:
 def fit_dynamics(session, fit, effects, train: np.ndarray, rate_cal, hold_f, hold_b,
                  sigma: dict) -> Dynamics:
     """The move parameters fitted to the training moves (MAP with the priors above);
-    ``sigma`` gives each sensor's per-sample noise (the residuals are weighted by its inverse)."""
+    ``sigma`` gives each sensor's per-sample noise (the residuals are weighted by its inverse).
+
+    Parameters
+    ----------
+    session : Session
+    fit : ModelFit
+        The holds' fit.
+    effects : collection of str
+        The model's effects (``gyro_scale``, ``time_offset``, ``cross_axis`` and
+        ``scale_nonlinearity`` have move parameters).
+    train : (k,) int array
+        Session-wide ids of the training pieces.
+    rate_cal : (n, 3) array
+        Gyro minus its fitted bias terms at every session sample [rad/s].
+    hold_f : (n_holds, 3) array
+        Specific force of each hold [m/s²].
+    hold_b : (n_holds, 3) array or None
+        Field of each hold [mGauss].
+    sigma : dict
+        Per-sample noise: "acc" [m/s²] and, optionally, "mag" [mGauss].
+
+    Returns
+    -------
+    Dynamics
+        Neutral (no effect, scale 1) when no effect has move parameters or there are no
+        training moves.
+    """
     layout = _layout(effects, fit)
     moves = Moves.of(session, train)
     if not layout or not len(moves):

@@ -45,7 +45,24 @@ ACC_TERM_ROUNDS = 2     # hold/move alternations of the accelerometer terms the 
 
 @dataclass
 class FoldResult:
-    """One direction of the cross-validation: fitted on ``fold``, held out on the other."""
+    """One direction of the cross-validation: fitted on ``fold``, held out on the other.
+
+    Attributes
+    ----------
+    fold : int
+        The fitting fold, 0 or 1.
+    fit : ModelFit
+    noise : NoiseModel
+    real : list of BlockCoefficients or None
+        Haar coefficients of the real residuals (all pieces); None once dropped (a result
+        sent back from a worker).
+    twin : list of BlockCoefficients or None
+        The same of the twin's residuals.
+    gap_in, gap_out : GapEstimate
+        In-sample (on ``fold``) and held-out (on the other fold) gap.
+    params : dict
+        Each effect's fitted parameters (:mod:`apmcal.diagnosis.params`).
+    """
 
     fold: int
     fit: ModelFit
@@ -89,7 +106,20 @@ class Evaluation:
         return [c for f in self.folds for c in f.gap_out.cells]
 
     def piece_nats(self, n_pieces: int, held_out: bool = True) -> np.ndarray:
-        """Gap [nats] attributed to each piece (held-out, or in-sample)."""
+        """Gap [nats] attributed to each piece (held-out, or in-sample).
+
+        Parameters
+        ----------
+        n_pieces : int
+            Number of pieces of the session.
+        held_out : bool
+            The held-out cells (True) or the in-sample ones.
+
+        Returns
+        -------
+        (n_pieces,) array
+            Gap [nats] by session-wide piece id, both folds.
+        """
         out = np.zeros(n_pieces)
         for f in self.folds:
             for c in (f.gap_out if held_out else f.gap_in).cells:
@@ -99,7 +129,15 @@ class Evaluation:
 
 @dataclass
 class Context:
-    """What the session offers the candidate effects (see :func:`effects.unmet`)."""
+    """What the session offers the candidate effects (see :func:`effects.unmet`).
+
+    Attributes
+    ----------
+    orientations : int
+        Distinct still orientations.
+    steps : dict
+        Quantization step per axis of each sensor, (3,) in its unit (None: no lattice).
+    """
 
     orientations: int       # distinct still orientations
     steps: dict             # quantization step per axis of each sensor (None: no lattice)
@@ -108,7 +146,17 @@ class Context:
 @dataclass(frozen=True)
 class FoldSummary:
     """What ranking needs of one fold's result: its gaps [nats] over so many samples, and the
-    effects' fitted parameters (small enough to send back from a worker)."""
+    effects' fitted parameters (small enough to send back from a worker).
+
+    Attributes
+    ----------
+    nats_in, nats_out : float
+        In-sample and held-out gap [nats].
+    n_in, n_out : int
+        Residual samples they are over.
+    params : dict
+        Each effect's fitted parameters.
+    """
 
     nats_in: float
     n_in: int
@@ -118,6 +166,7 @@ class FoldSummary:
 
     @classmethod
     def of(cls, fold: FoldResult) -> "FoldSummary":
+        """The summary of one fold's result."""
         return cls(fold.gap_in.nats, fold.gap_in.n_samples, fold.gap_out.nats,
                    fold.gap_out.n_samples, fold.params)
 
@@ -125,7 +174,18 @@ class FoldSummary:
 @dataclass(frozen=True)
 class Summary:
     """The numbers of an evaluation that ranking and selection need [nats per sample; nats],
-    and the effects' parameters, averaged over the two folds' fits."""
+    and the effects' parameters, averaged over the two folds' fits.
+
+    Attributes
+    ----------
+    gap_in, gap_out : float
+        In-sample and held-out gap [nats per sample].
+    nats_out : float
+        Held-out gap in total [nats].
+    params : dict
+        Each effect's parameters, mean of the folds (:func:`apmcal.diagnosis.params.
+        mean_of_folds`).
+    """
 
     gap_in: float
     gap_out: float
@@ -134,6 +194,7 @@ class Summary:
 
     @classmethod
     def of(cls, evaluation: Evaluation) -> "Summary":
+        """The summary of a whole evaluation."""
         return cls.of_folds(evaluation.effects, [FoldSummary.of(f) for f in evaluation.folds])
 
     @classmethod
@@ -147,7 +208,15 @@ class Summary:
 
 
 class Evaluator:
-    """Fits and scores models of one session; evaluations are cached by effect set."""
+    """Fits and scores models of one session; evaluations are cached by effect set.
+
+    Parameters
+    ----------
+    session : Session
+        The real session.
+    seed : int
+        Seed of the twins' noise (fold f uses ``seed + f``).
+    """
 
     def __init__(self, session, seed: int = 0):
         self.session = session
@@ -175,7 +244,28 @@ class Evaluator:
         """Model and noise fitted on ``train_fold`` (None: every piece), and the Haar
         coefficients of all residuals (``with_sigma``: the fits' uncertainties too; by
         default when fitting every piece; ``with_noise`` False: no noise model, None in its
-        place — a twin's, which nothing reads)."""
+        place — a twin's, which nothing reads).
+
+        Parameters
+        ----------
+        session : Session
+            The real session or a twin.
+        reduced : Reduced
+            Its block means (:func:`apmcal.diagnosis.model.reduce_session`).
+        effects : collection of str
+            The effects on top of the nominal model.
+        train_fold : int or None
+            Fold fitted on (None: every piece).
+        start : ModelFit, optional
+            A fit to start from (the real one, for its twin).
+
+        Returns
+        -------
+        fit : ModelFit
+        noise : NoiseModel or None
+        coefficients : list of BlockCoefficients
+            Of the hold residuals, then of the move residuals, over all pieces.
+        """
         fit = fit_model(session, reduced, effects, train_fold, field_mgauss=self.field_mgauss,
                         declination_rad=self.declination_rad, start=start,
                         with_sigma=train_fold is None if with_sigma is None else with_sigma)

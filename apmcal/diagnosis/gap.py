@@ -1,7 +1,7 @@
 """The gap: how much worse the real residuals fit the model than its simulated twin's do.
 
 Definition (the number ``apmcal gap`` reports, in nats per sample)
------------------------------------------------------------------
+------------------------------------------------------------------
 Real and twin go through the same fit; their residuals (measured − predicted) are cut into the
 same pieces and turned into Haar coefficients (:mod:`apmcal.diagnosis.haar`). Coefficients are
 grouped into *cells*: one cell per channel (sensor axis) and scale level, and one per channel
@@ -87,7 +87,17 @@ class ResidualBlock:
     mean_nuisance: int = 0               # ... of them refitted on every fold (orientations)
 
     def n_samples(self, keep: np.ndarray | None = None) -> int:
-        """Residual samples in the kept pieces, counted once per channel."""
+        """Residual samples in the kept pieces, counted once per channel.
+
+        Parameters
+        ----------
+        keep : (k,) int array, optional
+            Session-wide ids of the pieces to count (None: all).
+
+        Returns
+        -------
+        int
+        """
         sel = self._keep(keep)
         return int((self.i1[sel] - self.i0[sel]).sum()) * len(self.names)
 
@@ -97,20 +107,54 @@ class ResidualBlock:
 
 @dataclass
 class BlockCoefficients:
-    """A block's Haar coefficients over all its pieces, computed once and masked per fold."""
+    """A block's Haar coefficients over all its pieces, computed once and masked per fold.
+
+    Attributes
+    ----------
+    block : ResidualBlock
+    levels : list of Coefficients
+        Detail coefficients of levels 1, 2, ... (:func:`apmcal.diagnosis.haar.details`).
+    means : Coefficients
+        Piece-mean coefficients (:func:`apmcal.diagnosis.haar.piece_means`).
+    """
 
     block: ResidualBlock
     levels: list            # Coefficients per level (1, 2, ...)
     means: Coefficients     # piece means
 
     def masks(self, keep) -> tuple[list, np.ndarray, np.ndarray]:
-        """Boolean masks of the coefficients of the kept pieces (per level, means) and pieces."""
+        """Boolean masks of the coefficients of the kept pieces (per level, means) and pieces.
+
+        Parameters
+        ----------
+        keep : (k,) int array or None
+            Session-wide ids of the pieces to keep (None: all).
+
+        Returns
+        -------
+        levels : list of (k_j,) bool arrays
+            One mask per level.
+        means : (p,) bool array
+            Mask of the piece-mean coefficients.
+        pieces : (p,) bool array
+            Mask of the block's pieces.
+        """
         pieces = self.block._keep(keep)
         return [pieces[c.piece] for c in self.levels], pieces[self.means.piece], pieces
 
 
 def coefficients(blocks: list[ResidualBlock]) -> list[BlockCoefficients]:
-    """Haar coefficients of every block (all pieces)."""
+    """Haar coefficients of every block (all pieces).
+
+    Parameters
+    ----------
+    blocks : list of ResidualBlock
+
+    Returns
+    -------
+    list of BlockCoefficients
+        One per block, in order.
+    """
     return [BlockCoefficients(b, details(b.values, b.i0, b.i1), piece_means(b.values, b.i0, b.i1))
             for b in blocks]
 
@@ -121,6 +165,28 @@ class CellShare:
 
     ``nats`` are the shares [nats] of the real coefficients, ``piece`` their session-wide piece
     ids and ``center`` their sample index on ``block``'s axis (for time and temperature).
+
+    Attributes
+    ----------
+    channel : str
+        Channel name, e.g. "gyr_x" ("<sensor>_norm" for the piece means along the field).
+    level : int
+        1, 2, ... (finest level of a pooled group); LEVEL_MEANS for the piece means.
+    levels : tuple of int
+        Every level pooled into the cell.
+    n : int
+        Number of real coefficients.
+    v_real, v_twin : float
+        Mean square of the real and the twin's coefficients [(sensor unit)²].
+    nats : (n,) array
+        Share of each real coefficient [nats].
+    piece : (n,) int array
+        Session-wide piece id of each coefficient.
+    center : (n,) int array
+        Sample index of each coefficient on ``block``'s axis.
+    block : ResidualBlock
+    kind : str
+        "variance" (Gaussian, one variance) or "histogram".
     """
 
     channel: str
@@ -137,14 +203,17 @@ class CellShare:
 
     @property
     def total(self) -> float:
+        """The cell's gap [nats]: the sum of its shares."""
         return float(self.nats.sum())
 
     @property
     def time(self) -> np.ndarray:
+        """Time of each coefficient (n,) [s]."""
         return self.block.t[np.clip(self.center, 0, len(self.block.t) - 1)]
 
     @property
     def temp(self) -> np.ndarray:
+        """Temperature at each coefficient (n,) [°C]; NaN without one."""
         if self.block.temp is None:
             return np.full(len(self.nats), np.nan)
         return self.block.temp[np.clip(self.center, 0, len(self.block.t) - 1)]
@@ -152,7 +221,14 @@ class CellShare:
 
 @dataclass
 class GapEstimate:
-    """The gap of one comparison, cell by cell."""
+    """The gap of one comparison, cell by cell.
+
+    Attributes
+    ----------
+    cells : list of CellShare
+    n_samples : int
+        Residual samples compared (once per channel).
+    """
 
     cells: list
     n_samples: int
@@ -173,6 +249,18 @@ def expected_variance_kl(n: int, dof_real: float, dof_twin: float) -> float:
     F(ν_r, ν_t) distributed (same process; ν the degrees of freedom, n minus what the fit took).
 
     E[x] = ν_t / (ν_t − 2); E[ln x] = ψ(ν_r/2) − ln(ν_r/2) − ψ(ν_t/2) + ln(ν_t/2).
+
+    Parameters
+    ----------
+    n : int
+        Coefficients in the cell.
+    dof_real, dof_twin : float
+        Degrees of freedom ν_r, ν_t (ν_t > 2).
+
+    Returns
+    -------
+    float
+        Expected KL sum of the cell [nats].
     """
     e_x = dof_twin / (dof_twin - 2.0)
     e_log = (digamma(dof_real / 2) - np.log(dof_real / 2)) \
@@ -182,7 +270,20 @@ def expected_variance_kl(n: int, dof_real: float, dof_twin: float) -> float:
 
 def level_groups(counts: list[int], min_cell: int = MIN_CELL) -> list[list[int]]:
     """Levels (1-based) grouped into cells: coarse levels pooled until a cell has ``min_cell``
-    coefficients; a coarse remainder below 3 coefficients is dropped (no variance to compare)."""
+    coefficients; a coarse remainder below 3 coefficients is dropped (no variance to compare).
+
+    Parameters
+    ----------
+    counts : list of int
+        Coefficients at each level, element ``j - 1`` for level ``j``.
+    min_cell : int
+        Coefficients a cell needs.
+
+    Returns
+    -------
+    list of list of int
+        The levels of each cell, fine to coarse.
+    """
     groups, current, n = [], [], 0
     for level in range(len(counts), 0, -1):
         current.append(level)
@@ -197,7 +298,22 @@ def level_groups(counts: list[int], min_cell: int = MIN_CELL) -> list[list[int]]
 
 def variance_shares(real: np.ndarray, twin: np.ndarray, dof_loss: float = 0.0
                     ) -> tuple[np.ndarray, float, float]:
-    """Per-coefficient shares of ½Σ(x − 1 − ln x) − E[...] for one cell; V_real, V_twin."""
+    """Per-coefficient shares of ½Σ(x − 1 − ln x) − E[...] for one cell; V_real, V_twin.
+
+    Parameters
+    ----------
+    real, twin : (n,) arrays
+        The cell's real and twin coefficients (any unit, the same for both).
+    dof_loss : float
+        Degrees of freedom the fit took from the cell.
+
+    Returns
+    -------
+    shares : (n,) array
+        Share of each real coefficient [nats].
+    v_real, v_twin : float
+        Mean squares, in the coefficients' unit squared.
+    """
     (out,) = variance_shares_by_row(real[None], twin[None], dof_loss)
     return out
 
@@ -205,7 +321,13 @@ def variance_shares(real: np.ndarray, twin: np.ndarray, dof_loss: float = 0.0
 def variance_shares_by_row(real: np.ndarray, twin: np.ndarray, dof_loss: float = 0.0
                            ) -> list[tuple[np.ndarray, float, float]]:
     """:func:`variance_shares` of each row of (c, n) arrays (one cell per channel, all of n
-    coefficients), the arithmetic shared by the rows done once."""
+    coefficients), the arithmetic shared by the rows done once.
+
+    Returns
+    -------
+    list of (shares (n,) [nats], v_real, v_twin)
+        One per row.
+    """
     n = real.shape[1]
     sq = real ** 2
     v_real = np.mean(sq, axis=1)        # each row as np.mean of the row alone would
@@ -234,6 +356,18 @@ def shape_shares(real: np.ndarray, twin: np.ndarray) -> np.ndarray:
     thin that a handful of coefficients moving across an edge swings the sum — fixed bins
     have near-empty tails where one coefficient is worth nats; a rounding lattice in the
     twin gives tied quantiles, which merge into fewer bins.
+
+    Parameters
+    ----------
+    real : (n_r,) array
+        The cell's real coefficients.
+    twin : (n_t,) array
+        The twin's, in the same unit.
+
+    Returns
+    -------
+    (n_r,) array
+        Share of each real coefficient [nats].
     """
     twin_sorted = np.sort(twin)     # the quantiles and the twin's bin counts both read it
     edges = np.unique(sorted_quantiles(twin_sorted, np.arange(1, SHAPE_BINS) / SHAPE_BINS))
@@ -253,7 +387,20 @@ def sorted_quantiles(x_sorted: np.ndarray, q: np.ndarray) -> np.ndarray:
     """``np.quantile(x, q)`` (its default linear interpolation) of an already sorted ``x``,
     value for value: numpy's own steps — index (n − 1)·q, its floor and the next, the lerp
     from the nearer end — without numpy partitioning the sorted array again (as slow as the
-    sort itself)."""
+    sort itself).
+
+    Parameters
+    ----------
+    x_sorted : (n,) array
+        Values in ascending order.
+    q : (k,) array
+        Probabilities in [0, 1].
+
+    Returns
+    -------
+    (k,) array
+        Quantiles, in the unit of ``x_sorted``.
+    """
     n = len(x_sorted)
     if n == 0 or np.isnan(x_sorted[-1]):        # numpy: an error, or NaN for every q
         return np.quantile(x_sorted, q)
@@ -270,7 +417,20 @@ def bin_index(edges: np.ndarray, x: np.ndarray) -> np.ndarray:
     """``np.searchsorted(edges, x)`` for a few sorted edges (at most 255), bin for bin (NaN in
     the last bin, where numpy sorts it): the count of edges below each value, one comparison
     pass per edge — hand-written because numpy's binary search per value is 3-4× slower on
-    tens of thousands of values and 31 edges."""
+    tens of thousands of values and 31 edges.
+
+    Parameters
+    ----------
+    edges : (e,) array
+        Sorted bin edges, e ≤ 255.
+    x : (n,) array
+        Values.
+
+    Returns
+    -------
+    (n,) uint8 array
+        Bin of each value, 0 .. e.
+    """
     x = np.ascontiguousarray(x)     # a column of a (k, 3) array: strided passes are 2× slower
     b = np.full(len(x), len(edges), np.uint8)
     for e in edges:
@@ -350,6 +510,19 @@ def compare(real: list[BlockCoefficients], twin: list[BlockCoefficients],
     ``real`` and ``twin`` come from blocks with the same channels and pieces (the twin is
     simulated on the real session's own sample times). ``in_sample``: the pieces are the ones
     the models were fitted on (their fitted parameters then count against the piece means).
+
+    Parameters
+    ----------
+    real, twin : list of BlockCoefficients
+        The real and twin residual coefficients, block for block.
+    keep : (k,) int array, optional
+        Session-wide ids of the pieces compared.
+    in_sample : bool
+        Whether ``keep`` are the fitting pieces.
+
+    Returns
+    -------
+    GapEstimate
     """
     cells, n_samples = [], 0
     for rc, tc in zip(real, twin):

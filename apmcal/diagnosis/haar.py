@@ -54,8 +54,8 @@ def details(x: np.ndarray, i0: np.ndarray, i1: np.ndarray) -> list[Coefficients]
 
     Returns
     -------
-    list of Coefficients, element ``j - 1`` for level ``j``, up to the coarsest level any piece
-    reaches.
+    list of Coefficients
+        Element ``j - 1`` for level ``j``, up to the coarsest level any piece reaches.
     """
     # channel by channel, each channel's samples contiguous: gathers and arithmetic on every
     # third element (one column of an (n, 3) array) were several times slower
@@ -109,7 +109,21 @@ def _read_only(a: np.ndarray) -> np.ndarray:
 
 
 def piece_means(x: np.ndarray, i0: np.ndarray, i1: np.ndarray) -> Coefficients:
-    """``sqrt(n) · mean`` of ``x`` over each piece (variance σ² under white noise)."""
+    """``sqrt(n) · mean`` of ``x`` over each piece (variance σ² under white noise).
+
+    Parameters
+    ----------
+    x : (n,) or (n, c) array
+        Residual samples on the session's sample axis (any unit).
+    i0, i1 : (p,) int arrays
+        Half-open sample ranges of the pieces.
+
+    Returns
+    -------
+    Coefficients
+        ``values`` (p, c) in the unit of ``x``, ``piece`` 0 .. p − 1, ``center`` the middle
+        sample of each piece.
+    """
     x2 = np.asarray(x, dtype=float).reshape(len(x), -1)
     i0, i1 = np.asarray(i0, int), np.asarray(i1, int)
     sums = np.array([x2[a:b].sum(axis=0) for a, b in zip(i0, i1)]).reshape(len(i0), -1)

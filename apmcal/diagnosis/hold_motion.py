@@ -46,7 +46,25 @@ def _hold_runs(session) -> list[tuple[int, int]]:
 
 def pooled_spectrum(x: np.ndarray, runs, fs: float) -> tuple[np.ndarray, np.ndarray]:
     """One-sided PSD (f, P (f, 3)) of ``x`` pooled over the hold runs (each detrended: a slow
-    sensor drift is not motion), weighted by length."""
+    sensor drift is not motion), weighted by length.
+
+    Parameters
+    ----------
+    x : (n, 3) array
+        Samples at every session sample (e.g. a rate [rad/s]).
+    runs : list of (int, int)
+        Half-open sample ranges of the holds; those shorter than one Welch segment are left
+        out.
+    fs : float
+        Sample rate [Hz].
+
+    Returns
+    -------
+    f : (k,) array
+        Frequencies [Hz].
+    power : (k, 3) array
+        PSD per axis [(unit of x)²/Hz].
+    """
     nper = int(min(SEGMENT_S * fs, max(b - a for a, b in runs)))
     total, weight, f = 0.0, 0.0, None
     for a, b in runs:
@@ -60,7 +78,20 @@ def pooled_spectrum(x: np.ndarray, runs, fs: float) -> tuple[np.ndarray, np.ndar
 def noise_floor(f: np.ndarray, power: np.ndarray) -> np.ndarray:
     """The white-noise density per axis: the upper quartile of the spectrum above the motion
     bands (16 Hz up, or the top 40 % of the band at slow rates) — a hand does not shake that
-    fast, and a low-pass filter's roll-off near Nyquist is left out by the quartile."""
+    fast, and a low-pass filter's roll-off near Nyquist is left out by the quartile.
+
+    Parameters
+    ----------
+    f : (k,) array
+        Frequencies [Hz], ascending.
+    power : (k, 3) array
+        One-sided PSD per axis (:func:`pooled_spectrum`).
+
+    Returns
+    -------
+    (3,) array
+        Noise density per axis, in the unit of ``power``.
+    """
     fast = f >= min(NOISE_FROM_HZ, 0.6 * f[-1])
     return np.percentile(power[fast], 75, axis=0)
 
@@ -73,6 +104,17 @@ def extract_motion(residual: np.ndarray, session) -> tuple[np.ndarray, np.ndarra
     The noise floor comes from the holds' pooled spectrum; the gain is then set bin by bin on
     each hold's own spectrum (a pooled gain smeared over another frequency grid leaves a few
     per cent of a strong tremor behind, still far above the noise).
+
+    Parameters
+    ----------
+    residual : (n, 3) array
+        Gyro hold residual at every session sample [rad/s].
+    session : Session
+
+    Returns
+    -------
+    sway, tremor : (n, 3) arrays
+        Rate of motion [rad/s] up to and above ``BAND_SPLIT_HZ``.
     """
     fs, runs = session.fs, _hold_runs(session)
     slow, fast = np.zeros_like(residual), np.zeros_like(residual)
@@ -100,7 +142,19 @@ def extract_motion(residual: np.ndarray, session) -> tuple[np.ndarray, np.ndarra
 
 def hold_angles(session, rate: np.ndarray) -> np.ndarray:
     """θ(t) (n, 3) [rad]: the integral of ``rate`` [rad/s] through each hold, its mean over the
-    hold removed (the hold's fitted orientation is its mean attitude); zero outside the holds."""
+    hold removed (the hold's fitted orientation is its mean attitude); zero outside the holds.
+
+    Parameters
+    ----------
+    session : Session
+    rate : (n, 3) array
+        Rate of motion at every session sample [rad/s].
+
+    Returns
+    -------
+    (n, 3) array
+        Rotation vector θ [rad].
+    """
     theta = np.zeros_like(rate)
     for h in session.holds:
         a, b = h.i0, h.i1
@@ -119,7 +173,23 @@ def confirmed_by_accelerometer(session, rate: np.ndarray, hold_f: np.ndarray,
     θ of a hold whose specific force is f [m/s²] (R(θ)ᵀ·f ≈ f − θ × f), the accelerometer
     shows in the hold ``pieces`` — least squares, each piece's mean and slope removed; 0 unless
     the fit is ``CONFIRM_SIGMAS`` standard errors above zero (a tilt far below the
-    accelerometer's noise confirms nothing). See :func:`confirmed` for the decision."""
+    accelerometer's noise confirms nothing). See :func:`confirmed` for the decision.
+
+    Parameters
+    ----------
+    session : Session
+    rate : (n, 3) array
+        Rate of the motion (one band) at every session sample [rad/s].
+    hold_f : (n_holds, 3) array
+        Specific force of each hold [m/s²].
+    pieces : (k,) int array
+        Session-wide ids of the hold pieces to look in (pieces under 16 samples are skipped).
+
+    Returns
+    -------
+    float
+        κ (dimensionless, 1 for a real motion).
+    """
     theta = hold_angles(session, rate)
     num = den = power = 0.0
     count = 0
@@ -147,7 +217,19 @@ def confirmed(kappa: float) -> bool:
 
 def hold_rotations(session, rate: np.ndarray) -> np.ndarray:
     """Exp(θ(t)) (n, 3, 3) at every sample (θ of :func:`hold_angles`); identity outside the
-    holds."""
+    holds.
+
+    Parameters
+    ----------
+    session : Session
+    rate : (n, 3) array
+        Rate of motion at every session sample [rad/s].
+
+    Returns
+    -------
+    (n, 3, 3) array
+        Rotation matrices.
+    """
     from scipy.spatial.transform import Rotation
 
     return Rotation.from_rotvec(hold_angles(session, rate)).as_matrix()
@@ -155,7 +237,21 @@ def hold_rotations(session, rate: np.ndarray) -> np.ndarray:
 
 def band_amplitude_deg(rate: np.ndarray, session, band: tuple[float, float]) -> float:
     """sitl's amplitude parameter [deg] of the tilt in a band: its components are sinusoids of
-    amplitude a/√count, so the tilt's RMS per axis is a/√2 (sitl.motion.Tremor)."""
+    amplitude a/√count, so the tilt's RMS per axis is a/√2 (sitl.motion.Tremor).
+
+    Parameters
+    ----------
+    rate : (n, 3) array
+        Rate of motion at every session sample [rad/s].
+    session : Session
+    band : (float, float)
+        Frequency band [Hz].
+
+    Returns
+    -------
+    float
+        Amplitude a [deg] (0 without holds to measure in).
+    """
     runs = _hold_runs(session)
     if not runs:
         return 0.0
@@ -166,6 +262,18 @@ def band_amplitude_deg(rate: np.ndarray, session, band: tuple[float, float]) -> 
 
 
 def amplitudes(rate: np.ndarray, session) -> tuple[float, float]:
-    """(tremor, sway) amplitudes [deg] of the estimated hold motion."""
+    """(tremor, sway) amplitudes [deg] of the estimated hold motion.
+
+    Parameters
+    ----------
+    rate : (n, 3) array
+        Rate of motion at every session sample [rad/s].
+    session : Session
+
+    Returns
+    -------
+    tremor_deg, sway_deg : float
+        sitl's amplitudes [deg] in ``TREMOR_BAND_HZ`` and ``SWAY_BAND_HZ``.
+    """
     return (band_amplitude_deg(rate, session, TREMOR_BAND_HZ),
             band_amplitude_deg(rate, session, SWAY_BAND_HZ))

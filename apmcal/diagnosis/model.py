@@ -35,7 +35,13 @@ class Reduced:
 
 
 def group_of_pieces(session) -> np.ndarray:
-    """(hold, fold) group of each piece, 2·hold + fold (−1 for motion pieces)."""
+    """(hold, fold) group of each piece, 2·hold + fold (−1 for motion pieces).
+
+    Returns
+    -------
+    (p,) int array
+        By session-wide piece id.
+    """
     groups = np.full(len(session.pieces), -1)
     for p in session.pieces.select(hold=True):
         groups[p] = 2 * session.hold_of_piece(p) + session.pieces.fold[p]
@@ -64,7 +70,42 @@ def reduce_session(session) -> Reduced:
 @dataclass
 class ModelFit:
     """One fitted model. ``up`` and ``north`` give each (hold, fold) group's orientation in the
-    sensor frame (unit vectors; NaN rows for groups without samples)."""
+    sensor frame (unit vectors; NaN rows for groups without samples).
+
+    Attributes
+    ----------
+    effects : frozenset of str
+        The effects on top of the nominal model.
+    refs : References
+        Where the slow terms are zero.
+    gravity : float
+        Gravity the accelerometer is fitted to [m/s²].
+    acc : GeometryFit
+    gyr : GyroFit
+    gyr_columns : list of str
+        Effect of each per-axis gyro column (row of ``gyr.theta``).
+    gyr_vectors : list of str
+        Name of each whole-vector gyro regressor (element of ``gyr.vector_coef``).
+    up : (g, 3) array
+        Each group's "up" in the sensor frame (unit vectors), g = 2 · number of holds.
+    acc_dirs : (g, 3) array
+        :meth:`GeometryFit.directions` of every group (acc).
+    mag : GeometryFit or None
+    mag_dirs : (g, 3) array or None
+        The same for the compass.
+    field_mgauss : float or None
+        Field magnitude the compass is fitted to [mGauss].
+    north : (g, 3) array or None
+        Each group's true north in the sensor frame (unit vectors).
+    declination_rad : float
+        Magnetic declination [rad].
+    dynamics : Dynamics
+        The move parameters.
+    hold_motion : tuple or None
+        The measured motion inside the holds: rate (n, 3) [rad/s] and turn (n, 3, 3).
+    acc_terms_in_moves : bool
+        See :func:`acc_terms_in_moves`.
+    """
 
     effects: frozenset
     refs: References
@@ -87,18 +128,24 @@ class ModelFit:
     acc_terms_in_moves: bool = False      # see acc_terms_in_moves()
 
     def acc_columns(self, t, temp) -> np.ndarray:
+        """The accelerometer's slow regressor columns (n, k) at times ``t`` (n,) [s] and
+        temperatures ``temp`` (n,) [°C] or None (:func:`~apmcal.diagnosis.regressors.columns`)."""
         return columns(self.effects, "acc", self.refs, t, temp)[0]
 
     def mag_columns(self, t, current) -> np.ndarray:
+        """The compass's slow regressor columns (n, k) at times ``t`` (n,) [s] and battery
+        currents ``current`` (n,) [A] or None (:func:`~apmcal.diagnosis.regressors.columns`)."""
         return columns(self.effects, "mag", self.refs, t, current=current)[0]
 
     @property
     def acc_column_names(self) -> list:
+        """Effect of each accelerometer column (row of ``acc.theta``)."""
         has_temp = self.acc.theta.shape[0] > 0
         return ["temperature_drift"] if has_temp else []
 
     @property
     def mag_column_names(self) -> list:
+        """Effect of each compass column (row of ``mag.theta``)."""
         return ["mag_interference"] if self.mag is not None and self.mag.theta.shape[0] else []
 
 
@@ -114,7 +161,13 @@ def references(session) -> References:
 
 
 def gravity_of(session, effects) -> float:
-    """Standard gravity, or WGS-84 normal gravity at the site when local_gravity is modelled."""
+    """Standard gravity, or WGS-84 normal gravity at the site when local_gravity is modelled.
+
+    Returns
+    -------
+    float
+        Gravity [m/s²].
+    """
     if "local_gravity" in effects and session.lat_deg is not None:
         return normal_gravity(session.lat_deg)
     return STANDARD_GRAVITY
@@ -128,6 +181,27 @@ def fit_model(session, reduced: Reduced, effects, fold: int | None, *,
     ``field_mgauss`` is the Earth field magnitude (WMM) when known; otherwise the
     magnetometer's radius is its own (the soft-iron matrix then carries the unknown scale).
     ``fold`` None fits every piece; ``with_sigma`` adds the geometric fits' uncertainties.
+
+    Parameters
+    ----------
+    session : Session
+    reduced : Reduced
+        Its block means (:func:`reduce_session`).
+    effects : collection of str
+    fold : int or None
+        The fold fitted on.
+    field_mgauss : float, optional
+        Earth field magnitude [mGauss].
+    declination_rad : float
+        Magnetic declination [rad].
+    start : ModelFit, optional
+        A fit of the same model to start the geometric fits from.
+    with_sigma : bool
+
+    Returns
+    -------
+    ModelFit
+        Without the move parameters (``dynamics`` neutral) and hold motion.
     """
     effects = frozenset(effects)
     train = session.pieces.select(fold=fold)
@@ -205,7 +279,22 @@ def _own_radius(blocks: Blocks) -> float:
 def north_of(up: np.ndarray, field_dir: np.ndarray | None, declination_rad: float):
     """True north in the sensor frame per group: the field's horizontal part turned by the
     declination about the vertical (magnetic north lies ``declination`` east of true north),
-    or None without a calibrated magnetometer."""
+    or None without a calibrated magnetometer.
+
+    Parameters
+    ----------
+    up : (g, 3) array
+        "Up" of each group (unit vectors, sensor frame).
+    field_dir : (g, 3) array or None
+        Field direction of each group (unit vectors).
+    declination_rad : float
+        Magnetic declination [rad].
+
+    Returns
+    -------
+    (g, 3) array or None
+        True north of each group (unit vectors, sensor frame).
+    """
     if field_dir is None:
         return None
     h = _unit(field_dir - np.sum(field_dir * up, axis=1, keepdims=True) * up)
@@ -216,7 +305,30 @@ def north_of(up: np.ndarray, field_dir: np.ndarray | None, declination_rad: floa
 
 def gyro_regressors(fit: ModelFit, t, temp, groups) -> tuple[np.ndarray, np.ndarray, list, list]:
     """Per-axis columns (n, k) and whole-vector regressors (n, v, 3) of the gyro at samples or
-    blocks of the given (hold, fold) ``groups``, with their names."""
+    blocks of the given (hold, fold) ``groups``, with their names.
+
+    Parameters
+    ----------
+    fit : ModelFit
+        Its effects, references, gravity and group orientations.
+    t : (n,) array
+        Times [s].
+    temp : (n,) array or None
+        Temperatures [°C].
+    groups : (n,) int array
+        (hold, fold) group of each sample or block.
+
+    Returns
+    -------
+    columns : (n, k) array
+        Temperature [K], time [s] and specific-force [m/s²] columns.
+    vectors : (n, v, 3) array
+        Earth-rate parts [rad/s] and the triangle drift shape [min].
+    names : list of str
+        Effect of each column.
+    vector_names : list of str
+        Name of each whole-vector regressor.
+    """
     effects = fit.effects
     cols, names = columns(effects, "gyr", fit.refs, t, temp)
     col_list, vectors, vnames = [cols], [], []
@@ -269,7 +381,18 @@ def _best_drift_time(fit: ModelFit, blocks: Blocks, groups) -> References:
 def set_acc_terms(fit: ModelFit, reduced: Reduced, train, terms: dict) -> None:
     """Give the accelerometer the terms the moves found (non-orthogonality "alpha", quadratic
     scale "k2"): its offset and scales are refitted on the holds with them held fixed, and the
-    holds' orientations follow."""
+    holds' orientations follow.
+
+    Parameters
+    ----------
+    fit : ModelFit
+        Changed in place (``acc``, ``acc_dirs``, ``up`` and ``north``).
+    reduced : Reduced
+    train : (k,) int array
+        Session-wide ids of the training pieces.
+    terms : dict
+        "alpha" (3,) [rad] and/or "k2" (3,) [1/(m/s²)].
+    """
     blocks = reduced.acc.select(train)
     fit.acc = fit_geometry(blocks, _acc_cols(fit.effects, fit.refs, blocks), fit.gravity,
                            kind="acc", fixed=terms, with_sigma=False)
@@ -280,7 +403,19 @@ def set_acc_terms(fit: ModelFit, reduced: Reduced, train, terms: dict) -> None:
 
 
 def per_hold(per_group: np.ndarray, n_holds: int) -> np.ndarray:
-    """(hold, fold) group rows → one row per hold (mean of the folds that have samples)."""
+    """(hold, fold) group rows → one row per hold (mean of the folds that have samples).
+
+    Parameters
+    ----------
+    per_group : (g, c) array
+        One row per group, g ≥ 2·n_holds.
+    n_holds : int
+
+    Returns
+    -------
+    (n_holds, c) array
+        NaN rows for holds without samples in either fold.
+    """
     rows = per_group[:2 * n_holds].reshape(n_holds, 2, -1)
     with np.errstate(invalid="ignore"):
         return np.nanmean(rows, axis=1)
@@ -288,7 +423,15 @@ def per_hold(per_group: np.ndarray, n_holds: int) -> np.ndarray:
 
 def hold_vectors(fit: ModelFit, n_holds: int) -> tuple[np.ndarray, np.ndarray | None]:
     """Each hold's calibrated specific force [m/s²] and field [mGauss] (or, without geometry,
-    its mean raw reading), the vectors the moves carry along."""
+    its mean raw reading), the vectors the moves carry along.
+
+    Returns
+    -------
+    f : (n_holds, 3) array
+        Specific force [m/s²].
+    b : (n_holds, 3) array or None
+        Field [mGauss]; None without a compass fit.
+    """
     f = per_hold(fit.acc_dirs, n_holds) * (fit.gravity if fit.acc.geometry else 1.0)
     b = None
     if fit.mag is not None:
@@ -298,7 +441,13 @@ def hold_vectors(fit: ModelFit, n_holds: int) -> tuple[np.ndarray, np.ndarray | 
 
 def calibrated_rate(session, fit: ModelFit) -> np.ndarray:
     """The gyro [rad/s] minus its fitted bias terms (offset, drift, temperature, triangle) at
-    every sample, before the gyro matrix: what the moves integrate."""
+    every sample, before the gyro matrix: what the moves integrate.
+
+    Returns
+    -------
+    (n, 3) array
+        [rad/s] at every session sample.
+    """
     groups = np.zeros(len(session.t), int)
     cols, vec, names, vnames = gyro_regressors(fit, session.t, session.temp, groups)
     keep = [i for i, n in enumerate(names) if n != "g_sensitivity"]
@@ -312,7 +461,19 @@ def calibrated_rate(session, fit: ModelFit) -> np.ndarray:
 # ----------------------------------------------------------------------------- residuals
 @dataclass
 class HoldSamples:
-    """The samples of the hold pieces, concatenated (the residual blocks' sample axis)."""
+    """The samples of the hold pieces, concatenated (the residual blocks' sample axis).
+
+    Attributes
+    ----------
+    index : (h,) int array
+        Index of each sample on the session's (or the compass's) sample axis.
+    group : (h,) int array
+        (hold, fold) group of each sample.
+    i0, i1 : (p,) int arrays
+        Half-open ranges of the pieces on the concatenated axis.
+    piece : (p,) int array
+        Session-wide piece ids.
+    """
 
     index: np.ndarray       # into the session's sample axis
     group: np.ndarray       # (hold, fold) group of each sample
@@ -322,6 +483,21 @@ class HoldSamples:
 
 
 def hold_samples(i0, i1, piece_ids, groups_of_piece) -> HoldSamples:
+    """The samples of the pieces ``[i0, i1)`` one after the other.
+
+    Parameters
+    ----------
+    i0, i1 : (p,) int arrays
+        Half-open sample ranges of the pieces.
+    piece_ids : (p,) int array
+        Session-wide id of each piece.
+    groups_of_piece : (P,) int array
+        (hold, fold) group of every session-wide piece id.
+
+    Returns
+    -------
+    HoldSamples
+    """
     lengths = np.maximum(np.asarray(i1) - np.asarray(i0), 0)
     index = np.concatenate([np.arange(a, b) for a, b in zip(i0, i1)]) if len(i0) else \
         np.zeros(0, int)
@@ -331,7 +507,13 @@ def hold_samples(i0, i1, piece_ids, groups_of_piece) -> HoldSamples:
 
 
 def hold_residuals(session, fit: ModelFit) -> list[ResidualBlock]:
-    """Residual blocks (acc, gyr[, mag]) of every hold piece under ``fit``."""
+    """Residual blocks (acc, gyr[, mag]) of every hold piece under ``fit``.
+
+    Returns
+    -------
+    list of ResidualBlock
+        Residuals [m/s², rad/s, mGauss] on the concatenated hold samples.
+    """
     ids = session.pieces.select(hold=True)
     groups = group_of_pieces(session)
     pc = session.pieces

@@ -34,7 +34,28 @@ LOWEST_CUTOFF = 1.0 / 8
 
 @dataclass
 class SensorNoise:
-    """Noise terms of one sensor; per-axis arrays (3,) in the sensor's unit."""
+    """Noise terms of one sensor; per-axis arrays (3,) in the sensor's unit.
+
+    Attributes
+    ----------
+    sigma : (3,) array
+        White noise per sample (before the low-pass) [unit].
+    rw_q : (3,) array or None
+        Bias random walk [unit/√s].
+    cutoff_hz : float or None
+        Low-pass cut-off [Hz].
+    step : (3,) array or None
+        Quantization step [unit].
+    uniform : bool
+        Uniform instead of Gaussian white noise.
+    tremor_deg, sway_deg : float
+        Motion contamination amplitudes [deg] (:mod:`apmcal.diagnosis.hold_motion`).
+    motion_confirmed : tuple of float
+        κ of the sway and tremor bands (same module).
+    levels : dict
+        The fitted wavelet variances, "v" (levels × axes) [unit²] and their counts "n"
+        (for plots).
+    """
 
     sigma: np.ndarray                      # white noise per sample (before the low-pass)
     rw_q: np.ndarray | None = None         # bias random walk [unit/√s]
@@ -66,7 +87,24 @@ def fit_noise(coefficient_sets: list, train: np.ndarray, effects, fs_of: dict,
     named by its first channel's sensor) on the training pieces ``train``. ``fs_of`` gives each
     sensor's sample rate, ``steps`` the quantization step per axis of the sensors the model
     rounds (absent or None: no rounding). The low-pass, when modelled, is one cut-off for the
-    accelerometer and the gyro, as the MPU-6000's DLPF (and sitl's ``lowpass_hz``) is."""
+    accelerometer and the gyro, as the MPU-6000's DLPF (and sitl's ``lowpass_hz``) is.
+
+    Parameters
+    ----------
+    coefficient_sets : list of BlockCoefficients
+        The residual blocks' coefficients (moves are skipped).
+    train : (k,) int array
+        Session-wide ids of the training pieces.
+    effects : collection of str
+    fs_of : dict
+        Sample rate of each sensor [Hz].
+    steps : dict
+        Quantization step (3,) of each sensor [its unit], or None.
+
+    Returns
+    -------
+    NoiseModel
+    """
     inputs = {}
     for coeffs in coefficient_sets:
         if not coeffs.block.shape:         # moves: scored, but the noise is the holds'
@@ -92,7 +130,18 @@ def fit_noise(coefficient_sets: list, train: np.ndarray, effects, fs_of: dict,
 
 def shared_cutoff(sensors: list) -> float | None:
     """The low-pass cut-off [Hz] that fits all ``sensors`` (fit_channels keyword sets, one
-    rate) best over all levels, or None when no filter fits better than none."""
+    rate) best over all levels, or None when no filter fits better than none.
+
+    Parameters
+    ----------
+    sensors : list of dict
+        :func:`fit_channels` keyword arguments of each sensor (all of one ``fs``).
+
+    Returns
+    -------
+    float or None
+        Cut-off [Hz], one of ``CUTOFF_GRID`` values from fs/8 to 0.45·fs.
+    """
     fs = sensors[0]["fs"]
     best, best_obj = None, np.inf
     for fc in [None] + list(np.geomspace(LOWEST_CUTOFF * fs, 0.45 * fs, CUTOFF_GRID)):
@@ -104,7 +153,21 @@ def shared_cutoff(sensors: list) -> float | None:
 
 def level_stats(coeffs, pieces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Mean square (levels, channels) and count (levels,) of a block's Haar details over the
-    given pieces (levels without a coefficient there are left out at the coarse end)."""
+    given pieces (levels without a coefficient there are left out at the coarse end).
+
+    Parameters
+    ----------
+    coeffs : BlockCoefficients
+    pieces : (k,) int array
+        Session-wide piece ids.
+
+    Returns
+    -------
+    v : (levels, c) array
+        Mean square per level and channel [unit²].
+    n : (levels,) array
+        Coefficients per level.
+    """
     masks, _, _ = coeffs.masks(pieces)
     v, n = [], []
     for c, m in zip(coeffs.levels, masks):
@@ -122,6 +185,17 @@ def floor_stat(block, pieces: np.ndarray) -> np.ndarray:
     A fourth difference passes a signal of frequency f with the gain (2 sin(πf/fs))^8: a hand's
     tremor at 5 Hz sampled at 100 Hz reaches it 10^-6 times weaker than white noise does,
     where the finest Haar level (a first difference) lets 5 % of it through.
+
+    Parameters
+    ----------
+    block : ResidualBlock
+    pieces : (k,) int array
+        Session-wide piece ids (pieces of 8 samples or fewer are skipped).
+
+    Returns
+    -------
+    (c,) array
+        [unit²] per channel; NaN without a usable piece.
     """
     keep = np.isin(block.piece, pieces)
     parts = [np.diff(block.values[a:b], n=4, axis=0)
@@ -132,7 +206,19 @@ def floor_stat(block, pieces: np.ndarray) -> np.ndarray:
 
 @lru_cache(maxsize=512)
 def floor_gain(fs: float, cutoff_hz: float | None) -> float:
-    """floor_stat of unit white noise seen through the low-pass (1 without it)."""
+    """floor_stat of unit white noise seen through the low-pass (1 without it).
+
+    Parameters
+    ----------
+    fs : float
+        Sample rate [Hz].
+    cutoff_hz : float or None
+        Low-pass cut-off [Hz].
+
+    Returns
+    -------
+    float
+    """
     if cutoff_hz is None or cutoff_hz >= fs / 2:
         return 1.0
     w = _omega()
@@ -148,7 +234,18 @@ def _omega() -> np.ndarray:
 @lru_cache(maxsize=64)
 def haar_gain(levels: int) -> np.ndarray:
     """|H_j(ω)|² = (2/m) sin⁴(mω/2) / sin²(ω/2) on the grid, (levels, N_FREQ) (cached: the
-    grid is fixed; do not modify the returned array)."""
+    grid is fixed; do not modify the returned array).
+
+    Parameters
+    ----------
+    levels : int
+        Number of levels (m = 1, 2, 4, ...).
+
+    Returns
+    -------
+    (levels, N_FREQ) array
+        On ω from 0 to π [rad/sample].
+    """
     w = _omega()
     m = (2.0 ** np.arange(levels))[:, None]
     return (2.0 / m) * np.sin(m * w / 2) ** 4 / np.sin(w / 2) ** 2
@@ -156,7 +253,20 @@ def haar_gain(levels: int) -> np.ndarray:
 
 @lru_cache(maxsize=512)
 def lowpass_gain(levels: int, fs: float, cutoff_hz: float | None) -> np.ndarray:
-    """L_j: Haar variance of unit white noise after the Butterworth low-pass, per level."""
+    """L_j: Haar variance of unit white noise after the Butterworth low-pass, per level.
+
+    Parameters
+    ----------
+    levels : int
+    fs : float
+        Sample rate [Hz].
+    cutoff_hz : float or None
+        Low-pass cut-off [Hz] (None, or at or above fs/2: no filter).
+
+    Returns
+    -------
+    (levels,) array
+    """
     h = haar_gain(levels)
     if cutoff_hz is None or cutoff_hz >= fs / 2:
         g = np.ones(N_FREQ)
@@ -167,7 +277,19 @@ def lowpass_gain(levels: int, fs: float, cutoff_hz: float | None) -> np.ndarray:
 
 
 def random_walk_gain(levels: int, fs: float) -> np.ndarray:
-    """Haar variance per unit q² of a discrete random walk, Δt·(2m² + 1)/6."""
+    """Haar variance per unit q² of a discrete random walk, Δt·(2m² + 1)/6.
+
+    Parameters
+    ----------
+    levels : int
+    fs : float
+        Sample rate [Hz].
+
+    Returns
+    -------
+    (levels,) array
+        [s].
+    """
     m = 2.0 ** np.arange(levels)
     return (2 * m ** 2 + 1) / 6.0 / fs
 
@@ -181,6 +303,26 @@ def ml_variances(v: np.ndarray, n: np.ndarray, design: np.ndarray, fixed: np.nda
     n / M² from the previous step (the inverse variance of a mean square of n Gaussian
     terms), which converges to the maximum-likelihood point; bounded first-order optimisers
     stall here because the columns' scales differ by orders of magnitude.
+
+    Parameters
+    ----------
+    v : (r,) array
+        Variance statistics (mean squares).
+    n : (r,) array
+        Number of terms behind each.
+    design : (r, k) array
+        Model variance per unit coefficient.
+    fixed : (r,) array
+        Model variance that does not depend on c (e.g. rounding), in the unit of ``v``.
+    iterations : int
+        Most scoring steps.
+
+    Returns
+    -------
+    c : (k,) array
+        Coefficients, ≥ 0.
+    objective : float
+        Σ n (v / M + ln M) at c.
     """
     scale = np.maximum(design.max(axis=0), 1e-300)
     d = design / scale
@@ -210,6 +352,15 @@ class MeanPairs:
     σ²(1/n_a + 1/n_b) + q²(L_a/3 + L_b/3 + G) (the mean of a Wiener process over an interval
     sits a third of the interval from its end; the Allan variance's q²τ/3 is the case
     L_a = L_b = τ, G = 0).
+
+    Attributes
+    ----------
+    squares : (P, 3) array
+        Squared differences of consecutive piece means per axis [unit²].
+    white : (P,) array
+        1/n_a + 1/n_b.
+    walk : (P,) array
+        L_a/3 + L_b/3 + G [s].
     """
 
     squares: np.ndarray     # (P, 3) squared differences per axis
@@ -218,6 +369,8 @@ class MeanPairs:
 
     @classmethod
     def of(cls, block, pieces: np.ndarray) -> "MeanPairs | None":
+        """The pairs of consecutive pieces (in time) of ``block`` among the piece ids
+        ``pieces``; None with fewer than three pieces."""
         keep = np.flatnonzero(np.isin(block.piece, pieces))
         keep = keep[np.argsort(block.t[block.i0[keep]])]
         if len(keep) < 3:
@@ -244,6 +397,33 @@ def fit_channels(v: np.ndarray, n: np.ndarray, fs: float, *, cutoff_hz: float | 
     a gap where it lies instead of inflating the white level (and with it a gap at the
     finest scale), and a low-pass can only stand for the one spectral shape a filter gives,
     not for any slow excess. The objective is over all levels.
+
+    Parameters
+    ----------
+    v : (levels, 3) array
+        Mean square per level and axis [unit²] (:func:`level_stats`).
+    n : (levels,) array
+        Coefficients per level.
+    fs : float
+        Sample rate [Hz].
+    cutoff_hz : float or None
+        Low-pass cut-off [Hz].
+    floor : (3,) array
+        :func:`floor_stat` [unit²].
+    step : (3,) array, optional
+        Quantization step [unit].
+    random_walk : bool
+        Fit a bias random walk q as well.
+    pairs : MeanPairs, optional
+        Piece-mean differences that also see the random walk.
+
+    Returns
+    -------
+    sigma : (3,) array
+        White noise per sample [unit].
+    q : (3,) array or None
+        Random walk [unit/√s] (None without ``random_walk``).
+    objective : float
     """
     levels, axes = v.shape
     lp = lowpass_gain(levels, fs, cutoff_hz)
@@ -272,7 +452,20 @@ def fit_channels(v: np.ndarray, n: np.ndarray, fs: float, *, cutoff_hz: float | 
 
 def lattice_step(x: np.ndarray, min_fraction: float = 0.9) -> float | None:
     """The quantization step of samples on a lattice (their most common non-zero successive
-    difference, when ``min_fraction`` of the differences are multiples of it), else None."""
+    difference, when ``min_fraction`` of the differences are multiples of it), else None.
+
+    Parameters
+    ----------
+    x : (n,) array
+        Samples.
+    min_fraction : float
+        Share of the differences that must lie on the lattice.
+
+    Returns
+    -------
+    float or None
+        Step, in the unit of ``x``.
+    """
     x = np.asarray(x, float)
     d = np.abs(np.diff(x))
     # differences at the float's own resolution are equal samples (means of rounded readings

@@ -24,7 +24,24 @@ def _term(t) -> dict | None:
 
 
 def gmwm_terms(pieces: list, fs: float, unit: str) -> dict:
-    """{term: {"value", "sigma", "unit"} or None} of one axis, and the components chosen."""
+    """{term: {"value", "sigma", "unit"} or None} of one axis, and the components chosen.
+
+    Parameters
+    ----------
+    pieces : list of 1-D arrays
+        Hold residuals of one axis, piece by piece [unit].
+    fs : float
+        Sample rate [Hz].
+    unit : str
+        The residuals' unit, e.g. "rad/s".
+
+    Returns
+    -------
+    dict
+        "white_density" [unit/√Hz], "bias_instability" [unit], "random_walk" [unit/√s]
+        (:func:`~apmcal.diagnosis.noise_terms.fit_noise_terms`) and "components"; or
+        "not_fitted" with the reason.
+    """
     try:
         fit = fit_noise_terms(pieces, fs, unit=unit)
     except ValueError as exc:            # too few scales (short or constant pieces)
@@ -35,7 +52,22 @@ def gmwm_terms(pieces: list, fs: float, unit: str) -> dict:
 
 
 def allan_line_terms(pieces: list, fs: float, unit: str) -> dict:
-    """The fixed-slope-line reading of one axis (values only: the method gives no σ)."""
+    """The fixed-slope-line reading of one axis (values only: the method gives no σ).
+
+    Parameters
+    ----------
+    pieces : list of 1-D arrays
+        Hold residuals of one axis, piece by piece [unit].
+    fs : float
+        Sample rate [Hz].
+    unit : str
+        The residuals' unit.
+
+    Returns
+    -------
+    dict
+        "white_density" [unit/√Hz], "bias_instability" [unit], "random_walk" [unit/√s].
+    """
     lines = noise_terms_allan_lines(pieces, fs)
     return {"white_density": {"value": lines.white_density, "unit": f"{unit}/√Hz"},
             "bias_instability": {"value": lines.bias_instability, "unit": unit},

@@ -28,7 +28,19 @@ COLUMN_EFFECTS = {"acc": ("temperature_drift",),
 
 @dataclass(frozen=True)
 class References:
-    """Where the slow terms are zero: the session's mean time, temperature and current."""
+    """Where the slow terms are zero: the session's mean time, temperature and current.
+
+    Attributes
+    ----------
+    t_s : float
+        Reference time [s].
+    temp_c : float
+        Reference temperature [°C].
+    current_a : float
+        Reference battery current [A].
+    drift_time_min : float
+        SIM_DRIFT_TIME of the triangle drift [min] (fitted).
+    """
 
     t_s: float
     temp_c: float = 0.0
@@ -42,6 +54,18 @@ def triangle(t_s: np.ndarray, drift_time_min: float) -> np.ndarray:
     libraries/AP_InertialSensor/AP_InertialSensor_SITL.cpp ``gyro_drift``: with period
     P = 2·SIM_DRIFT_TIME [min] and m = fmod(t / 60, P), the shape is m for m < P/2, else P − m;
     the drift [rad/s] is radians(SIM_DRIFT_SPEED) × shape on every axis.
+
+    Parameters
+    ----------
+    t_s : (n,) array
+        Times since boot [s].
+    drift_time_min : float
+        SIM_DRIFT_TIME [min].
+
+    Returns
+    -------
+    (n,) array
+        Shape [min].
     """
     period = 2.0 * drift_time_min
     m = np.fmod(np.asarray(t_s, float) / 60.0, period)
@@ -53,6 +77,26 @@ def columns(effects, sensor: str, refs: References, t, temp=None, current=None
     """Regressor columns (n, k) of ``sensor`` for the active ``effects`` and their effect names.
 
     Effects whose covariate is missing (no temperature, no current) add no column.
+
+    Parameters
+    ----------
+    effects : collection of str
+    sensor : str
+        "acc", "gyr" or "mag".
+    refs : References
+    t : (n,) array
+        Times [s].
+    temp : (n,) array, optional
+        Temperatures [°C].
+    current : (n,) array, optional
+        Battery currents [A].
+
+    Returns
+    -------
+    columns : (n, k) array
+        T − T_ref [K], t − t_ref [s], I − I_ref [A], as the effects call for.
+    names : list of str
+        The effect of each column.
     """
     cols, names = [], []
     wanted = [e for e in COLUMN_EFFECTS[sensor] if e in effects]

@@ -38,7 +38,29 @@ UNITS = {"gap": "nats per residual sample (Kullback-Leibler divergence, real vs 
 
 @dataclass
 class GapResult:
-    """What ``apmcal gap`` found (see the module docstring for the JSON layout)."""
+    """What ``apmcal gap`` found (see the module docstring for the JSON layout).
+
+    Attributes
+    ----------
+    source : str
+        The log file.
+    session : dict
+        What the session holds (duration [s], rate [Hz], holds, moves, ...).
+    gap : dict
+        The nominal model's gap, in-sample ("total") and held-out [nats per sample], with
+        the breakdowns.
+    effects : list of dict
+        Every candidate, best first.
+    selected : list of str
+        The selected combination.
+    after : dict
+        The gap of the nominal model plus the selection, as ``gap``.
+    white_noise : dict
+        Per-sample white noise of each sensor.
+    noise_structure : dict
+        Noise terms of the hold residuals, real against twin.
+    notes : list of str
+    """
 
     source: str
     session: dict
@@ -51,6 +73,7 @@ class GapResult:
     notes: list = field(default_factory=list)
 
     def effect(self, name: str) -> dict | None:
+        """The entry of effect ``name``, or None when it is not among the candidates."""
         return next((e for e in self.effects if e["name"] == name), None)
 
     @property
@@ -60,6 +83,7 @@ class GapResult:
         return first["name"] if first and first["significant"] else None
 
     def to_dict(self) -> dict:
+        """The result as JSON-ready data (schema and units included, NaN as null)."""
         return jsonable({"schema": SCHEMA, "units": UNITS, "source": self.source,
                          "session": self.session, "gap": self.gap, "effects": self.effects,
                          "selected": self.selected, "after": self.after,
@@ -68,6 +92,13 @@ class GapResult:
                         nan_as_null=True)
 
     def save(self, path) -> None:
+        """Write the result as JSON.
+
+        Raises
+        ------
+        ApmcalError
+            When the file cannot be written.
+        """
         try:
             Path(path).write_text(json.dumps(self.to_dict(), indent=1) + "\n")
         except OSError as exc:
@@ -76,6 +107,13 @@ class GapResult:
 
     @classmethod
     def load(cls, path) -> "GapResult":
+        """Read a result saved by :meth:`save`.
+
+        Raises
+        ------
+        ApmcalError
+            When the file cannot be read or is not a result of this schema.
+        """
         try:
             d = json.loads(Path(path).read_text())
             if d.get("schema") != SCHEMA:

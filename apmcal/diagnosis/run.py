@@ -31,6 +31,9 @@ class Diagnosis:
 
 
 def session_summary(session, evaluator: Evaluator) -> dict:
+    """What the session holds, for the result: "duration_s" [s], "rate_hz" [Hz], counts of
+    holds, moves, pieces and orientations, the sensors, those the log stores as integers, and
+    the ranges "temperature_c" [°C] and "current_a" [A] when logged."""
     moves = int(np.sum(~session.pieces.is_hold))
     out = {"duration_s": session.duration, "rate_hz": session.fs, "holds": len(session.holds),
            "moves": moves, "pieces": len(session.pieces),
@@ -46,7 +49,22 @@ def session_summary(session, evaluator: Evaluator) -> dict:
 
 
 def diagnose(session, names=None, *, seed: int = 0, progress=None) -> Diagnosis:
-    """Diagnose one session (``names``: the candidate effects, default all)."""
+    """Diagnose one session (``names``: the candidate effects, default all).
+
+    Parameters
+    ----------
+    session : Session
+    names : list of str, optional
+        Candidate effects.
+    seed : int
+        Seed of the twins' noise.
+    progress : callable, optional
+        Called with a short text at each stage.
+
+    Returns
+    -------
+    Diagnosis
+    """
     from threadpoolctl import threadpool_limits
 
     # the models are spread over processes (Evaluator.map); BLAS threads on top of those only

@@ -42,7 +42,30 @@ MAX_ROUNDS = 5              # effects in a combination at most
 
 @dataclass
 class EffectScore:
-    """One candidate scored against a base model (held-out numbers are what rank it)."""
+    """One candidate scored against a base model (held-out numbers are what rank it).
+
+    Attributes
+    ----------
+    name : str
+    reason : str or None
+        Why it could not be tested (None: it was).
+    gap_in, gap_out : float
+        In-sample and held-out gap of the base model plus the effect [nats per sample].
+    shrink_in, shrink_out : float
+        1 − gap_after / gap_before, in-sample and held-out.
+    evidence : float
+        Held-out gap removed [nats].
+    supported : bool
+        Evidence ≥ ``MIN_EVIDENCE_NATS``, plausible, and its parameters away from "off".
+    params : dict
+        Its fitted parameters (mean of the folds).
+    implausible : str or None
+        Why the fitted parameters cannot be this effect.
+    p_value : float or None
+        Wald test of the parameters (None: not testable).
+    rate_hz : float
+        Sample rate it was scored at [Hz].
+    """
 
     name: str
     reason: str | None = None            # why it could not be tested (None: it was)
@@ -61,11 +84,22 @@ class EffectScore:
 
     @property
     def tested(self) -> bool:
+        """Whether it was tested (applicable to the session)."""
         return self.reason is None
 
 
 def shrink(before: float, after: float) -> float:
-    """1 − after / before (NaN when there was no gap to shrink)."""
+    """1 − after / before (NaN when there was no gap to shrink).
+
+    Parameters
+    ----------
+    before, after : float
+        Gap without and with the effect [nats per sample].
+
+    Returns
+    -------
+    float
+    """
     return 1.0 - after / before if before > 0 else float("nan")
 
 
@@ -98,10 +132,12 @@ def rank(scores: list[EffectScore]) -> list[EffectScore]:
 
 
 def candidates(names=None) -> tuple:
+    """The candidate effects: ``names``, or every one when None."""
     return tuple(NAMES if names is None else names)
 
 
 def testable(evaluator, names) -> list[str]:
+    """Those of ``names`` the evaluator's session can test."""
     return [n for n in names if not unmet(BY_NAME[n], evaluator.session, evaluator.context)]
 
 
@@ -115,7 +151,20 @@ def rank_effects(evaluator, names=None, base: tuple = ()) -> list[EffectScore]:
 
 @dataclass
 class Selection:
-    """The stepwise combination and what each supported effect adds to it [nats]."""
+    """The stepwise combination and what each supported effect adds to it [nats].
+
+    Attributes
+    ----------
+    selected : list of str
+        The combination, in the order added.
+    joined : dict of str to float
+        Evidence of each selected effect in the round it was added [nats].
+    beyond : dict of str to float
+        Evidence each other supported effect still has on top of the final combination
+        [nats].
+    needed : dict of str to float
+        Evidence of each selected effect given all the others [nats].
+    """
 
     selected: list[str]
     joined: dict[str, float]      # evidence of each selected effect in the round it was added

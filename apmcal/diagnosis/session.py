@@ -35,6 +35,19 @@ class Segment:
 
     ``i0, i1`` is the half-open sample range; for a motion ``before``/``after`` are the indices of
     the holds around it (into ``Session.holds``).
+
+    Attributes
+    ----------
+    kind : str
+        "hold" or "motion".
+    index : int
+        Index among the holds, or among the motions.
+    i0, i1 : int
+        Half-open sample range.
+    label : str
+        E.g. "hold 3" (with its pose, when known), "move 2 (hold 2 → 3)".
+    before, after : int or None
+        For a motion, the holds around it.
     """
 
     kind: str
@@ -48,7 +61,19 @@ class Segment:
 
 @dataclass
 class Pieces:
-    """Contiguous sample ranges that are scored, with their segment and fold (arrays of length p)."""
+    """Contiguous sample ranges that are scored, with their segment and fold (arrays of length p).
+
+    Attributes
+    ----------
+    i0, i1 : (p,) int arrays
+        Half-open sample ranges.
+    segment : (p,) int array
+        Index into ``Session.segments``.
+    fold : (p,) int array
+        0 or 1.
+    is_hold : (p,) bool array
+        Whether the piece is part of a hold (else a motion).
+    """
 
     i0: np.ndarray
     i1: np.ndarray
@@ -57,7 +82,20 @@ class Pieces:
     is_hold: np.ndarray     # bool
 
     def select(self, fold: int | None = None, hold: bool | None = None) -> np.ndarray:
-        """Ids of the pieces in ``fold`` (both when None) of holds / motions / both."""
+        """Ids of the pieces in ``fold`` (both when None) of holds / motions / both.
+
+        Parameters
+        ----------
+        fold : int, optional
+            0 or 1 (None: both).
+        hold : bool, optional
+            True: hold pieces, False: motion pieces, None: both.
+
+        Returns
+        -------
+        (k,) int array
+            Piece ids, ascending.
+        """
         ok = np.ones(len(self.i0), bool)
         if fold is not None:
             ok &= self.fold == fold
@@ -71,7 +109,19 @@ class Pieces:
 
 @dataclass
 class MagAxis:
-    """Magnetometer samples on their own time axis and the pieces mapped onto it."""
+    """Magnetometer samples on their own time axis and the pieces mapped onto it.
+
+    Attributes
+    ----------
+    t : (m,) array
+        Sample times [s].
+    values : (m, 3) array
+        Field [mGauss], raw sensor frame.
+    i0, i1 : (p,) int arrays
+        Each piece's half-open sample range on this axis (i0 == i1: no sample in it).
+    current : (m,) array or None
+        Battery current [A] at the compass sample times.
+    """
 
     t: np.ndarray           # [s]
     values: np.ndarray      # (m, 3) [mGauss], raw sensor frame
@@ -82,7 +132,36 @@ class MagAxis:
 
 @dataclass
 class Session:
-    """Everything the diagnosis needs from one recording (sensor frame, SI units)."""
+    """Everything the diagnosis needs from one recording (sensor frame, SI units).
+
+    Attributes
+    ----------
+    source : str
+        The log file.
+    t : (n,) array
+        IMU sample times [s].
+    acc : (n, 3) array
+        Accelerometer [m/s²].
+    gyr : (n, 3) array
+        Gyroscope [rad/s].
+    holds : list of StaticSegment
+        The still periods.
+    segments : list of Segment
+        Holds and motions, in time order.
+    pieces : Pieces
+    temp : (n,) array or None
+        IMU temperature [°C].
+    current : (n,) array or None
+        Battery current [A].
+    mag : MagAxis or None
+    lat_deg, lon_deg : float or None
+        Site [deg].
+    date : datetime.date or None
+        Date of the recording (WMM epoch).
+    notes : list of str
+    integer_sensors : frozenset of str
+        Sensors whose log format stores integers.
+    """
 
     source: str
     t: np.ndarray                       # [s]
@@ -109,6 +188,7 @@ class Session:
 
     @property
     def duration(self) -> float:
+        """Time from the first sample to the last [s]."""
         return float(self.t[-1] - self.t[0])
 
     def hold_of_piece(self, piece: int) -> int | None:
@@ -118,7 +198,17 @@ class Session:
 
 
 def contiguous_runs(indices: np.ndarray) -> list[tuple[int, int]]:
-    """Half-open ranges of consecutive integers in a sorted index array."""
+    """Half-open ranges of consecutive integers in a sorted index array.
+
+    Parameters
+    ----------
+    indices : (k,) int array
+        Sorted sample indices.
+
+    Returns
+    -------
+    list of (int, int)
+    """
     if len(indices) == 0:
         return []
     breaks = np.flatnonzero(np.diff(indices) != 1) + 1
@@ -130,7 +220,22 @@ def contiguous_runs(indices: np.ndarray) -> list[tuple[int, int]]:
 def split_evenly(i0: int, i1: int, fs: float, max_piece_s: float,
                  min_piece_s: float) -> list[tuple[int, int]]:
     """``[i0, i1)`` cut into equal pieces of at most ``max_piece_s``, an even number of them when
-    two pieces of ``min_piece_s`` fit (one otherwise; none when even one does not fit)."""
+    two pieces of ``min_piece_s`` fit (one otherwise; none when even one does not fit).
+
+    Parameters
+    ----------
+    i0, i1 : int
+        Half-open sample range.
+    fs : float
+        Sample rate [Hz].
+    max_piece_s, min_piece_s : float
+        Longest and shortest piece [s].
+
+    Returns
+    -------
+    list of (int, int)
+        Half-open sample ranges of the pieces.
+    """
     n = i1 - i0
     if n < min_piece_s * fs:
         return []
@@ -144,7 +249,21 @@ def split_evenly(i0: int, i1: int, fs: float, max_piece_s: float,
 def scorable_holds(t: np.ndarray, holds: list,
                    min_piece_s: float = MIN_PIECE_S) -> tuple[list, int]:
     """The holds with at least one piece to score, and how many were too short: a hold
-    without pieces has no fitted orientation, so it belongs to the move it interrupts."""
+    without pieces has no fitted orientation, so it belongs to the move it interrupts.
+
+    Parameters
+    ----------
+    t : (n,) array
+        Sample times [s].
+    holds : list of StaticSegment
+    min_piece_s : float
+        Shortest piece [s].
+
+    Returns
+    -------
+    kept : list of StaticSegment
+    too_short : int
+    """
     fs = float(1.0 / np.median(np.diff(t)))
     kept = [h for h in holds if any(split_evenly(a, b, fs, MAX_PIECE_S, min_piece_s)
                                     for a, b in contiguous_runs(h.kept()))]
@@ -159,7 +278,30 @@ def cut_session(t: np.ndarray, holds: list, acc: np.ndarray | None = None, *,
                 max_piece_s: float = MAX_PIECE_S, min_piece_s: float = MIN_PIECE_S,
                 max_motion_s: float = MAX_MOTION_S) -> tuple[list[Segment], Pieces]:
     """Segments (holds and the moves between them) and their pieces with alternating folds;
-    with ``acc`` (n, 3), moves that carry linear acceleration are left out."""
+    with ``acc`` (n, 3), moves that carry linear acceleration are left out.
+
+    Parameters
+    ----------
+    t : (n,) array
+        Sample times [s].
+    holds : list of StaticSegment
+    acc : (n, 3) array, optional
+        Accelerometer [m/s²].
+    max_piece_s, min_piece_s : float
+        Longest and shortest piece [s].
+    max_motion_s : float
+        Longest move [s].
+
+    Returns
+    -------
+    segments : list of Segment
+    pieces : Pieces
+
+    Raises
+    ------
+    ApmcalError
+        When no hold has a piece of ``min_piece_s``.
+    """
     fs = float(1.0 / np.median(np.diff(t)))
     segments: list[Segment] = []
     rows: list[tuple[int, int, int, int, bool]] = []      # i0, i1, segment, fold, is_hold
@@ -202,14 +344,41 @@ def _add_motion(t, acc, holds, k, segments, rows, max_motion_s) -> None:
 
 
 def linear_acceleration(acc: np.ndarray, before, after) -> float:
-    """RMS departure of |acc| from the two holds' mean magnitude, in units of it."""
+    """RMS departure of |acc| from the two holds' mean magnitude, in units of it.
+
+    Parameters
+    ----------
+    acc : (k, 3) array
+        Accelerometer samples of the move [m/s²].
+    before, after : StaticSegment
+        The holds around it.
+
+    Returns
+    -------
+    float
+        Dimensionless (0.1: a tenth of the holds' magnitude).
+    """
     level = 0.5 * (np.linalg.norm(before.acc_mean) + np.linalg.norm(after.acc_mean))
     return float(np.sqrt(np.mean((np.linalg.norm(acc, axis=1) - level) ** 2)) / level)
 
 
 def map_pieces(t_imu: np.ndarray, t_other: np.ndarray, pieces: Pieces) -> tuple[np.ndarray,
                                                                                 np.ndarray]:
-    """Each piece's sample range on another time axis (same clock), by its first and last time."""
+    """Each piece's sample range on another time axis (same clock), by its first and last time.
+
+    Parameters
+    ----------
+    t_imu : (n,) array
+        IMU sample times [s].
+    t_other : (m,) array
+        The other axis's sample times [s], ascending.
+    pieces : Pieces
+
+    Returns
+    -------
+    i0, i1 : (p,) int arrays
+        Half-open ranges on the other axis (i0 == i1: no sample in the piece).
+    """
     i0 = np.searchsorted(t_other, t_imu[pieces.i0], side="left")
     i1 = np.searchsorted(t_other, t_imu[pieces.i1 - 1], side="right")
     return i0, np.maximum(i1, i0)
@@ -220,6 +389,12 @@ def session_from_log(contents, opts) -> Session:
 
     The samples are prepared exactly as for a calibration (firmware correction undone, only
     the samples after a calibration-parameter change kept); the holds are the calibration's.
+
+    Raises
+    ------
+    ApmcalError
+        Without gyroscope samples, without a still period long enough to score, or when one
+        fold would have no still piece.
     """
     from apmcal.pipeline import has_live_magnetometer, pick_recording, prepare, recording_date
     from apmcal.preprocessing.param_changes import split_at_param_changes

@@ -9,7 +9,15 @@ from apmcal.diagnosis.noise_fit import lattice_step
 
 
 def earth_field(session) -> tuple[float | None, float]:
-    """WMM field magnitude [mGauss] and declination [rad] at the site, when it is known."""
+    """WMM field magnitude [mGauss] and declination [rad] at the site, when it is known.
+
+    Returns
+    -------
+    field_mgauss : float or None
+        None without a compass or a full site (latitude and longitude).
+    declination_rad : float
+        0 when the field is not known.
+    """
     if session.mag is None or session.lat_deg is None or session.lon_deg is None:
         return None, 0.0
     import datetime
@@ -23,7 +31,13 @@ def earth_field(session) -> tuple[float | None, float]:
 
 def sample_sigma(session) -> dict:
     """Per-sample noise of the accelerometer and compass in the holds (robust: successive
-    differences, which cancel slow changes), to weight the move fits."""
+    differences, which cancel slow changes), to weight the move fits.
+
+    Returns
+    -------
+    dict
+        "acc" [m/s²] and, with a compass, "mag" [mGauss].
+    """
     from apmcal.preprocessing.resolution import noise_std
 
     pc = session.pieces
@@ -39,7 +53,14 @@ def sample_sigma(session) -> dict:
 def lattice_steps(session) -> dict:
     """Quantization step per axis of each sensor's hold samples (None: not on a lattice). In
     block means of rounded readings it is the step over the block length, which the twin's
-    rounding then reproduces (apmcal.diagnosis.decimate)."""
+    rounding then reproduces (apmcal.diagnosis.decimate).
+
+    Returns
+    -------
+    dict
+        "acc" [m/s²], "gyr" [rad/s] and, with a compass, "mag" [mGauss]: a (3,) array, or
+        None unless all three axes are on a lattice.
+    """
     pc = session.pieces
     ids = pc.select(hold=True)
     idx = np.concatenate([np.arange(a, b) for a, b in zip(pc.i0[ids], pc.i1[ids])])

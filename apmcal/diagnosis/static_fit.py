@@ -37,19 +37,51 @@ PRIOR_SIGMA = {"alpha": 0.05, "k2": 1e-3}
 
 
 def non_orthogonality(alpha) -> np.ndarray:
-    """Seed 002 §2.1 T_a for (α_yz, α_zy, α_zx) [rad], as sitl's acc_forward builds it."""
+    """Seed 002 §2.1 T_a for (α_yz, α_zy, α_zx) [rad], as sitl's acc_forward builds it.
+
+    Parameters
+    ----------
+    alpha : (3,) array
+        (α_yz, α_zy, α_zx) [rad].
+
+    Returns
+    -------
+    (3, 3) array
+        Upper-triangular T_a.
+    """
     a_yz, a_zy, a_zx = alpha
     return np.array([[1.0, -a_yz, a_zy], [0.0, 1.0, -a_zx], [0.0, 0.0, 1.0]])
 
 
 def symmetric(p) -> np.ndarray:
-    """Symmetric 3×3 matrix from (xx, yy, zz, xy, xz, yz)."""
+    """Symmetric 3×3 matrix from (xx, yy, zz, xy, xz, yz).
+
+    Parameters
+    ----------
+    p : (6,) array
+
+    Returns
+    -------
+    (3, 3) array
+    """
     xx, yy, zz, xy, xz, yz = p
     return np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
 
 
 def distinct_directions(vectors: np.ndarray, min_chord: float = MIN_CHORD) -> int:
-    """Number of directions at least ``min_chord`` apart (greedy clustering of unit vectors)."""
+    """Number of directions at least ``min_chord`` apart (greedy clustering of unit vectors).
+
+    Parameters
+    ----------
+    vectors : (k, 3) array
+        Vectors of any length and unit.
+    min_chord : float
+        Chord between two unit vectors that makes them distinct (0.5: about 29°).
+
+    Returns
+    -------
+    int
+    """
     units = vectors / np.linalg.norm(vectors, axis=1, keepdims=True)
     apart = _apart(units, min_chord)
     centres: list[int] = []
@@ -74,7 +106,19 @@ def _apart(units: np.ndarray, min_chord: float) -> np.ndarray:
 
 def count_orientations(blocks: Blocks, kind: str) -> int:
     """Distinct orientations among the hold groups (the magnetometer's about its hard-iron
-    centre, estimated by a sphere through the group means)."""
+    centre, estimated by a sphere through the group means).
+
+    Parameters
+    ----------
+    blocks : Blocks
+        The sensor's hold blocks.
+    kind : str
+        "acc" or "mag".
+
+    Returns
+    -------
+    int
+    """
     means = blocks.group_means(blocks.values)
     if kind == "mag":
         if len(means) < 4:
@@ -90,7 +134,29 @@ def count_orientations(blocks: Blocks, kind: str) -> int:
 
 @dataclass
 class GeometryFit:
-    """A fitted geometric sensor model (see the module docstring); arrays in sensor units."""
+    """A fitted geometric sensor model (see the module docstring); arrays in sensor units.
+
+    Attributes
+    ----------
+    offset : (3,) array
+        Offset b.
+    forward : (3, 3) array
+        Forward matrix F.
+    radius : float
+        Field magnitude r (gravity [m/s²] or Earth field [mGauss]).
+    k2 : (3,) array
+        Quadratic term per axis [1/sensor unit].
+    theta : (k, 3) array
+        Slow-regressor coefficients.
+    geometry : bool
+        False: free group means (too few orientations).
+    params : dict
+        Name → value (for the report).
+    sigma : dict
+        Name → one-sigma.
+    vector : array or None
+        The fitted parameter vector.
+    """
 
     offset: np.ndarray
     forward: np.ndarray             # F
@@ -104,7 +170,20 @@ class GeometryFit:
 
     def directions(self, blocks: Blocks, columns: np.ndarray) -> np.ndarray:
         """Orientation u_k of each group [unit vectors in the calibrated frame] (or, without
-        geometry, the group means of ȳ − b − Xθ, which are then the full prediction)."""
+        geometry, the group means of ȳ − b − Xθ, which are then the full prediction).
+
+        Parameters
+        ----------
+        blocks : Blocks
+            The sensor's blocks (every group).
+        columns : (b, k) array
+            Slow regressors at each block.
+
+        Returns
+        -------
+        (n_groups, 3) array
+            NaN rows for groups without blocks.
+        """
         z = blocks.values - self.offset - columns @ self.theta
         m = blocks.group_means(z)
         if not self.geometry:
@@ -115,7 +194,18 @@ class GeometryFit:
         """The unit vector(s) u whose reading F·r·u + k2 ⊙ (F·r·u)² is closest to z (rows,
         offset and θ removed): the quadratic term is taken off z first — otherwise its part
         across the field would tilt u and be lost from the fit — by the fixed point
-        s = z − k2 ⊙ s² (|k2·s| ≪ 1: two steps leave an error of order (k2·s)³)."""
+        s = z − k2 ⊙ s² (|k2·s| ≪ 1: two steps leave an error of order (k2·s)³).
+
+        Parameters
+        ----------
+        z : (g, 3) array
+            Readings, offset and θ removed [sensor unit].
+
+        Returns
+        -------
+        (g, 3) array
+            Unit vectors.
+        """
         s = z
         if np.any(self.k2):
             for _ in range(2):
@@ -124,7 +214,18 @@ class GeometryFit:
         return u / np.linalg.norm(u, axis=1, keepdims=True)
 
     def truth_of(self, u: np.ndarray) -> np.ndarray:
-        """F·r·u + k2 ⊙ (F·r·u)²: the sensor reading of orientation(s) u, before offset and θ."""
+        """F·r·u + k2 ⊙ (F·r·u)²: the sensor reading of orientation(s) u, before offset and θ.
+
+        Parameters
+        ----------
+        u : (g, 3) array
+            Unit vectors (without geometry: the group means, returned as they are).
+
+        Returns
+        -------
+        (g, 3) array
+            [sensor unit].
+        """
         if not self.geometry:
             return u
         s = (self.radius * u) @ self.forward.T
@@ -134,7 +235,22 @@ class GeometryFit:
                 ) -> np.ndarray:
         """Predicted samples given each sample's orientation row and regressor columns; with
         ``group`` (one index per sample) ``u_rows`` holds one orientation per group, mapped
-        through the sensor model once per group rather than once per sample."""
+        through the sensor model once per group rather than once per sample.
+
+        Parameters
+        ----------
+        u_rows : (n, 3) or (g, 3) array
+            Orientation of each sample, or of each group with ``group``.
+        columns : (n, k) array
+            Slow regressors at each sample.
+        group : (n,) int array, optional
+            Row of ``u_rows`` of each sample.
+
+        Returns
+        -------
+        (n, 3) array
+            [sensor unit].
+        """
         truth = self.truth_of(u_rows)
         if group is not None:
             truth = np.take(truth, group, axis=0)     # faster than truth[group]
@@ -174,14 +290,30 @@ def fit_geometry(blocks: Blocks, columns: np.ndarray, radius: float, *, kind: st
 
     Parameters
     ----------
-    blocks : Blocks of one sensor (holds of the training fold)
+    blocks : Blocks
+        Blocks of one sensor (holds of the training fold).
     columns : (b, k) array
         Slow regressors at each block (k may be 0).
     radius : float
         Field magnitude (gravity [m/s²] or Earth field [mGauss]).
-    kind : "acc" (diagonal scale, optional non-orthogonality) or "mag" (symmetric soft iron)
+    kind : {"acc", "mag"}
+        "acc" (diagonal scale, optional non-orthogonality) or "mag" (symmetric soft iron).
+    cross_axis : bool
+        Fit the accelerometer's non-orthogonality α [rad].
+    quadratic : bool
+        Fit the quadratic term k2.
+    start : GeometryFit, optional
+        A fit to start from.
+    with_sigma : bool
+        Compute the parameters' one-sigma.
     fixed : dict, optional
         Terms held at known values instead of fitted ("alpha", "k2"; found on the moves).
+
+    Returns
+    -------
+    GeometryFit
+        With free group means instead (``geometry`` False) when the blocks hold fewer than
+        ``MIN_ORIENTATIONS`` distinct orientations.
     """
     k = columns.shape[1]
     if count_orientations(blocks, kind) < MIN_ORIENTATIONS:
@@ -318,6 +450,19 @@ def weighted_lstsq(x: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[np.ndar
     Normal equations on RMS-scaled columns (k is small, b is thousands: far cheaper than an SVD
     of the whole design, and the scaling keeps columns as different as 1e-5 rad/s Earth-rate
     vectors and 300 s time offsets well conditioned); a pseudo-inverse for rank deficiency.
+
+    Parameters
+    ----------
+    x : (b, k) array
+        Design.
+    y : (b, c) array
+        Observations.
+    w : (b,) array
+        Weights.
+
+    Returns
+    -------
+    coef, sigma : (k, c) arrays
     """
     scale = np.sqrt(np.mean(x ** 2, axis=0))
     scale[scale == 0] = 1.0
@@ -335,7 +480,19 @@ def weighted_lstsq(x: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[np.ndar
 @dataclass
 class GyroFit:
     """Gyro hold model: offset [rad/s], per-axis column coefficients θ (k, 3) and whole-vector
-    coefficients (v,), with one-sigma uncertainties."""
+    coefficients (v,), with one-sigma uncertainties.
+
+    Attributes
+    ----------
+    offset : (3,) array
+        [rad/s].
+    theta : (k, 3) array
+        Per-axis column coefficients [rad/s per column unit].
+    vector_coef : (v,) array
+        Whole-vector coefficients.
+    sigma : dict
+        One-sigma of each: "offset" (3,), "theta" (k, 3), "vector_coef" (v,).
+    """
 
     offset: np.ndarray
     theta: np.ndarray
@@ -343,7 +500,13 @@ class GyroFit:
     sigma: dict = field(default_factory=dict)
 
     def predict(self, columns: np.ndarray, vectors: np.ndarray) -> np.ndarray:
-        """Predicted rate (n, 3) from columns (n, k) and vector regressors (n, v, 3)."""
+        """Predicted rate (n, 3) from columns (n, k) and vector regressors (n, v, 3).
+
+        Returns
+        -------
+        (n, 3) array
+            [rad/s].
+        """
         out = self.offset + columns @ self.theta
         if vectors.shape[1]:
             out = out + np.einsum("nvc,v->nc", vectors, self.vector_coef)
@@ -355,9 +518,16 @@ def fit_gyro(blocks: Blocks, columns: np.ndarray, vectors: np.ndarray) -> GyroFi
 
     Parameters
     ----------
-    blocks : gyro Blocks of the training holds
-    columns : (b, k) per-axis regressors
-    vectors : (b, v, 3) whole-vector regressors (e.g. Earth rate parts), v may be 0
+    blocks : Blocks
+        Gyro Blocks of the training holds.
+    columns : (b, k) array
+        Per-axis regressors.
+    vectors : (b, v, 3) array
+        Whole-vector regressors (e.g. Earth rate parts), v may be 0.
+
+    Returns
+    -------
+    GyroFit
     """
     nb, k, nv = len(blocks.t), columns.shape[1], vectors.shape[1]
     design = np.zeros((nb, 3, 3 + 3 * k + nv))

@@ -33,11 +33,13 @@ def verdict(result) -> str:
 
 
 def top_parts(parts: dict, total: float, n: int = 3) -> str:
+    """The ``n`` largest positive parts of a split, each with its share of ``total``."""
     items = sorted(parts.items(), key=lambda kv: -kv[1])[:n]
     return ", ".join(f"{k} {_pct(v, total)}" for k, v in items if v > 0) or "-"
 
 
 def print_summary(result, console) -> None:
+    """Print the summary of a result (module docstring)."""
     s = result.session
     temp = (f"; temperature {s['temperature_c'][0]:.1f}-{s['temperature_c'][1]:.1f} °C"
             if "temperature_c" in s else "")
@@ -80,6 +82,7 @@ def noise_line(axes: dict) -> str:
 
 
 def print_noise(result, console) -> None:
+    """The noise structure of the hold residuals, one line per sensor (:func:`noise_line`)."""
     if not result.noise_structure:
         return
     _say(console, "Noise of the hold residuals (IEEE 952 terms by GMWM, real vs twin):")

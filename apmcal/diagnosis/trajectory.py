@@ -23,7 +23,19 @@ DOWN = np.array([0.0, 0.0, 1.0])
 @dataclass
 class Trajectory:
     """Attitude R_nb (n, 3, 3) (sensor → NED), body rate (n, 3) [rad/s], hold index of each
-    sample (the hold before, for moves) and the per-hold vectors."""
+    sample (the hold before, for moves) and the per-hold vectors.
+
+    Attributes
+    ----------
+    rot : (n, 3, 3) array
+        Attitude R_nb at each IMU sample.
+    rate : (n, 3) array
+        Body rate [rad/s].
+    hold : (n,) int array
+        Hold index before or at each sample.
+    blend : (n,) array
+        0 at the hold before .. 1 at the hold after (moves), else 0.
+    """
 
     rot: np.ndarray
     rate: np.ndarray
@@ -38,7 +50,22 @@ def _unit(v):
 def attitude(up: np.ndarray, north: np.ndarray | None, heading_from: np.ndarray | None = None
              ) -> np.ndarray:
     """R_nb whose body "up" is ``up`` and body north is ``north`` (orthogonalised); without a
-    north, the one closest to ``heading_from`` (a previous attitude), or x turned horizontal."""
+    north, the one closest to ``heading_from`` (a previous attitude), or x turned horizontal.
+
+    Parameters
+    ----------
+    up : (3,) array
+        "Up" in the body frame (any length).
+    north : (3,) array or None
+        North in the body frame.
+    heading_from : (3, 3) array, optional
+        A previous attitude R_nb.
+
+    Returns
+    -------
+    (3, 3) array
+        R_nb; its rows are the NED axes in the body frame.
+    """
     up = _unit(up)
     if north is None:
         ref = heading_from.T[:, 0] if heading_from is not None else np.array([1.0, 0.0, 0.0])
@@ -53,7 +80,22 @@ def attitude(up: np.ndarray, north: np.ndarray | None, heading_from: np.ndarray 
 
 def hold_attitudes(holds, up_per_hold: np.ndarray, north_per_hold: np.ndarray | None
                    ) -> list[np.ndarray]:
-    """One attitude per hold; headings carried over hold to hold when there is no compass."""
+    """One attitude per hold; headings carried over hold to hold when there is no compass.
+
+    Parameters
+    ----------
+    holds : list
+        The holds (only their number is used).
+    up_per_hold : (n_holds, 3) array
+        "Up" of each hold in the body frame.
+    north_per_hold : (n_holds, 3) array or None
+        North of each hold (a non-finite row: none for that hold).
+
+    Returns
+    -------
+    list of (3, 3) arrays
+        R_nb of each hold.
+    """
     out: list[np.ndarray] = []
     for k in range(len(holds)):
         north = None if north_per_hold is None else north_per_hold[k]
@@ -64,7 +106,12 @@ def hold_attitudes(holds, up_per_hold: np.ndarray, north_per_hold: np.ndarray | 
 
 
 def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton products a·b of (n, 4) quaternions in scipy's scalar-last (x, y, z, w) order."""
+    """Hamilton products a·b of (n, 4) quaternions in scipy's scalar-last (x, y, z, w) order.
+
+    Returns
+    -------
+    (n, 4) array
+    """
     return np.stack(_hamilton(a.T, b.T), axis=1)
 
 
@@ -84,7 +131,19 @@ def prefix_products(q: np.ndarray, segment: np.ndarray | None = None) -> np.ndar
 
     ``segment`` (m,) int, non-decreasing: the products restart where it changes (P_i is then
     the product from the first quaternion of i's segment) — many short sequences scanned in
-    one pass instead of one Python loop each (the moves of a session: 50× fewer calls)."""
+    one pass instead of one Python loop each (the moves of a session: 50× fewer calls).
+
+    Parameters
+    ----------
+    q : (m, 4) array
+        Quaternions, scalar last.
+    segment : (m,) int array, optional
+
+    Returns
+    -------
+    (m, 4) array
+        The products P_i.
+    """
     if segment is None:
         p = q.copy()
         d = 1
@@ -119,7 +178,21 @@ def _segment_rounds(segment_bytes: bytes, dtype: str) -> tuple:
 
 def integrate_attitude(r0: np.ndarray, rate: np.ndarray, dt: np.ndarray) -> np.ndarray:
     """R_{i+1} = R_i·Exp(ω_i·Δt_i) from R_0 = ``r0`` (body rates ω_i over step i, e.g. the
-    mean of the step's end samples); returns (m + 1, 3, 3)."""
+    mean of the step's end samples); returns (m + 1, 3, 3).
+
+    Parameters
+    ----------
+    r0 : (3, 3) array
+        Starting attitude.
+    rate : (m, 3) array
+        Body rate over each step [rad/s].
+    dt : (m,) array
+        Step lengths [s].
+
+    Returns
+    -------
+    (m + 1, 3, 3) array
+    """
     steps = Rotation.from_rotvec(rate * dt[:, None]).as_quat()
     out = np.empty((len(rate) + 1, 3, 3))
     out[0] = r0
@@ -131,7 +204,23 @@ def integrate_attitude(r0: np.ndarray, rate: np.ndarray, dt: np.ndarray) -> np.n
 def corrected_move(r_start, r_end, rate, dt) -> tuple[np.ndarray, np.ndarray]:
     """Attitudes (m + 1, 3, 3) of a move that follows ``rate`` and ends exactly at ``r_end``:
     the end error Log(R_intᵀ·R_end) [rad, body frame], also returned, is spread linearly in
-    time."""
+    time.
+
+    Parameters
+    ----------
+    r_start, r_end : (3, 3) arrays
+        Attitudes of the holds before and after.
+    rate : (m, 3) array
+        Body rate over each step [rad/s].
+    dt : (m,) array
+        Step lengths [s].
+
+    Returns
+    -------
+    path : (m + 1, 3, 3) array
+    error : (3,) array
+        End error before the correction [rad].
+    """
     r_int = integrate_attitude(r_start, rate, dt)
     error = Rotation.from_matrix(r_int[-1].T @ r_end).as_rotvec()
     s = np.concatenate(([0.0], np.cumsum(dt))) / max(float(np.sum(dt)), 1e-12)
@@ -145,6 +234,18 @@ def body_rates(rot: np.ndarray, t: np.ndarray) -> np.ndarray:
 
     A gyro samples the rate at its own instant, as the real one does; a forward difference
     would put the twin's gyro half a sample ahead of its accelerometer.
+
+    Parameters
+    ----------
+    rot : (n, 3, 3) array
+        Attitudes.
+    t : (n,) array
+        Their times [s].
+
+    Returns
+    -------
+    (n, 3) array
+        [rad/s]; the first and last sample take their one neighbouring step's rate.
     """
     if len(t) < 2:
         return np.zeros((len(t), 3))
@@ -158,7 +259,20 @@ def body_rates(rot: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 def build(session, hold_rot: list[np.ndarray], gyro_rate: np.ndarray) -> Trajectory:
     """The trajectory at the IMU sample times; ``gyro_rate`` (n, 3) is the calibrated gyro
-    [rad/s] that moves follow."""
+    [rad/s] that moves follow.
+
+    Parameters
+    ----------
+    session : Session
+    hold_rot : list of (3, 3) arrays
+        Attitude of each hold (:func:`hold_attitudes`).
+    gyro_rate : (n, 3) array
+        [rad/s].
+
+    Returns
+    -------
+    Trajectory
+    """
     n = len(session.t)
     rot = np.empty((n, 3, 3))
     rate = np.zeros((n, 3))        # holds keep one attitude: only moves turn
@@ -192,6 +306,20 @@ def carried(traj: Trajectory, hold_rot: list[np.ndarray], vectors: np.ndarray,
 
     ``still_holds``: the attitude is exactly the hold's outside the moves (no tremor added), so
     those samples take the hold's vector as it is and only the moves are rotated.
+
+    Parameters
+    ----------
+    traj : Trajectory
+    hold_rot : list of (3, 3) arrays
+        Attitude of each hold.
+    vectors : (n_holds, 3) array
+        Each hold's vector in the body frame (e.g. specific force [m/s²], field [mGauss]).
+    still_holds : bool
+
+    Returns
+    -------
+    (n, 3) array
+        In the unit of ``vectors``.
     """
     out = np.take(np.asarray(vectors), traj.hold, axis=0)     # faster than [traj.hold]
     turning = traj.blend > 0 if still_holds else np.ones(len(out), bool)
@@ -209,7 +337,22 @@ def with_hold_motion(traj: Trajectory, session, rate: np.ndarray, turn: np.ndarr
                      ) -> Trajectory:
     """The trajectory with a small motion inside each hold: attitude R_k·``turn`` (the holds'
     rotations, :func:`apmcal.diagnosis.hold_motion.hold_rotations`) and the body rate ``rate``
-    [rad/s] there."""
+    [rad/s] there.
+
+    Parameters
+    ----------
+    traj : Trajectory
+    session : Session
+    rate : (n, 3) array
+        Rate of the motion [rad/s].
+    turn : (n, 3, 3) array
+        Its rotations.
+
+    Returns
+    -------
+    Trajectory
+        A new one; ``traj`` is left as it is.
+    """
     inside = np.zeros(len(rate), bool)
     for h in session.holds:
         inside[h.i0:h.i1] = True

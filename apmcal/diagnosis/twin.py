@@ -26,7 +26,19 @@ TWIN_SEEDS = 0x7D1A << 32
 
 
 def twin_truth(fit: ModelFit, noise, fs: float):
-    """The fitted model as sitl's Truth (sensor frame = board frame, no mounting rotation)."""
+    """The fitted model as sitl's Truth (sensor frame = board frame, no mounting rotation).
+
+    Parameters
+    ----------
+    fit : ModelFit
+    noise : NoiseModel
+    fs : float
+        The log's sample rate [Hz] (sitl's noise densities are set for it).
+
+    Returns
+    -------
+    sitl.truth.Truth
+    """
     from sitl.truth import DIAGNOSIS_EFFECTS, NOMINAL_EFFECTS, Truth
 
     truth = Truth()
@@ -120,7 +132,15 @@ def _noise_truth(truth, noise, fs: float, on: set) -> None:
 
 
 def motion_of(session, fit: ModelFit) -> tuple[list, "trajectory.Trajectory"]:
-    """Hold attitudes and the trajectory of the session, as ``fit`` sees them."""
+    """Hold attitudes and the trajectory of the session, as ``fit`` sees them.
+
+    Returns
+    -------
+    hold_rot : list of (3, 3) arrays
+        Attitude R_nb of each hold.
+    trajectory : Trajectory
+        At the IMU sample times, moves following the calibrated gyro.
+    """
     n_holds = len(session.holds)
     up = per_hold(fit.up, n_holds)
     north = per_hold(fit.north, n_holds) if fit.north is not None else None
@@ -136,6 +156,23 @@ def simulate(session, fit: ModelFit, noise, seed: int = 0, motion_path=None):
     and moves are the same for every model of a session, so an evaluator builds them once.
     The real motion inside the holds (``fit.hold_motion``, when ``motion_contamination`` is
     modelled) is the twin's too.
+
+    Parameters
+    ----------
+    session : Session
+    fit : ModelFit
+    noise : NoiseModel
+    seed : int
+        Offset of the twin's noise seed from ``TWIN_SEEDS``.
+    motion_path : tuple, optional
+        (hold attitudes, trajectory) of :func:`motion_of`.
+
+    Returns
+    -------
+    twin : Session
+        acc [m/s²], gyr [rad/s] (and mag [mGauss]) simulated at the real sample times.
+    truth : sitl.truth.Truth
+        The error model that made them.
     """
     from sitl.errors_model import ImuErrorModel
 

@@ -25,7 +25,24 @@ SITL_SENSOR_RATE_HZ = 1000.0     # sitl.vehicle.SimVehicle's default fs
 
 def warmup_curve(t: np.ndarray, temp: np.ndarray) -> tuple[float, float, float]:
     """(T_amb [°C], ΔT [K], τ [s]) of T = T_amb + ΔT·(1 − e^(−t/τ)) fitted to a log's
-    temperatures; a flat curve when the fit fails or the temperature hardly changes."""
+    temperatures; a flat curve when the fit fails or the temperature hardly changes.
+
+    Parameters
+    ----------
+    t : (n,) array
+        Time since the start of the log [s].
+    temp : (n,) array
+        Temperatures [°C].
+
+    Returns
+    -------
+    ambient_c : float
+        T_amb [°C].
+    rise_k : float
+        ΔT [K].
+    tau_s : float
+        τ [s].
+    """
     mean = float(np.nanmean(temp))
     if np.nanmax(temp) - np.nanmin(temp) < 0.2:
         return mean, 0.0, 240.0
@@ -42,7 +59,19 @@ def warmup_curve(t: np.ndarray, temp: np.ndarray) -> tuple[float, float, float]:
 
 
 def power_gain(fs: float, cutoff_hz: float | None) -> float:
-    """Mean |H(f)|² over 0..fs/2 of sitl's 2nd-order Butterworth (1 without a filter)."""
+    """Mean |H(f)|² over 0..fs/2 of sitl's 2nd-order Butterworth (1 without a filter).
+
+    Parameters
+    ----------
+    fs : float
+        Sample rate [Hz].
+    cutoff_hz : float or None
+        Cut-off [Hz] (None, or at or above fs/2: no filter).
+
+    Returns
+    -------
+    float
+    """
     if cutoff_hz is None or cutoff_hz >= fs / 2:
         return 1.0
     b, a = butter(2, cutoff_hz / (fs / 2))
@@ -51,7 +80,22 @@ def power_gain(fs: float, cutoff_hz: float | None) -> float:
 
 
 def sitl_density(sigma: np.ndarray, log_fs: float, cutoff_hz: float | None) -> np.ndarray:
-    """sitl noise density [unit/√Hz] at 1 kHz giving the log's per-sample variance at its rate."""
+    """sitl noise density [unit/√Hz] at 1 kHz giving the log's per-sample variance at its rate.
+
+    Parameters
+    ----------
+    sigma : (3,) array
+        White noise per sample before the low-pass [unit].
+    log_fs : float
+        The log's sample rate [Hz].
+    cutoff_hz : float or None
+        Low-pass cut-off [Hz].
+
+    Returns
+    -------
+    (3,) array
+        [unit/√Hz].
+    """
     variance = np.asarray(sigma) ** 2 * power_gain(log_fs, cutoff_hz)
     unit = (SITL_SENSOR_RATE_HZ / 2) * power_gain(SITL_SENSOR_RATE_HZ, cutoff_hz)
     return np.sqrt(variance / unit)
@@ -89,7 +133,13 @@ def _temperature(truth, fit, session) -> None:
 
 
 def write_twin(diagnosis, path) -> None:
-    """Write the twin file (see the module docstring)."""
+    """Write the twin file (see the module docstring).
+
+    Raises
+    ------
+    ApmcalError
+        When the file cannot be written.
+    """
     truth = standalone_truth(diagnosis)
     result = diagnosis.result
     extra = {"twin": {"source": result.source, "selected": result.selected,
