@@ -451,8 +451,9 @@ def fit_channels(v: np.ndarray, n: np.ndarray, fs: float, *, cutoff_hz: float | 
 
 
 def lattice_step(x: np.ndarray, min_fraction: float = 0.9) -> float | None:
-    """The quantization step of samples on a lattice (their most common non-zero successive
-    difference, when ``min_fraction`` of the differences are multiples of it), else None.
+    """The quantization step of samples on a lattice (their smallest non-zero successive
+    difference, when ``min_fraction`` of the differences are multiples of it and their median
+    is at most 50 steps), else None.
 
     Parameters
     ----------

@@ -20,7 +20,7 @@ gyro misalignment     0.05 rad                                cross-axis sensiti
 delay                 0.05 s                                  acc and gyro sampled together
 g-sensitivity         2e-3 rad/s per m/s² (≈ 1.1 °/s/g)        linear acceleration sens. 0.1 °/s/g
 gyro temperature      5e-3 rad/s per K                        ZRO variation ±20 °/s over 125 K
-acc temperature       0.05 m/s² per K                         zero-G change ±35 mg/°C (z)
+acc temperature       0.05 m/s² per K                         zero-G ±35 mg (x, y), ±60 (z) in 0-70 °C
 bias drift            1e-4 rad/s per s                        -
 Earth rate            up to twice Ω in each part              -
 ====================  ======================================  ================================

@@ -23,7 +23,8 @@ DOWN = np.array([0.0, 0.0, 1.0])
 @dataclass
 class Trajectory:
     """Attitude R_nb (n, 3, 3) (sensor → NED), body rate (n, 3) [rad/s], hold index of each
-    sample (the hold before, for moves) and the per-hold vectors.
+    sample (the hold before, for moves) and how far each move has gone from the hold before
+    to the hold after.
 
     Attributes
     ----------
