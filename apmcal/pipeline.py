@@ -215,16 +215,18 @@ def calibrate(recording: Recording, opts: Options | None = None,
         raise ApmcalError("recording has no accelerometer samples", recording.source)
     prepared = prepare(recording, opts.generation)
     if opts.method == "joint":
-        return joint_calibration_of(prepared, mag_recording, opts)
+        return joint_calibration_of(prepared, separate_compass(prepared, mag_recording, opts),
+                                    opts)
     segments, fallback = find_holds(prepared, opts), []
     if opts.method == "auto" and segments and choose_method(
             segments, has_gyro_and_compass(prepared, mag_recording)) == "joint":
+        mag_prepared = separate_compass(prepared, mag_recording, opts)
         try:
-            cal = joint_calibration_of(prepared, mag_recording, opts)
+            cal = joint_calibration_of(prepared, mag_prepared, opts)
         except ApmcalError as err:
             fallback = [f"joint calibration not possible ({err.why}); the ellipsoid fit is used"]
         else:
-            return with_own_compass_fit(cal, prepared, mag_recording, opts)
+            return with_own_compass_fit(cal, prepared, mag_prepared, opts)
     try:
         cal = inertial_calibration(prepared, opts, segments)
     except ApmcalError as err:
@@ -239,15 +241,36 @@ def calibrate(recording: Recording, opts: Options | None = None,
     return cal
 
 
-def joint_calibration_of(prepared: Prepared, mag_recording: Recording | None,
+def separate_compass(prepared: Prepared, mag_recording: Recording | None,
+                     opts: Options) -> Prepared | None:
+    """A separate compass record (dataflash MAG) prepared once for the joint path; None when
+    there is none or it is the IMU's own record.
+
+    Parameters
+    ----------
+    prepared : Prepared
+        The IMU recording, prepared.
+    mag_recording : Recording or None
+    opts : Options
+
+    Returns
+    -------
+    Prepared or None
+    """
+    if mag_recording is None or mag_recording is prepared.raw:
+        return None
+    return prepare(mag_recording, opts.generation)
+
+
+def joint_calibration_of(prepared: Prepared, mag_prepared: Prepared | None,
                          opts: Options) -> Calibration:
     """Seed 001's joint calibration of IMU and compass (:mod:`apmcal.joint_pipeline`).
 
     Parameters
     ----------
     prepared : Prepared
-    mag_recording : Recording or None
-        A separate compass record.
+    mag_prepared : Prepared or None
+        A separate compass record, prepared (:func:`separate_compass`).
     opts : Options
 
     Returns
@@ -262,9 +285,6 @@ def joint_calibration_of(prepared: Prepared, mag_recording: Recording | None,
     """
     from apmcal.joint_pipeline import joint_on_prepared
 
-    mag_prepared = None
-    if mag_recording is not None and mag_recording is not prepared.raw:
-        mag_prepared = prepare(mag_recording, opts.generation)
     cal = joint_on_prepared(prepared, mag_prepared, opts)
     cal.report.warnings.extend(prepared.warnings)
     if mag_prepared is not None:
@@ -298,7 +318,7 @@ def find_holds(prepared: Prepared, opts: Options) -> list:
     return find_static_segments(raw.t, raw.xyz("acc"), gyr, min_duration=opts.min_still_s)
 
 
-def with_own_compass_fit(cal: Calibration, prepared: Prepared, mag_recording: Recording | None,
+def with_own_compass_fit(cal: Calibration, prepared: Prepared, mag_prepared: Prepared | None,
                          opts: Options) -> Calibration:
     """The joint result with its compass replaced by the compass's own ellipsoid fit (auto).
 
@@ -313,7 +333,8 @@ def with_own_compass_fit(cal: Calibration, prepared: Prepared, mag_recording: Re
     cal : Calibration
         The joint result, changed in place.
     prepared : Prepared
-    mag_recording : Recording or None
+    mag_prepared : Prepared or None
+        A separate compass record, prepared (:func:`separate_compass`).
     opts : Options
 
     Returns
@@ -322,8 +343,7 @@ def with_own_compass_fit(cal: Calibration, prepared: Prepared, mag_recording: Re
         ``cal``.
     """
     joint_mag = cal.sensors.pop("mag", None)
-    source = (prepared if has_live_magnetometer(prepared.raw)
-              else prepare(mag_recording, opts.generation))      # its warnings already given
+    source = prepared if has_live_magnetometer(prepared.raw) else mag_prepared
     add_magnetometer(cal, source, opts)
     if "mag" in cal.sensors:
         cal.report.joint.compass_own_fit = True

@@ -15,6 +15,7 @@ import dataclasses
 import numpy as np
 
 from apmcal.diagnosis.session import MagAxis, Pieces, Segment, Session, map_pieces
+from apmcal.preprocessing.decimation import block_means
 
 SLOW_RATE_HZ = 100.0    # the rate slow effects are scored at, when the recording is faster
 FINE_EFFECTS = ("quantization", "lowpass_filter", "uniform_noise")
@@ -44,27 +45,6 @@ def block_factor(fs: float, target_hz: float = SLOW_RATE_HZ) -> int:
     while fs / (2 * k) >= target_hz * 0.99:
         k *= 2
     return k
-
-
-def block_means(x: np.ndarray | None, k: int) -> np.ndarray | None:
-    """Means of ``k`` consecutive rows (a trailing partial block is dropped).
-
-    Parameters
-    ----------
-    x : (n, ...) array or None
-        Samples, one per row (any unit).
-    k : int
-        Block length [samples].
-
-    Returns
-    -------
-    (n // k, ...) array or None
-        Block means in the unit of ``x``; None when ``x`` is.
-    """
-    if x is None:
-        return None
-    n = len(x) // k
-    return x[:n * k].reshape(n, k, *x.shape[1:]).mean(axis=1)
 
 
 def _inner(i0, i1, k: int):
