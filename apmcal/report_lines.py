@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from apmcal.solvers.coverage import MIN_SCATTER_FULL
 from apmcal.solvers.report_types import (
     CalibrationReport,
     Debias,
@@ -19,7 +20,6 @@ from apmcal.solvers.report_types import (
     OnePositionFit,
 )
 
-MIN_SCATTER_FULL = 0.05    # = ellipsoid_robust.MIN_SCATTER_FULL: off-diagonals not determinable
 UNEVEN_COVERAGE = 0.3      # smallest coverage eigenvalue below which the fit leans to one side
 LARGE_RESIDUAL = 0.05      # robust σ of |calibrated| above this share of the field
 MANY_OUTLIERS = 0.05       # share of samples beyond 5σ

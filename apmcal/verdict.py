@@ -18,7 +18,7 @@ Thresholds, and why (1σ values, as reported):
   demands), usable ≤ 0.01 rad/s, else redo. A gyro matrix left at identity (no full turns) is
   usable: ArduPilot has no gyro scale parameter, only the report loses it.
 * Compass: coverage first. Samples nearly in one plane (smallest direction eigenvalue below
-  MIN_MAG_EIG, the ellipsoid fit's own limit for trusting cross-axis terms) is redo; under
+  MIN_SCATTER_FULL, the ellipsoid fit's own limit for trusting cross-axis terms) is redo; under
   MIN_MAG_FRACTION of the sphere within 20° of a sample is usable. Offset σ: good ≤ 1 % of the
   field (a 0.6° heading error at most), usable ≤ 5 % (3°), else redo.
 * A sensor the method could not determine, or could not calibrate at all, or whose parameters
@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from apmcal.solvers.coverage import MIN_SCATTER_FULL
 from apmcal.solvers.report_types import CalibrationReport, MagneticField
 
 GRADES = ("good", "usable", "redo")
@@ -40,7 +41,6 @@ ACC_MATRIX_SIGMA = (0.005, 0.02)      # dimensionless
 GYR_OFFSET_SIGMA = (0.002, 0.01)      # rad/s
 MAG_OFFSET_SIGMA = (0.01, 0.05)       # fraction of the field magnitude
 MISFIT_BIRGE = 3.0                    # checks beyond 3× their noise: the model does not fit
-MIN_MAG_EIG = 0.05                    # = ellipsoid_robust.MIN_SCATTER_FULL
 MIN_MAG_FRACTION = 0.5                # half the sphere within 20° of a sample
 
 SIX_FACES = ("hold the vehicle still on each of its six faces (level, on its back, each side, "
@@ -188,7 +188,7 @@ def compass(cal, report: CalibrationReport) -> Verdict:
     min_eig = 1.0 if mf.coverage_min_eig is None else mf.coverage_min_eig
     fraction = 1.0 if mf.coverage_fraction is None else mf.coverage_fraction
     found = []
-    if min_eig < MIN_MAG_EIG:
+    if min_eig < MIN_SCATTER_FULL:
         found.append(Verdict("redo", "the compass was barely turned: its readings lie close to "
                                      "one plane, so offsets and soft iron across it are "
                                      "guesses", TURN_COMPASS))

@@ -5,6 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
+# smallest eigenvalue of 3·mean(n nᵀ) below which the directions do not determine an
+# ellipsoid's off-diagonal terms (the fit drops them; the report and the verdict say so)
+MIN_SCATTER_FULL = 0.05
+
 
 def direction_coverage(samples, offset, n_grid: int = 200, cone_deg: float = 20.0,
                        fraction: bool = True, fraction_samples: int | None = None) -> dict:

@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from apmcal.errors import ApmcalError
-from apmcal.solvers.coverage import direction_coverage
+from apmcal.solvers.coverage import MIN_SCATTER_FULL, direction_coverage
 from apmcal.solvers.ellipsoid_lm import Problem, loss_weights, residual, residual_jacobian
 from apmcal.solvers.ellipsoid_lm import solve as lm_solve
 from apmcal.solvers.ellipsoid_paper import (
@@ -41,7 +41,6 @@ from apmcal.solvers.result import SensorCalibration
 from apmcal.solvers.uncertainty import bootstrap, covariance_from_normal_equations
 
 ENTRIES = {"symmetric": SYMMETRIC_ENTRIES, "upper": UPPER_ENTRIES, "diagonal": DIAGONAL_ENTRIES}
-MIN_SCATTER_FULL = 0.05    # min eigenvalue of 3·mean(nnᵀ) below which off-diagonals are dropped
 MAX_COND = 1e6             # Jacobian condition number above which the full fit is not trusted
 PRESOLVE_SAMPLES = 20_000  # samples of the first, subsampled pass of a fit from a far start
 
