@@ -26,6 +26,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from apmcal.diagnosis.blocks import Blocks
+from apmcal.diagnosis.memo import ContentMemo, digest
 from apmcal.solvers.uncertainty import covariance_from_jacobian
 
 MIN_ORIENTATIONS = 6        # distinct group directions for an offset + scale geometry
@@ -34,6 +35,10 @@ MIN_CHORD = 0.5             # two directions are distinct when their unit vector
 # non-orthogonality of a few mrad; k2 = 1e-3 /(m/s²) is 0.1 m/s² at 1 g, five times sitl's
 # default), so they only hold still the combinations six axis-aligned faces cannot see
 PRIOR_SIGMA = {"alpha": 0.05, "k2": 1e-3}
+# geometric fits by the content of their inputs: most models of a session leave one sensor's
+# hold data (real, and then its twin's) as the nominal model has it — two thirds of the fits
+# of a 400 Hz session's diagnosis repeat one made before
+_GEOMETRY_FITS = ContentMemo("geometry_fits", 512)
 
 
 def non_orthogonality(alpha) -> np.ndarray:
@@ -315,6 +320,21 @@ def fit_geometry(blocks: Blocks, columns: np.ndarray, radius: float, *, kind: st
         With free group means instead (``geometry`` False) when the blocks hold fewer than
         ``MIN_ORIENTATIONS`` distinct orientations.
     """
+    key = digest(blocks.values, blocks.count, blocks.group, blocks.n_groups, columns,
+                 float(radius), kind, cross_axis, quadratic, with_sigma, fixed,
+                 None if start is None else (start.vector, start.geometry, start.offset,
+                                             start.forward))
+    fit = _GEOMETRY_FITS.get(key)
+    if fit is None:
+        fit = _fit_geometry(blocks, columns, radius, kind, cross_axis, quadratic, start,
+                            with_sigma, fixed)
+        _GEOMETRY_FITS.put(key, fit)
+    return fit
+
+
+def _fit_geometry(blocks: Blocks, columns: np.ndarray, radius: float, kind: str,
+                  cross_axis: bool, quadratic: bool, start: GeometryFit | None,
+                  with_sigma: bool, fixed: dict | None) -> GeometryFit:
     k = columns.shape[1]
     if count_orientations(blocks, kind) < MIN_ORIENTATIONS:
         return _fit_free_means(blocks, columns, radius)

@@ -3,7 +3,9 @@
 Workers are forked, so they inherit the object (a session and what is cached so far) without
 it being sent; only the jobs' results travel back. A large result travels through a file in
 memory (/dev/shm), not through the pool's pipe: on this kind of machine (a virtual 2-core box)
-the pipe moved about 35 MB/s — two 28 MB motion paths took 1.6 s, a file 0.1 s.
+the pipe moved about 35 MB/s — two 28 MB motion paths took 1.6 s, a file 0.1 s. With each
+result come the entries the job added to the memos of :mod:`apmcal.diagnosis.memo`, which this
+process keeps: workers forked later start with them.
 """
 from __future__ import annotations
 
@@ -13,6 +15,8 @@ import os
 import pickle
 import tempfile
 from dataclasses import dataclass
+
+from apmcal.diagnosis import memo
 
 SHIP_BY_FILE_BYTES = 1 << 20    # results at least this large [bytes] travel through a file
 
@@ -92,7 +96,9 @@ def _call(job):
     global _IN_WORKER
     _IN_WORKER = True
     method, args = job
-    data = pickle.dumps(getattr(_TARGET, method)(*args), protocol=pickle.HIGHEST_PROTOCOL)
+    memo.start_recording()
+    result = getattr(_TARGET, method)(*args)
+    data = pickle.dumps((result, memo.recorded()), protocol=pickle.HIGHEST_PROTOCOL)
     if len(data) < SHIP_BY_FILE_BYTES or _SHIP_DIR is None:
         return data
     fd, path = tempfile.mkstemp(dir=_SHIP_DIR, suffix=".pickle")
@@ -105,4 +111,6 @@ def _unship(item):
     if isinstance(item, _Shipped):
         with open(item.path, "rb") as f:
             item = f.read()
-    return pickle.loads(item)
+    result, memo_entries = pickle.loads(item)
+    memo.keep(memo_entries)
+    return result
