@@ -147,3 +147,30 @@ def test_the_twin_of_the_board_behaves_like_it(diagnosed, tmp_path):
     for key, value in fitted.items():
         np.testing.assert_allclose(value, real["effects"][0]["params"][key]["value"],
                                    rtol=0.1, atol=2e-6 if key == "gyro_coef" else 2e-4)
+
+
+def test_the_log_read_in_a_worker_is_the_log_read_here():
+    """diagnose_file reads and cuts the log in a forked process: what comes back is the
+    session this process would have made, array for array."""
+    from dataclasses import fields
+
+    from apmcal.diagnosis import workers
+    from apmcal.diagnosis.cli import LogReading
+    from apmcal.diagnosis.session import session_from_log
+    from apmcal.pipeline import Options
+    from apmcal.sources import read_log
+
+    opts = Options(lat_deg=5.6037, lon_deg=-0.187)
+    _, [(there, warnings, error)] = workers.beside(LogReading(str(SAMPLE), opts),
+                                                  [("session", ())], lambda: None)
+    here = session_from_log(read_log(SAMPLE), opts)
+    assert error is None and isinstance(warnings, list)
+    for f in fields(here):
+        a, b = getattr(here, f.name), getattr(there, f.name)
+        if isinstance(a, np.ndarray):
+            assert np.array_equal(a, b, equal_nan=True), f.name
+    assert np.array_equal(here.pieces.i0, there.pieces.i0)
+    assert [(h.i0, h.i1) for h in here.holds] == [(h.i0, h.i1) for h in there.holds]
+    _, [(none, _, refused)] = workers.beside(LogReading("/nonexistent/x.bin", opts),
+                                            [("session", ())], lambda: None)
+    assert none is None and "/nonexistent/x.bin" in str(refused)

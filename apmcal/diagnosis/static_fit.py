@@ -256,10 +256,12 @@ class GeometryFit:
         (n, 3) array
             [sensor unit].
         """
-        truth = self.truth_of(u_rows)
+        # the offset added once per group before the rows are gathered, and no product of an
+        # empty column set (zeros): the same values, 2 fewer passes over the samples
+        out = self.truth_of(u_rows) + self.offset
         if group is not None:
-            truth = np.take(truth, group, axis=0)     # faster than truth[group]
-        return truth + self.offset + columns @ self.theta
+            out = np.take(out, group, axis=0)         # faster than out[group]
+        return out + columns @ self.theta if columns.shape[1] else out
 
 
 class _Layout:
