@@ -1,6 +1,6 @@
 """How long ``apmcal gap`` takes on a ten-minute 400 Hz session, stage by stage.
 
-    python benchmarks/gap_speed.py [--rate 400] [--seconds S]
+    python benchmarks/gap_speed.py [--rate 400] [--seconds S] [--runs 3] [--before REV]
 
 The session is simulated once with sitl (the ``diagnosis`` script, 635 s, or padded to
 ``--seconds`` with a still hold; the nominal errors plus temperature drift, a board warming
@@ -8,17 +8,25 @@ up) and kept in ``benchmarks/_data/``. Printed: the time to read it, to cut it i
 moves, to score the nominal model, to rank every candidate, to select a combination, to fit
 the parameters on all the data, and in all; and, as the peer measured in the same run,
 pymavlink's DFReader reading the same file's IMU records; then the whole command as a user runs
-it, in a fresh process (imports included). Issue 8's target: under 10 s on this 2-core machine.
+it, in a fresh process (imports included), ``--runs`` times, alternating with the same command of
+revision ``--before`` (its apmcal and sitl exported with ``git archive``; default: main before the
+speed work of 2026-11-24), so that both see the same machine load. Issue 8's target: under 10 s on
+this 2-core machine.
 """
 from __future__ import annotations
 
 import argparse
+import os
+import resource
+import statistics
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / "_data"
+BEFORE = "e130e47"      # main before the memo and the log read beside the imports
 
 
 def make_session(path: Path, rate: float, seconds: float) -> None:
@@ -44,13 +52,32 @@ def pymavlink_read(path: Path) -> float:
     return time.perf_counter() - start
 
 
-def whole_command(path: Path) -> float:
-    """Wall time of ``apmcal gap FILE`` as a user runs it: a fresh Python, the imports
-    (scipy, pandas, sitl), the diagnosis and the printed summary [s]."""
+def export_tree(rev: str) -> Path:
+    """``rev``'s apmcal and sitl (git archive) under benchmarks/_data, once per commit."""
+    commit = subprocess.run(["git", "rev-parse", rev], cwd=ROOT, check=True, capture_output=True,
+                            text=True).stdout.strip()
+    tree = DATA / f"tree-{commit[:12]}"
+    if not (tree / "sitl").is_dir():
+        tree.mkdir(parents=True, exist_ok=True)
+        archive = subprocess.run(["git", "archive", commit, "apmcal", "sitl"], cwd=ROOT,
+                                 check=True, capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
+    return tree
+
+
+def whole_command(path: Path, tree: Path = ROOT) -> tuple[float, float]:
+    """Wall time of ``apmcal gap FILE`` as a user runs it — a fresh Python, the imports
+    (scipy, pandas, sitl), the diagnosis and the printed summary — and the CPU time it took,
+    user and system, its workers included [s]; ``tree``'s apmcal and sitl (run from
+    benchmarks/_data: ``python -m`` would put the current directory first)."""
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     subprocess.run([sys.executable, "-m", "apmcal", "gap", str(path), "--lat", "47.4",
-                    "--lon", "8.5"], check=True, stdout=subprocess.DEVNULL)
-    return time.perf_counter() - start
+                    "--lon", "8.5"], check=True, stdout=subprocess.DEVNULL, cwd=DATA, env=env)
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
 def main(argv=None) -> None:
@@ -58,6 +85,10 @@ def main(argv=None) -> None:
     ap.add_argument("--rate", type=float, default=400.0)
     ap.add_argument("--seconds", type=float, default=None,
                     help="session length [s] (default: the diagnosis script's own, 635 s)")
+    ap.add_argument("--runs", type=int, default=3, help="runs of the whole command (default 3)")
+    ap.add_argument("--before", default=BEFORE,
+                    help=f"revision to compare the whole command with (default {BEFORE}; "
+                         "'none': no comparison)")
     args = ap.parse_args(argv)
     DATA.mkdir(exist_ok=True)
     path = DATA / f"gap_{int(args.rate)}hz_{int(args.seconds or 0) or 'script'}.bin"
@@ -89,7 +120,14 @@ def main(argv=None) -> None:
     progress("")
     total = time.perf_counter() - start
     peer = pymavlink_read(path)
-    command = whole_command(path)
+    before = None if args.before == "none" else export_tree(args.before)
+    commands, commands_before = [], []
+    for _ in range(args.runs):      # alternating: both see the same load
+        commands.append(whole_command(path))
+        if before is not None:
+            commands_before.append(whole_command(path, before))
+    command = statistics.median(w for w, _ in commands)
+    cpu = statistics.median(c for _, c in commands)
     result = diagnosis.result
     print(f"{path.name}: {len(session.t)} IMU samples, {session.duration:.0f} s at "
           f"{session.fs:.0f} Hz; {sum(not e.get('not_tested') for e in result.effects)} "
@@ -97,8 +135,17 @@ def main(argv=None) -> None:
     for name, seconds in times.items():
         print(f"  {name:28s} {seconds:7.2f} s")
     print(f"  {'total':28s} {total:7.2f} s   (target < 10 s)")
+    walls = [w for w, _ in commands]
     print(f"  {'the whole command':28s} {command:7.2f} s   (`apmcal gap FILE` in a fresh "
-          f"process: {command - total:.2f} s of Python start, imports and printing on top)")
+          f"process, median of {args.runs}, min {min(walls):.2f}, max {max(walls):.2f}; "
+          f"{command - total:.2f} s more than the diagnosis in this process; {cpu:.1f} "
+          f"CPU-seconds)")
+    if commands_before:
+        was = [w for w, _ in commands_before]
+        print(f"  {'the same command at ' + args.before:28s} {statistics.median(was):7.2f} s   "
+              f"(min {min(was):.2f}, max {max(was):.2f}; "
+              f"{statistics.median(c for _, c in commands_before):.1f} CPU-seconds): now "
+              f"{statistics.median(was) / command:.2f}× as fast")
     print(f"  pymavlink DFReader reading the IMU records: {peer:.2f} s; apmcal gap in all "
           f"{total / peer:.1f}× that")
 
