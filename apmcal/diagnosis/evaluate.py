@@ -41,6 +41,9 @@ FOLDS = (0, 1)
 # every least-squares step, or the holds' own motion extracted): scheduled first
 SLOW_TO_FIT = frozenset({"gyro_scale", "motion_contamination", "time_offset"})
 ACC_TERM_ROUNDS = 2     # hold/move alternations of the accelerometer terms the moves fit
+# effects that change only the noise model and the twin, not the fit of the real data
+NOISE_ONLY = frozenset({"quantization", "lowpass_filter", "uniform_noise", "bias_random_walk"})
+REAL_MODELS_KEPT = 4    # real fits kept per process (each holds all residual coefficients)
 
 
 @dataclass
@@ -232,6 +235,7 @@ class Evaluator:
         self._cache: dict[frozenset, Evaluation] = {}
         self._summaries: dict[frozenset, Summary] = {}
         self._motion: dict = {}     # per fold: the real motion (poses, moves, hold motion)
+        self._real_models: dict = {}    # (effects but the noise's, fold, σ) -> _model's result
 
     def steps_for(self, effects) -> dict:
         """Quantization steps the model reproduces: the log format's always, the sensors'
@@ -266,9 +270,44 @@ class Evaluator:
         coefficients : list of BlockCoefficients
             Of the hold residuals, then of the move residuals, over all pieces.
         """
+        effects = frozenset(effects)
+        with_sigma = train_fold is None if with_sigma is None else with_sigma
+        if session is self.session and start is None:
+            fit, holds, moves = self._real_model(effects, train_fold, with_sigma)
+        else:
+            fit, holds, moves = self._model(session, reduced, effects, train_fold, start,
+                                            with_sigma)
+        noise = None
+        if with_noise:
+            train = session.pieces.select(fold=train_fold)
+            noise = fit_noise(holds, train, effects, self.fs_of, self.steps_for(effects))
+            if fit.hold_motion is not None:
+                kappa = self._hold_motion(train_fold if train_fold is not None else 0)[2]
+                noise["gyr"].tremor_deg, noise["gyr"].sway_deg = amplitudes(fit.hold_motion[0],
+                                                                            self.session)
+                noise["gyr"].motion_confirmed = tuple(kappa)
+        return fit, noise, holds + moves
+
+    def _real_model(self, effects: frozenset, train_fold, with_sigma: bool) -> tuple:
+        """:meth:`_model` of the real session, kept for the models that differ from it only in
+        effects of the noise (:data:`NOISE_ONLY`): those leave the fit and its residuals as
+        they are (a low-pass filter scored at 400 Hz refits nothing the nominal model has not
+        fitted already)."""
+        key = (effects - NOISE_ONLY, train_fold, with_sigma)
+        if key not in self._real_models:
+            self._real_models[key] = self._model(self.session, self.reduced, key[0], train_fold,
+                                                 None, with_sigma)
+            while len(self._real_models) > REAL_MODELS_KEPT:
+                self._real_models.pop(next(iter(self._real_models)))
+        fit, holds, moves = self._real_models[key]
+        return replace(fit, effects=effects), holds, moves
+
+    def _model(self, session, reduced, effects: frozenset, train_fold, start,
+               with_sigma: bool) -> tuple:
+        """The model fitted on ``train_fold`` without its noise: (fit, hold coefficients, move
+        coefficients)."""
         fit = fit_model(session, reduced, effects, train_fold, field_mgauss=self.field_mgauss,
-                        declination_rad=self.declination_rad, start=start,
-                        with_sigma=train_fold is None if with_sigma is None else with_sigma)
+                        declination_rad=self.declination_rad, start=start, with_sigma=with_sigma)
         train = session.pieces.select(fold=train_fold)
         rate = calibrated_rate(session, fit)
         f_hold, b_hold = hold_vectors(fit, len(session.holds))
@@ -290,17 +329,11 @@ class Evaluator:
         if "motion_contamination" in effects:
             # the real motion in the holds, measured by the gyro, is part of the model (and so
             # of the twin); its size is what gets reported
-            motion, turn, kappa = self._hold_motion(train_fold if train_fold is not None else 0)
+            motion, turn, _ = self._hold_motion(train_fold if train_fold is not None else 0)
             fit.hold_motion = (motion, turn)
         holds = coefficients(hold_residuals(session, fit))
-        noise = fit_noise(holds, train, effects, self.fs_of, self.steps_for(effects)) \
-            if with_noise else None
-        if fit.hold_motion is not None and noise is not None:
-            noise["gyr"].tremor_deg, noise["gyr"].sway_deg = amplitudes(fit.hold_motion[0],
-                                                                        self.session)
-            noise["gyr"].motion_confirmed = tuple(kappa)
         moves = coefficients(move_residuals(session, fit, fit.dynamics, rate, f_hold, b_hold))
-        return fit, noise, holds + moves
+        return fit, holds, moves
 
     def _nominal(self, fold: int):
         """The nominal fit and noise of ``fold`` (with σ: the very fit the nominal model's own
