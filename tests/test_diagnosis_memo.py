@@ -87,3 +87,37 @@ def test_entries_made_in_forked_workers_come_back():
     assert _TEST_MEMO.get(memo.digest("square", 7)) == 49
     assert _TEST_MEMO.get(memo.digest("square", 8)) == 64
 
+
+
+def test_noise_effects_leave_the_fit_of_the_real_data_as_it_is():
+    """The premise of Evaluator._real_model: a model that adds only effects of the noise fits
+    the real data exactly as the model without them (fit, hold and move residuals)."""
+    from pathlib import Path
+
+    from apmcal.diagnosis.evaluate import NOISE_ONLY, Evaluator
+    from apmcal.diagnosis.session import session_from_log
+    from apmcal.pipeline import Options
+    from apmcal.sources import read_log
+
+    log = Path(__file__).resolve().parents[1] / "logs" / "gap.bin"
+    session = session_from_log(read_log(log), Options(lat_deg=5.6037, lon_deg=-0.187))
+    ev = Evaluator(session)
+
+    def plain(effects):
+        fit, holds, moves = ev._model(session, ev.reduced, frozenset(effects), 0, None, True)
+        return fit, [c.block.values for c in holds + moves]
+
+    for base in ((), ("temperature_drift",)):
+        fit, residuals = plain(base)
+        for noise_effect in sorted(NOISE_ONLY):
+            other, other_residuals = plain(base + (noise_effect,))
+            assert np.array_equal(other.acc.vector, fit.acc.vector), noise_effect
+            assert np.array_equal(other.gyr.offset, fit.gyr.offset), noise_effect
+            assert np.array_equal(other.mag.vector, fit.mag.vector), noise_effect
+            for name in ("gyro_scale", "gyro_gamma", "time_offset_s"):
+                assert np.array_equal(getattr(other.dynamics, name),
+                                      getattr(fit.dynamics, name)), (noise_effect, name)
+            assert all(np.array_equal(a, b) for a, b in zip(other_residuals, residuals))
+    # and what the evaluator hands out carries the effects asked for
+    fit, _, _ = ev.fit(session, ev.reduced, {"uniform_noise"}, 0)
+    assert fit.effects == frozenset({"uniform_noise"})
