@@ -3,8 +3,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from apmcal.errors import ApmcalError
+
+if TYPE_CHECKING:
+    from apmcal.pipeline import Options
 
 
 def parse_effects(text: str | None) -> list[str] | None:
@@ -104,7 +108,7 @@ def diagnose_file(args, names, console):
 
     The log is read and cut in a forked process while this one imports the diagnosis (scipy's
     optimize, signal and stats packages, sitl): reading needs none of it, and the second core
-    is otherwise idle then — about 0.4 s of a 400 Hz session's command."""
+    would otherwise be idle then."""
     from apmcal.diagnosis import workers
     from apmcal.pipeline import Options
 
@@ -140,7 +144,7 @@ class LogReading:
     """
 
     file: str
-    options: object
+    options: Options
 
     def session(self) -> tuple:
         """(session or None, the log's warning lines, the ApmcalError that stopped the reading

@@ -36,8 +36,8 @@ MIN_CHORD = 0.5             # two directions are distinct when their unit vector
 # default), so they only hold still the combinations six axis-aligned faces cannot see
 PRIOR_SIGMA = {"alpha": 0.05, "k2": 1e-3}
 # geometric fits by the content of their inputs: most models of a session leave one sensor's
-# hold data (real, and then its twin's) as the nominal model has it — two thirds of the fits
-# of a 400 Hz session's diagnosis repeat one made before
+# hold data (real, and then its twin's) as the nominal model has it, so most fits repeat one
+# made before
 _GEOMETRY_FITS = ContentMemo("geometry_fits", 512)
 
 
