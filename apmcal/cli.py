@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
 import os
 import sys
@@ -338,6 +339,27 @@ def main(argv: list[str] | None = None, *, operator=None) -> int:
     except KeyboardInterrupt:
         print("apmcal: interrupted (Ctrl-C)", file=sys.stderr)
         return EXIT_INTERRUPTED
+
+
+def entry() -> None:
+    """The ``apmcal`` program (console script and ``python -m apmcal``): :func:`main`, then
+    the exit.
+
+    After ``apmcal gap`` — whose files are all written and closed by then — the process ends
+    without Python's own teardown, which would free the diagnosis's residuals object by object
+    (the operating system takes the memory back at once). The other commands (vehicle links,
+    parameter files) exit the ordinary way."""
+    code = main()
+    command = next((a for a in sys.argv[1:] if not a.startswith("-")), None)
+    if command == "gap":
+        logging.shutdown()
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):    # a closed pipe (| head): nothing left to say
+                pass
+        os._exit(code)
+    sys.exit(code)
 
 
 def run(argv: list[str] | None, operator=None) -> int:
@@ -785,4 +807,4 @@ def cmd_gap(args) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

@@ -174,3 +174,18 @@ def test_the_log_read_in_a_worker_is_the_log_read_here():
     _, [(none, _, refused)] = workers.beside(LogReading("/nonexistent/x.bin", opts),
                                             [("session", ())], lambda: None)
     assert none is None and "/nonexistent/x.bin" in str(refused)
+
+
+def test_the_program_ends_with_its_output_written_and_its_status(tmp_path):
+    """``python -m apmcal gap`` ends without Python's teardown (apmcal.cli.entry): everything
+    printed and written must still be there, and the exit status must be the command's."""
+    out = tmp_path / "gap.json"
+    done = subprocess.run([sys.executable, "-m", "apmcal", "gap", str(SAMPLE), *SITE,
+                           "--effects", "temperature_drift", "--json", str(out)],
+                          capture_output=True, text=True, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.rstrip().endswith(f"wrote {out}")
+    assert json.loads(out.read_text())["selected"] == ["temperature_drift"]
+    bad = subprocess.run([sys.executable, "-m", "apmcal", "gap", str(tmp_path / "none.bin")],
+                         capture_output=True, text=True, cwd=tmp_path)
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "none.bin" in bad.stderr
