@@ -43,7 +43,8 @@ SLOW_TO_FIT = frozenset({"gyro_scale", "motion_contamination", "time_offset"})
 ACC_TERM_ROUNDS = 2     # hold/move alternations of the accelerometer terms the moves fit
 # effects that change only the noise model and the twin, not the fit of the real data
 NOISE_ONLY = frozenset({"quantization", "lowpass_filter", "uniform_noise", "bias_random_walk"})
-REAL_MODELS_KEPT = 4    # real fits kept per process (each holds all residual coefficients)
+REAL_MODELS_KEPT = 2    # real fits kept per process (each holds all its residuals: 44 MB
+                        # for a 10-minute 400 Hz session), the two folds of one model
 
 
 @dataclass
