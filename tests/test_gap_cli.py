@@ -189,3 +189,22 @@ def test_the_program_ends_with_its_output_written_and_its_status(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "apmcal", "gap", str(tmp_path / "none.bin")],
                          capture_output=True, text=True, cwd=tmp_path)
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "none.bin" in bad.stderr
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="process groups and SIGINT are POSIX")
+def test_ctrl_c_during_the_diagnosis_is_one_line_and_130(tmp_path):
+    """Ctrl-C reaches the whole process group (the forked workers too): the workers leave it
+    to the main process, which stops them and says so in one line."""
+    import os
+    import signal
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "apmcal", "gap", str(SAMPLE), *SITE],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            cwd=tmp_path, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    time.sleep(2.0)         # reading, importing or diagnosing: each must end the same way
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130
+    assert err.strip().splitlines() == ["apmcal: interrupted (Ctrl-C)"]

@@ -13,6 +13,7 @@ import contextlib
 import multiprocessing
 import os
 import pickle
+import signal
 import tempfile
 from dataclasses import dataclass
 
@@ -81,10 +82,16 @@ def _pool(target, workers: int):
             threadpool_limits(limits=1):
         _TARGET, _SHIP_DIR = target, ship_dir
         try:
-            with multiprocessing.get_context("fork").Pool(workers) as pool:
+            with multiprocessing.get_context("fork").Pool(workers, _ignore_ctrl_c) as pool:
                 yield pool
         finally:
             _TARGET = _SHIP_DIR = None
+
+
+def _ignore_ctrl_c() -> None:
+    """A worker leaves Ctrl-C to the main process, which stops the pool and says so in one
+    line (a worker's own KeyboardInterrupt would print its traceback on the terminal)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 @dataclass(frozen=True)
