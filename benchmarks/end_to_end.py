@@ -133,14 +133,14 @@ def make_session(path: Path) -> None:
                     str(path)], cwd=ROOT, check=True)
 
 
-def export_tree(ref: str) -> Path:
-    """``ref``'s package (git archive of apmcal/) in the cache directory, once per commit."""
+def export_tree(ref: str, folders: tuple = ("apmcal",)) -> Path:
+    """``ref``'s ``folders`` (git archive) in the cache directory, once per commit."""
     commit = subprocess.run(["git", "rev-parse", ref], cwd=ROOT, check=True, capture_output=True,
                             text=True).stdout.strip()
     tree = DATA / f"tree-{commit[:12]}"
-    if not (tree / "apmcal").is_dir():
+    if not all((tree / folder).is_dir() for folder in folders):
         tree.mkdir(parents=True, exist_ok=True)
-        archive = subprocess.run(["git", "archive", commit, "apmcal"], cwd=ROOT, check=True,
+        archive = subprocess.run(["git", "archive", commit, *folders], cwd=ROOT, check=True,
                                  capture_output=True).stdout
         subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
     return tree

@@ -24,6 +24,8 @@ import sys
 import time
 from pathlib import Path
 
+from end_to_end import export_tree  # the sibling benchmark (this script's folder is on the path)
+
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / "_data"
 BEFORE = "e130e47"      # main before the memo and the log read beside the imports
@@ -50,19 +52,6 @@ def pymavlink_read(path: Path) -> float:
     while log.recv_match(type="IMU") is not None:
         pass
     return time.perf_counter() - start
-
-
-def export_tree(rev: str) -> Path:
-    """``rev``'s apmcal and sitl (git archive) under benchmarks/_data, once per commit."""
-    commit = subprocess.run(["git", "rev-parse", rev], cwd=ROOT, check=True, capture_output=True,
-                            text=True).stdout.strip()
-    tree = DATA / f"tree-{commit[:12]}"
-    if not (tree / "sitl").is_dir():
-        tree.mkdir(parents=True, exist_ok=True)
-        archive = subprocess.run(["git", "archive", commit, "apmcal", "sitl"], cwd=ROOT,
-                                 check=True, capture_output=True).stdout
-        subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
-    return tree
 
 
 def whole_command(path: Path, tree: Path = ROOT) -> tuple[float, float]:
@@ -120,7 +109,7 @@ def main(argv=None) -> None:
     progress("")
     total = time.perf_counter() - start
     peer = pymavlink_read(path)
-    before = None if args.before == "none" else export_tree(args.before)
+    before = None if args.before == "none" else export_tree(args.before, ("apmcal", "sitl"))
     commands, commands_before = [], []
     for _ in range(args.runs):      # alternating: both see the same load
         commands.append(whole_command(path))
