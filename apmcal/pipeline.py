@@ -12,8 +12,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from apmcal.constants import STANDARD_GRAVITY, normal_gravity
 from apmcal.errors import ApmcalError
+from apmcal.options import Options
 from apmcal.preprocessing.resolution import (
     INT16_TELEMETRY,
     resolution_limited,
@@ -29,39 +29,6 @@ from apmcal.solvers.result import Calibration
 METHODS = ("auto", "ferraris", "static", "ellipsoid", "joint")
 FERRARIS_FACES = {"x_p", "x_a", "y_p", "y_a", "z_p", "z_a"}
 FERRARIS_MAX_TILT_DEG = 10.0    # Ferraris assumes each hold has one axis along gravity
-
-
-@dataclass
-class Options:
-    """What the user chose (the CLI's calibration options).
-
-    Attributes
-    ----------
-    method : {"auto", "ferraris", "static", "ellipsoid", "joint"}
-    lat_deg, lon_deg : float or None
-        Site [deg]: Earth rate, normal gravity, WMM field.
-    min_still_s : float
-        Shortest still period counted as a hold [s].
-    instance : int or None
-        IMU instance (None: the first).
-    generation : str or None
-        "3.2" / "3.3+" (None: from the log).
-    date : datetime.date or None
-        Recording date, for the WMM field (None: today).
-    """
-
-    method: str = "auto"
-    lat_deg: float | None = None          # site: Earth rate, normal gravity, WMM field
-    lon_deg: float | None = None
-    min_still_s: float = 2.0              # shortest still period counted as a hold [s]
-    instance: int | None = None           # IMU instance (None: the first)
-    generation: str | None = None         # "3.2" / "3.3+" (None: from the log)
-    date: datetime.date | None = None     # recording date, for the WMM field (None: today)
-
-    @property
-    def gravity(self) -> float:
-        """WGS-84 normal gravity at the latitude, or standard gravity when unknown [m/s²]."""
-        return STANDARD_GRAVITY if self.lat_deg is None else normal_gravity(self.lat_deg)
 
 
 @dataclass

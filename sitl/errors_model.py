@@ -35,7 +35,6 @@ chunked.
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import butter, lfilter, lfilter_zi
 
 from sitl.truth import Truth, per_axis
 
@@ -62,11 +61,16 @@ class ImuErrorModel:
                     zip(("acc", "gyro", "rw", "mag"), ss.spawn(4))}
         self.f_acc, self.f_gyr, self.s_mag = truth.acc_forward(), truth.gyro_forward(), truth.mag_forward()
         self.rw_state = np.zeros(3)
-        # (b, a) per sensor; None: cutoff at/above Nyquist, no filter
-        self.filters = {}
-        for key in ("acc", "gyro"):
-            wn = truth.lowpass_cutoff(key) / (fs / 2)
-            self.filters[key] = butter(2, wn) if wn < 1 else None
+        # (b, a) per sensor; None: no filter (off, or cutoff at/above Nyquist)
+        self.filters = {"acc": None, "gyro": None}
+        if truth.on("lowpass_filter"):
+            # scipy.signal only when a filter is on: its import (0.8 s) would otherwise delay
+            # every program that simulates a sensor without one (apmcal gap's twins)
+            from scipy.signal import butter
+
+            for key in self.filters:
+                wn = truth.lowpass_cutoff(key) / (fs / 2)
+                self.filters[key] = butter(2, wn) if wn < 1 else None
         self.zi = {"acc": None, "gyro": None}
 
     # ---- helpers ---------------------------------------------------------------------------
@@ -113,8 +117,10 @@ class ImuErrorModel:
         return ramp * np.radians(float(p["speed_dps_per_min"]))
 
     def _lowpass(self, key: str, x: np.ndarray) -> np.ndarray:
-        if not self.truth.on("lowpass_filter") or self.filters[key] is None:
+        if self.filters[key] is None:
             return x
+        from scipy.signal import lfilter, lfilter_zi
+
         b, a = self.filters[key]
         if self.zi[key] is None:  # start settled on the first sample (sensor powered long ago)
             self.zi[key] = lfilter_zi(b, a)[:, None] * x[0][None, :]

@@ -23,7 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import gammaincinv
 
 MIN_PIECE = 64
 
@@ -177,7 +177,13 @@ def _edf_eta3(cnt_p: np.ndarray, ms: np.ndarray) -> np.ndarray:
 def _chi2_interval(v: np.ndarray, edf: np.ndarray, ci: float):
     """Two-sided chi-square interval of a variance estimate v with edf degrees of freedom."""
     a = (1.0 - ci) / 2.0
-    return edf * v / chi2.ppf(1.0 - a, edf), edf * v / chi2.ppf(a, edf)
+    return edf * v / _chi2_ppf(1.0 - a, edf), edf * v / _chi2_ppf(a, edf)
+
+
+def _chi2_ppf(q: float, edf: np.ndarray) -> np.ndarray:
+    """χ² quantile, value for value as scipy.stats.chi2.ppf (2·P⁻¹(ν/2, q), the same special
+    function), without importing scipy.stats (0.6 s) at the start of every ``apmcal gap``."""
+    return 2.0 * gammaincinv(np.asarray(edf) / 2.0, q)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 from apmcal.errors import ApmcalError
 
 if TYPE_CHECKING:
-    from apmcal.pipeline import Options
+    from apmcal.options import Options
 
 
 def parse_effects(text: str | None) -> list[str] | None:
@@ -107,10 +107,10 @@ def diagnose_file(args, names, console):
     """Read, cut and diagnose the log, with a progress line per stage.
 
     The log is read and cut in a forked process while this one imports the diagnosis (scipy's
-    optimize, signal and stats packages, sitl): reading needs none of it, and the second core
-    would otherwise be idle then."""
+    optimize, signal and stats packages, sitl): reading needs none of it (it imports pandas,
+    which the diagnosis does not need), and the second core would otherwise be idle then."""
     from apmcal.diagnosis import workers
-    from apmcal.pipeline import Options
+    from apmcal.options import Options
 
     opts = Options(lat_deg=args.lat, lon_deg=args.lon, min_still_s=args.min_still,
                    instance=args.instance, generation=args.firmware)
@@ -126,8 +126,9 @@ def diagnose_file(args, names, console):
 
 
 def _import_diagnosis():
-    from apmcal.diagnosis.run import diagnose
+    from apmcal.diagnosis.run import diagnose, preload_imports
 
+    preload_imports()
     return diagnose
 
 

@@ -155,6 +155,13 @@ class Moves:
     def __len__(self) -> int:
         return len(self.i0)
 
+    def rows(self) -> np.ndarray:
+        """Session sample indices the moves' integration reads: each move's samples and the
+        last hold sample before it."""
+        if not len(self):
+            return np.zeros(0, int)
+        return np.concatenate([np.arange(a - 1, b) for a, b in zip(self.i0, self.i1)])
+
 
 def relative_attitudes(rate: np.ndarray, t: np.ndarray, moves: Moves, step: int = 1
                        ) -> Rotation:
@@ -236,11 +243,17 @@ def move_turns(session, forward: np.ndarray, moves: Moves, rate_cal: np.ndarray,
     Returns
     -------
     rate : (n, 3) array
-        Body rate [rad/s].
+        Body rate [rad/s] at the moves' samples and the last hold sample before each; NaN
+        elsewhere (nothing reads it there).
     rel : Rotation
         Attitudes relative to the hold before, one per kept move sample.
     """
-    rate = rate_cal @ np.linalg.inv(forward).T
+    # move by move: the moves hold about an eighth of a session's samples, and a fit of the
+    # gyro matrix turns them again at every step (each row is the same product either way)
+    to_body = np.linalg.inv(forward).T
+    rate = np.full_like(rate_cal, np.nan)
+    for a, b in zip(moves.i0, moves.i1):
+        rate[a - 1:b] = rate_cal[a - 1:b] @ to_body
     return rate, relative_attitudes(rate, session.t, moves, step)
 
 

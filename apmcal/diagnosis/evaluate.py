@@ -8,11 +8,13 @@ average in-sample as well as held-out.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 
 from apmcal.diagnosis import workers
-from apmcal.diagnosis.dynamics import fit_dynamics, move_residuals
+from apmcal.diagnosis.decimate import block_factor, decimated
+from apmcal.diagnosis.dynamics import Moves, fit_dynamics, move_residuals
 from apmcal.diagnosis.gap import GapEstimate, coefficients, compare
 from apmcal.diagnosis.hold_motion import (
     amplitudes,
@@ -310,7 +312,7 @@ class Evaluator:
         fit = fit_model(session, reduced, effects, train_fold, field_mgauss=self.field_mgauss,
                         declination_rad=self.declination_rad, start=start, with_sigma=with_sigma)
         train = session.pieces.select(fold=train_fold)
-        rate = calibrated_rate(session, fit)
+        rate = calibrated_rate(session, fit, Moves.of(session).rows())    # moves read it only
         f_hold, b_hold = hold_vectors(fit, len(session.holds))
         fit.dynamics = fit_dynamics(session, fit, effects, train, rate, f_hold, b_hold,
                                     self.sample_sigma)
@@ -388,10 +390,7 @@ class Evaluator:
         todo.sort(key=lambda key: -len(key & SLOW_TO_FIT))
         if frozenset() in todo and self._cold():
             # the nominal model's folds warm the evaluator: its fit is each fold's nominal fit
-            results = self.map([("_nominal_fold", (fold, True)) for fold in FOLDS])
-            self._summaries[frozenset()] = Summary.of_folds(frozenset(), [r for r, _ in results])
-            for _, entries in results:
-                self._motion.update(entries)
+            self.keep_nominal_folds(self.map([("_nominal_fold", (fold, True)) for fold in FOLDS]))
             todo.remove(frozenset())
         self.warm()
         parts = self.map([("fold_summary", (key, fold)) for key in todo for fold in FOLDS])
@@ -420,6 +419,25 @@ class Evaluator:
     def _cold(self) -> bool:
         return all(fold not in self._motion for fold in FOLDS)
 
+    def keep_nominal_folds(self, results: list) -> None:
+        """Keep the nominal model's summary and each fold's warm state from the results of
+        :meth:`_nominal_fold` jobs (with ``summary`` True), one per fold in order."""
+        self._summaries[frozenset()] = Summary.of_folds(frozenset(), [r for r, _ in results])
+        for _, entries in results:
+            self._motion.update(entries)
+
+    @cached_property
+    def slow(self) -> "Evaluator":
+        """The evaluator of this session's block means, where the slow effects are scored
+        (:mod:`apmcal.diagnosis.decimate`); this one itself when the session is not faster
+        than that. Made once, in this process, so that forked workers inherit it."""
+        k = block_factor(self.session.fs)
+        return self if k == 1 else Evaluator(decimated(self.session, k), self.seed)
+
+    def _slow_nominal_fold(self, fold: int) -> tuple:
+        """:meth:`_nominal_fold` of :attr:`slow` (a job: workers call methods of this one)."""
+        return self.slow._nominal_fold(fold, True)
+
     def _nominal_fold(self, fold: int, summary: bool) -> tuple:
         """Fold ``fold`` of the nominal model (its summary, or all of it but the residual
         coefficients) and what warming the fold keeps, which its fit gives on the way."""
@@ -431,12 +449,6 @@ class Evaluator:
         """``[self.method(*args) for method, args in jobs]``, spread over every core
         (:func:`apmcal.diagnosis.workers.run`)."""
         return workers.run(self, jobs)
-
-    def beside(self, jobs: list[tuple[str, tuple]], work):
-        """``work()`` here while ``jobs`` (as for :meth:`map`) run in a forked worker — for a
-        result too big to send back (an Evaluation is hundreds of MB at 400 Hz); returns
-        (work's result, the jobs' results)."""
-        return workers.beside(self, jobs, work)
 
     def gap_of(self, effects) -> dict:
         """The model's gaps with their breakdowns (:func:`apmcal.diagnosis.breakdown.
@@ -459,16 +471,23 @@ class Evaluator:
         plots and the noise structure read fold 0's only)."""
         return self.evaluate_with(effects, [])[0]
 
-    def evaluate_with(self, effects, jobs: list, then=None) -> tuple:
+    def evaluate_with(self, effects, jobs: list, then=None, meanwhile=None,
+                      max_workers: int | None = None) -> tuple:
         """:meth:`evaluate`, with ``jobs`` (as for :meth:`map`) in the same workers, queued
-        behind its fold 1; returns (``then(evaluation)``, here as soon as the evaluation is
-        complete while the jobs may still run — the evaluation itself by default —, the jobs'
-        results)."""
+        behind its fold 1 (``max_workers``: at most so many workers); returns
+        (``then(evaluation)``, here as soon as the evaluation is complete while the jobs may
+        still run — the evaluation itself by default —, the jobs' results). ``meanwhile()``
+        is called here once fold 0 is done, while fold 1 may still run."""
         then = then or (lambda evaluation: evaluation)
+        meanwhile = meanwhile or (lambda: None)
         key = frozenset(effects)
         if key in self._cache:
-            done = lambda: then(self._cache[key])  # noqa: E731
-            return self.beside(jobs, done) if jobs else (done(), [])
+            def done():
+                meanwhile()
+                return then(self._cache[key])
+
+            return workers.beside(self, jobs, done, max_workers=max_workers) if jobs \
+                else (done(), [])
         # on a cold evaluator the nominal model's folds are what warm it (one fit for both)
         cold_nominal = not key and self._cold()
         if not cold_nominal:
@@ -477,14 +496,17 @@ class Evaluator:
             ("_fold_without_coefficients", (key, 1))
 
         def both_folds(result):
-            first, second = self._fold(key, 0), result(0)
+            first = self._fold(key, 0)
+            meanwhile()
+            second = result(0)
             if cold_nominal:
                 second, entries = second
                 self._motion.update(entries)
             self._cache[key] = Evaluation(key, [first, second])
             return then(self._cache[key])
 
-        out, results = workers.beside(self, [fold_1] + list(jobs), both_folds, hand_over=True)
+        out, results = workers.beside(self, [fold_1] + list(jobs), both_folds, hand_over=True,
+                                      max_workers=max_workers)
         return out, results[1:]
 
     def _fold_without_coefficients(self, key: frozenset, fold: int) -> FoldResult:

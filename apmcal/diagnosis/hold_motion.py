@@ -26,7 +26,6 @@ written to a standalone twin.
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import detrend, welch
 
 TREMOR_BAND_HZ = (4.0, 9.0)   # the bands of sitl's motion contamination (sitl.truth defaults)
 SWAY_BAND_HZ = (0.1, 0.5)
@@ -65,6 +64,8 @@ def pooled_spectrum(x: np.ndarray, runs, fs: float) -> tuple[np.ndarray, np.ndar
     power : (k, 3) array
         PSD per axis [(unit of x)²/Hz].
     """
+    from scipy.signal import detrend, welch  # here: only motion contamination needs it
+
     nper = int(min(SEGMENT_S * fs, max(b - a for a, b in runs)))
     total, weight, f = 0.0, 0.0, None
     for a, b in runs:
@@ -190,6 +191,8 @@ def confirmed_by_accelerometer(session, rate: np.ndarray, hold_f: np.ndarray,
     float
         κ (dimensionless, 1 for a real motion).
     """
+    from scipy.signal import detrend
+
     theta = hold_angles(session, rate)
     num = den = power = 0.0
     count = 0

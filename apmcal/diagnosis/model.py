@@ -439,23 +439,42 @@ def hold_vectors(fit: ModelFit, n_holds: int) -> tuple[np.ndarray, np.ndarray | 
     return f, b
 
 
-def calibrated_rate(session, fit: ModelFit) -> np.ndarray:
+def calibrated_rate(session, fit: ModelFit, rows=None) -> np.ndarray:
     """The gyro [rad/s] minus its fitted bias terms (offset, drift, temperature, triangle) at
     every sample, before the gyro matrix: what the moves integrate.
+
+    Parameters
+    ----------
+    session : Session
+    fit : ModelFit
+    rows : (k,) int array, optional
+        The samples to compute (what the moves read, :meth:`apmcal.diagnosis.dynamics.Moves.
+        rows`); every sample by default.
 
     Returns
     -------
     (n, 3) array
-        [rad/s] at every session sample.
+        [rad/s] at every session sample (NaN outside ``rows`` when given: the moves are
+        about an eighth of a session, and each sample's value is the same either way).
     """
-    groups = np.zeros(len(session.t), int)
-    cols, vec, names, vnames = gyro_regressors(fit, session.t, session.temp, groups)
+    if rows is None:
+        return session.gyr - _gyro_bias(fit, session.t, session.temp)
+    out = np.full_like(session.gyr, np.nan)
+    temp = session.temp[rows] if session.temp is not None else None
+    out[rows] = session.gyr[rows] - _gyro_bias(fit, session.t[rows], temp)
+    return out
+
+
+def _gyro_bias(fit: ModelFit, t, temp) -> np.ndarray:
+    """The gyro's fitted bias terms at times ``t`` [s] (temperatures ``temp`` [°C]) [rad/s]."""
+    groups = np.zeros(len(t), int)
+    cols, vec, names, vnames = gyro_regressors(fit, t, temp, groups)
     keep = [i for i, n in enumerate(names) if n != "g_sensitivity"]
     keep_v = [i for i, n in enumerate(vnames) if n == "triangle_drift"]
     bias = fit.gyr.offset + cols[:, keep] @ fit.gyr.theta[keep]
     if keep_v:
         bias = bias + np.einsum("nvc,v->nc", vec[:, keep_v], fit.gyr.vector_coef[keep_v])
-    return session.gyr - bias
+    return bias
 
 
 # ----------------------------------------------------------------------------- residuals

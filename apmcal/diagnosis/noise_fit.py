@@ -22,7 +22,6 @@ from functools import lru_cache
 
 import numpy as np
 from scipy.optimize import nnls
-from scipy.signal import butter, freqz
 
 N_FREQ = 4096                      # frequency grid of the Haar gains
 CUTOFF_GRID = 16                   # candidate low-pass cut-offs between fs/8 and 45 % of fs
@@ -222,13 +221,21 @@ def floor_gain(fs: float, cutoff_hz: float | None) -> float:
     if cutoff_hz is None or cutoff_hz >= fs / 2:
         return 1.0
     w = _omega()
-    b, a = butter(2, cutoff_hz / (fs / 2))
-    g = np.abs(freqz(b, a, worN=w)[1]) ** 2
+    g = _filter_power_gain(cutoff_hz, fs)
     return float(np.trapezoid((2 * np.sin(w / 2)) ** 8 * g, w) / np.pi / 70.0)
 
 
 def _omega() -> np.ndarray:
     return np.linspace(1e-6, np.pi, N_FREQ)
+
+
+def _filter_power_gain(cutoff_hz: float, fs: float) -> np.ndarray:
+    """|H(ω)|² of the second-order Butterworth low-pass on the :func:`_omega` grid (scipy.signal
+    imported here: only a model with a low-pass filter needs it, and its import costs 0.8 s)."""
+    from scipy.signal import butter, freqz
+
+    b, a = butter(2, cutoff_hz / (fs / 2))
+    return np.abs(freqz(b, a, worN=_omega())[1]) ** 2
 
 
 @lru_cache(maxsize=64)
@@ -271,8 +278,7 @@ def lowpass_gain(levels: int, fs: float, cutoff_hz: float | None) -> np.ndarray:
     if cutoff_hz is None or cutoff_hz >= fs / 2:
         g = np.ones(N_FREQ)
     else:
-        b, a = butter(2, cutoff_hz / (fs / 2))
-        g = np.abs(freqz(b, a, worN=_omega())[1]) ** 2
+        g = _filter_power_gain(cutoff_hz, fs)
     return np.trapezoid(h * g, _omega(), axis=1) / np.pi
 
 

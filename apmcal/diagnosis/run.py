@@ -12,8 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from apmcal.diagnosis.breakdown import gap_summary
-from apmcal.diagnosis.decimate import FINE_EFFECTS, SHAPES_BLOCK_MEANS, block_factor, decimated
-from apmcal.diagnosis.evaluate import Evaluation, Evaluator
+from apmcal.diagnosis.decimate import FINE_EFFECTS, SHAPES_BLOCK_MEANS, block_factor
+from apmcal.diagnosis.evaluate import FOLDS, Evaluation, Evaluator
 from apmcal.diagnosis.noise_structure import merged as merged_structure
 from apmcal.diagnosis.params import white_noise_of_folds
 from apmcal.diagnosis.result import GapResult
@@ -78,7 +78,7 @@ def _diagnose(session, names, seed: int, progress) -> Diagnosis:
     say = progress or (lambda _msg: None)
     ev = Evaluator(session, seed)
     say("nominal model")
-    nominal = ev.evaluate(())
+    nominal = _score_nominal(ev)
     ranked, selection = _rank_and_select(ev, names, say)
     selected = selection.order()
     say("selected model")
@@ -106,6 +106,31 @@ def _diagnose(session, names, seed: int, progress) -> Diagnosis:
     return Diagnosis(result, ev, nominal, final)
 
 
+def _score_nominal(ev: Evaluator) -> Evaluation:
+    """The nominal model: fold 0 here, fold 1 in a worker, and in another worker beside them
+    the two folds of the nominal model of the block means, where the slow effects start (a
+    session faster than :data:`~apmcal.diagnosis.decimate.SLOW_RATE_HZ`; that worker makes its
+    own block means, and this process its own once fold 0 is done, for the workers forked
+    later)."""
+    decimated = block_factor(ev.session.fs) > 1
+    jobs = [("_slow_nominal_fold", (fold,)) for fold in FOLDS] if decimated else []
+    nominal, results = ev.evaluate_with((), jobs, meanwhile=lambda: ev.slow)
+    if results:
+        ev.slow.keep_nominal_folds(results)
+    return nominal
+
+
+def preload_imports() -> None:
+    """Import scipy.signal (scipy.stats with it), filterpy and allantools. The low-pass filter
+    and motion contamination models, the random-walk smoother and the noise structure need
+    them, the nominal model does not. Imported in this process once, every worker forked
+    afterwards has them; a worker that imported them itself would spend 0.8 s on it, once per
+    pool. ``apmcal gap`` imports them while a worker reads the log."""
+    import allantools  # noqa: F401
+    import filterpy.kalman  # noqa: F401
+    import scipy.signal  # noqa: F401
+
+
 def _rank_and_select(ev: Evaluator, names, say):
     """Every candidate scored alone, and the stepwise combination.
 
@@ -114,8 +139,9 @@ def _rank_and_select(ev: Evaluator, names, say):
     a low-pass filter when one was found (it colours the noise down into the slow band: left
     out, a random walk would stand in for it); then the fine effects' combination at the
     recorded rate, on top of the slow effects selected."""
-    k = block_factor(ev.session.fs)
-    if k == 1:
+    preload_imports()       # before the first workers that may need them are forked
+    slow_ev = ev.slow
+    if slow_ev is ev:
         say("candidate effects")
         ranked = rank_effects(ev, names)
         say("combination")
@@ -125,7 +151,6 @@ def _rank_and_select(ev: Evaluator, names, say):
     say("candidate effects")
     ranked_fine = rank_effects(ev, fine_names)
     carried = tuple(s.name for s in ranked_fine if s.supported and s.name in SHAPES_BLOCK_MEANS)
-    slow_ev = Evaluator(decimated(ev.session, k), ev.seed)
     ranked_slow = rank_effects(slow_ev, slow_names, base=carried)
     say("combination")
     slow = forward_selection(slow_ev, ranked_slow, base=carried)

@@ -16,7 +16,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from apmcal.errors import ApmcalError
-from apmcal.preprocessing.resolution import INT16_TELEMETRY
 from apmcal.preprocessing.stillness import GAP_FACTOR
 
 MAX_PIECE_S = 30.0      # longest piece [s]: longer holds are cut into several
@@ -396,8 +395,11 @@ def session_from_log(contents, opts) -> Session:
         Without gyroscope samples, without a still period long enough to score, or when one
         fold would have no still piece.
     """
+    # here, not at the top: they load pandas, which the diagnosis itself never needs (a session
+    # is read in a worker while the main process imports the diagnosis, apmcal.diagnosis.cli)
     from apmcal.pipeline import has_live_magnetometer, pick_recording, prepare, recording_date
     from apmcal.preprocessing.param_changes import split_at_param_changes
+    from apmcal.preprocessing.resolution import INT16_TELEMETRY
     from apmcal.preprocessing.static import find_static_segments
 
     recording, mag_recording = pick_recording(contents, opts.instance)

@@ -12,7 +12,7 @@ are judged by their evidence alone.
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtrc
 
 MAX_P_VALUE = 1e-3
 TESTED = {                      # effect: the parameters whose null value switches it off
@@ -45,4 +45,6 @@ def wald_p_value(name: str, params: dict) -> float | None:
         z2.extend((((value - NULL_VALUE.get((name, key), 0.0)) / sigma)[ok] ** 2).tolist())
     if not z2:
         return None
-    return float(chi2.sf(sum(z2), len(z2)))
+    # the χ² survival function as scipy.stats.chi2.sf computes it (the same special function),
+    # without importing scipy.stats (0.6 s) at the start of every `apmcal gap`
+    return float(chdtrc(len(z2), sum(z2)))
