@@ -420,11 +420,16 @@ class Evaluator:
         return all(fold not in self._motion for fold in FOLDS)
 
     def keep_nominal_folds(self, results: list) -> None:
-        """Keep the nominal model's summary and each fold's warm state from the results of
+        """Keep the nominal model's summary and each fold's state from the results of
         :meth:`_nominal_fold` jobs (with ``summary`` True), one per fold in order."""
         self._summaries[frozenset()] = Summary.of_folds(frozenset(), [r for r, _ in results])
-        for _, entries in results:
-            self._motion.update(entries)
+        for _, state in results:
+            self._keep_fold_state(state)
+
+    def _keep_fold_state(self, state: tuple) -> None:
+        motion, real_models = state
+        self._motion.update(motion)
+        self._real_models.update(real_models)
 
     @cached_property
     def slow(self) -> "Evaluator":
@@ -440,10 +445,14 @@ class Evaluator:
 
     def _nominal_fold(self, fold: int, summary: bool) -> tuple:
         """Fold ``fold`` of the nominal model (its summary, or all of it but the residual
-        coefficients) and what warming the fold keeps, which its fit gives on the way."""
+        coefficients) and the fold's state its fit gives on the way: what warming the fold
+        keeps, and the real data's fit (:meth:`_real_model`), which the models of the noise
+        alone reuse — made in a worker, both would otherwise die with it."""
         result = self._fold(frozenset(), fold)
         result = FoldSummary.of(result) if summary else replace(result, real=None, twin=None)
-        return result, self._warm_fold(fold)
+        real_models = {key: value for key, value in self._real_models.items()
+                       if not key[0] and key[1] == fold}
+        return result, (self._warm_fold(fold), real_models)
 
     def map(self, jobs: list[tuple[str, tuple]]) -> list:
         """``[self.method(*args) for method, args in jobs]``, spread over every core
@@ -500,8 +509,8 @@ class Evaluator:
             meanwhile()
             second = result(0)
             if cold_nominal:
-                second, entries = second
-                self._motion.update(entries)
+                second, state = second
+                self._keep_fold_state(state)
             self._cache[key] = Evaluation(key, [first, second])
             return then(self._cache[key])
 

@@ -15,6 +15,7 @@ from apmcal.diagnosis.breakdown import gap_summary
 from apmcal.diagnosis.decimate import FINE_EFFECTS, SHAPES_BLOCK_MEANS, block_factor
 from apmcal.diagnosis.evaluate import FOLDS, Evaluation, Evaluator
 from apmcal.diagnosis.noise_structure import merged as merged_structure
+from apmcal.diagnosis.noise_terms import prepare as prepare_noise_terms
 from apmcal.diagnosis.params import white_noise_of_folds
 from apmcal.diagnosis.result import GapResult
 from apmcal.diagnosis.select import candidates, forward_selection, merged, rank, rank_effects
@@ -110,11 +111,17 @@ def _score_nominal(ev: Evaluator) -> Evaluation:
     """The nominal model: fold 0 here, fold 1 in a worker, and in another worker beside them
     the two folds of the nominal model of the block means, where the slow effects start (a
     session faster than :data:`~apmcal.diagnosis.decimate.SLOW_RATE_HZ`; that worker makes its
-    own block means, and this process its own once fold 0 is done, for the workers forked
-    later)."""
+    own block means). Once fold 0 is done, while fold 1 may still run, this process makes what
+    the workers forked later inherit: the block means' evaluator and the noise-structure fits'
+    fixed integrals."""
     decimated = block_factor(ev.session.fs) > 1
     jobs = [("_slow_nominal_fold", (fold,)) for fold in FOLDS] if decimated else []
-    nominal, results = ev.evaluate_with((), jobs, meanwhile=lambda: ev.slow)
+
+    def meanwhile():
+        _ = ev.slow
+        prepare_noise_terms()
+
+    nominal, results = ev.evaluate_with((), jobs, meanwhile=meanwhile)
     if results:
         ev.slow.keep_nominal_folds(results)
     return nominal
