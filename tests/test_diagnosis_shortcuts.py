@@ -99,3 +99,60 @@ def test_the_diagnosis_starts_without_pandas_scipy_stats_or_scipy_signal():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           cwd=ROOT, check=True)
     assert done.stdout.strip() == "[]"
+
+
+def _hold_block(rng, pieces=10, length=500, dof=1):
+    """Still-hold residuals of ten pieces of 500 samples (100 Hz), session-wide ids 0, 2, ..."""
+    from apmcal.diagnosis.gap import ResidualBlock
+
+    n = pieces * length
+    i0 = np.arange(pieces) * length
+    return ResidualBlock(["acc_x", "acc_y", "acc_z"], rng.standard_normal((n, 3)), i0,
+                         i0 + length - 20, 2 * np.arange(pieces), np.arange(n) / 100.0, None,
+                         mean_dof=dof)
+
+
+def test_a_block_of_the_same_values_gets_the_same_coefficients_and_cells():
+    """apmcal.diagnosis.reuse hands back kept results only for the same numbers: one changed
+    bit, or another scoring of the piece means, and they are worked out afresh."""
+    from dataclasses import replace
+
+    from apmcal.diagnosis.gap import coefficients, compare
+    from apmcal.diagnosis.haar import details
+
+    rng = np.random.default_rng(20261124)
+    real, twin = _hold_block(rng), _hold_block(rng)
+    first = coefficients([real])[0]
+    again = coefficients([replace(real, values=real.values.copy())])[0]
+    assert again.levels is first.levels and again.means is first.means
+    changed = real.values.copy()
+    changed[2000, 1] = np.nextafter(changed[2000, 1], np.inf)
+    other = coefficients([replace(real, values=changed)])[0]
+    assert other.levels is not first.levels
+    fresh = details(changed, real.i0, real.i1)
+    assert all(np.array_equal(a.values, b.values) for a, b in zip(other.levels, fresh))
+
+    tw = coefficients([twin])[0]
+    keep = np.array([0, 4, 6, 8, 12, 14, 18])
+    gap = compare([first], [tw], keep, in_sample=True)
+    copy = replace(real, values=real.values.copy(), t=real.t + 0.0)
+    reused = compare(coefficients([copy]), coefficients([replace(twin)]), keep, in_sample=True)
+    assert [c.total for c in reused.cells] == [c.total for c in gap.cells]
+    assert all(c.block is copy for c in reused.cells)          # the new block's, for its times
+    more_dof = compare(coefficients([replace(copy, mean_dof=2)]), [tw], keep, in_sample=True)
+    means = [c for c in more_dof.cells if c.level == 0]
+    assert means and means[0].total != [c for c in gap.cells if c.level == 0][0].total
+
+
+def test_an_effect_of_the_gyro_leaves_the_other_sensors_hold_residuals_as_they_were(evaluator):
+    """The premise of apmcal.diagnosis.reuse: after the nominal model, a gyro-only effect's
+    accelerometer and compass hold coefficients, real and twin, are the nominal model's own
+    objects (found equal, so not worked out again); the gyro's are new."""
+    nominal = evaluator._fold(frozenset(), 0)
+    gyro_only = evaluator._fold(frozenset({"g_sensitivity"}), 0)
+    for side in ("real", "twin"):
+        was = {c.block.names[0]: c for c in getattr(nominal, side) if c.block.shape}
+        now = {c.block.names[0]: c for c in getattr(gyro_only, side) if c.block.shape}
+        assert now["acc_x"].levels is was["acc_x"].levels, side
+        assert now["mag_x"].levels is was["mag_x"].levels, side
+        assert now["gyr_x"].levels is not was["gyr_x"].levels, side

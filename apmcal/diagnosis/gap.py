@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import digamma
 
+from apmcal.diagnosis import reuse
 from apmcal.diagnosis.haar import Coefficients, details, piece_means
 
 LEVEL_MEANS = 0          # cell code of the piece means ("across pieces")
@@ -155,8 +156,11 @@ def coefficients(blocks: list[ResidualBlock]) -> list[BlockCoefficients]:
     list of BlockCoefficients
         One per block, in order.
     """
-    return [BlockCoefficients(b, details(b.values, b.i0, b.i1), piece_means(b.values, b.i0, b.i1))
-            for b in blocks]
+    return [BlockCoefficients(b, *reuse.coefficients(b, _coefficients_of)) for b in blocks]
+
+
+def _coefficients_of(b: ResidualBlock) -> tuple:
+    return details(b.values, b.i0, b.i1), piece_means(b.values, b.i0, b.i1)
 
 
 @dataclass
@@ -527,7 +531,13 @@ def compare(real: list[BlockCoefficients], twin: list[BlockCoefficients],
     cells, n_samples = [], 0
     for rc, tc in zip(real, twin):
         n_samples += rc.block.n_samples(keep)
-        cells.extend(_block_cells(rc, tc, keep, in_sample))
-        if rc.block.radial is not None:
-            cells.extend(_radial_cell(rc, tc, keep, in_sample))
+        cells.extend(reuse.cells(rc, tc, keep, in_sample,
+                                 lambda rc=rc, tc=tc: _cells_of(rc, tc, keep, in_sample)))
     return GapEstimate(cells, n_samples)
+
+
+def _cells_of(rc: BlockCoefficients, tc: BlockCoefficients, keep, in_sample: bool) -> list:
+    cells = list(_block_cells(rc, tc, keep, in_sample))
+    if rc.block.radial is not None:
+        cells.extend(_radial_cell(rc, tc, keep, in_sample))
+    return cells

@@ -1,0 +1,125 @@
+"""The Haar coefficients and gap cells of a residual block that comes back value for value.
+
+Most candidate effects change the model of one sensor and leave the others as every other
+model has them: their hold residuals, real and twin, are then the very same numbers model after
+model (the fits are deterministic, and the twin's noise draws are common to all models:
+:mod:`apmcal.diagnosis.draws`). So are their coefficients and their cells. This module keeps the
+recent ones and hands them back for a block whose values equal a kept block's, number for
+number (``np.array_equal``, after a check of every 251st value) — never on a key that only
+describes the inputs, which a change elsewhere could make stale. Comparing costs a fraction of
+what it saves (a block's coefficients and cells are several passes over its values, each
+with sorting and binning).
+
+Kept per process; a forked worker starts with what the main process kept.
+"""
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import replace
+
+import numpy as np
+
+KEPT = 24           # blocks kept of each kind (at 400 Hz a hold block is about 6 MB)
+STRIDE = 251        # the quick check reads every STRIDE-th value
+
+
+class _Recent:
+    """Entries found by comparing arrays, least recently used forgotten first."""
+
+    def __init__(self, size: int):
+        self.size = size
+        self.entries: OrderedDict = OrderedDict()
+        self._next = 0
+
+    def find(self, match):
+        """The value of the first entry ``match(entry key)`` accepts, or None."""
+        for token, (key, value) in self.entries.items():
+            if match(key):
+                self.entries.move_to_end(token)
+                return value
+        return None
+
+    def keep(self, key, value) -> None:
+        self.entries[self._next] = (key, value)
+        self._next += 1
+        while len(self.entries) > self.size:
+            self.entries.popitem(last=False)
+
+
+_COEFFICIENTS = _Recent(KEPT)
+_CELLS = _Recent(KEPT)
+
+
+def _same_values(a: np.ndarray, b: np.ndarray) -> bool:
+    return a.shape == b.shape and a.dtype == b.dtype and \
+        np.array_equal(a[::STRIDE], b[::STRIDE]) and np.array_equal(a, b)
+
+
+def coefficients(block, compute):
+    """(levels, means) of ``block`` (a ResidualBlock): those kept for a block with the same
+    values and pieces, or ``compute(block)``'s, then kept.
+
+    Parameters
+    ----------
+    block : ResidualBlock
+    compute : callable
+        block -> (levels, means), as :func:`apmcal.diagnosis.gap.coefficients` makes them.
+
+    Returns
+    -------
+    (list of Coefficients, Coefficients)
+        Shared with the other blocks of the same values: read them, never write to them.
+    """
+    def match(key) -> bool:
+        values, i0, i1 = key
+        return np.array_equal(i0, block.i0) and np.array_equal(i1, block.i1) and \
+            _same_values(values, block.values)
+
+    known = _COEFFICIENTS.find(match)
+    if known is None:
+        known = compute(block)
+        _COEFFICIENTS.keep((block.values, block.i0, block.i1), known)
+    return known
+
+
+def _scoring(block) -> tuple:
+    """What of a block, besides its coefficients, its cells depend on."""
+    return (tuple(block.names), block.shape, block.mean_dof, block.mean_nuisance)
+
+
+def cells(real, twin, keep, in_sample: bool, compute) -> list:
+    """The gap cells of one block (real and twin BlockCoefficients): those kept for the same
+    coefficients (the very objects :func:`coefficients` hands out), pieces kept, side and
+    scoring, turned to this block; or ``compute()``'s, then kept.
+
+    Parameters
+    ----------
+    real, twin : BlockCoefficients
+    keep : (k,) int array or None
+        Session-wide ids of the pieces compared.
+    in_sample : bool
+    compute : callable
+        () -> list of CellShare.
+
+    Returns
+    -------
+    list of CellShare
+        Their share arrays are shared with the kept cells: read them, never write to them.
+    """
+    block = real.block
+    keep_bytes = None if keep is None else np.asarray(keep).tobytes()
+
+    def match(key) -> bool:
+        levels, twin_levels, kept, side, scoring, piece, radial = key
+        return levels is real.levels and twin_levels is twin.levels and kept == keep_bytes \
+            and side == in_sample and scoring == _scoring(block) \
+            and np.array_equal(piece, block.piece) and \
+            (radial is None if block.radial is None else
+             radial is not None and np.array_equal(radial, block.radial))
+
+    known = _CELLS.find(match)
+    if known is None:
+        known = compute()
+        _CELLS.keep((real.levels, twin.levels, keep_bytes, in_sample, _scoring(block),
+                     block.piece, block.radial), known)
+    return [replace(c, block=block) for c in known]
