@@ -156,3 +156,33 @@ def test_an_effect_of_the_gyro_leaves_the_other_sensors_hold_residuals_as_they_w
         assert now["acc_x"].levels is was["acc_x"].levels, side
         assert now["mag_x"].levels is was["mag_x"].levels, side
         assert now["gyr_x"].levels is not was["gyr_x"].levels, side
+
+
+def test_statistics_of_kept_coefficients_are_kept_with_them():
+    """reuse.derived: the same coefficient objects and pieces give the kept statistic; other
+    pieces, or the same values under other piece ids, are worked out afresh."""
+    from dataclasses import replace
+
+    from apmcal.diagnosis import reuse
+    from apmcal.diagnosis.gap import coefficients
+    from apmcal.diagnosis.noise_fit import level_stats
+
+    block = _hold_block(np.random.default_rng(7))
+    coeffs = coefficients([block])[0]
+    calls = []
+
+    def stats(c, pieces):
+        calls.append(pieces.tobytes())
+        return level_stats(c, pieces)
+
+    train = np.array([0, 2, 4, 6])
+    first = reuse.derived(coeffs, "levels", train, lambda: stats(coeffs, train))
+    same = coefficients([replace(block, values=block.values.copy())])[0]
+    assert reuse.derived(same, "levels", train.copy(), lambda: stats(same, train)) is first
+    assert len(calls) == 1
+    other = np.array([8, 10])
+    v, n = reuse.derived(coeffs, "levels", other, lambda: stats(coeffs, other))
+    assert len(calls) == 2 and np.array_equal(v, level_stats(coeffs, other)[0])
+    renumbered = coefficients([replace(block, piece=block.piece[::-1].copy())])[0]
+    reuse.derived(renumbered, "levels", train, lambda: stats(renumbered, train))
+    assert len(calls) == 3

@@ -23,6 +23,8 @@ from functools import lru_cache
 import numpy as np
 from scipy.optimize import nnls
 
+from apmcal.diagnosis import reuse
+
 N_FREQ = 4096                      # frequency grid of the Haar gains
 CUTOFF_GRID = 16                   # candidate low-pass cut-offs between fs/8 and 45 % of fs
 # an on-chip filter sits at or above an eighth of the logging rate (MPU-6000 DLPF 20-256 Hz
@@ -109,10 +111,12 @@ def fit_noise(coefficient_sets: list, train: np.ndarray, effects, fs_of: dict,
         if not coeffs.block.shape:         # moves: scored, but the noise is the holds'
             continue
         sensor = coeffs.block.names[0].split("_")[0]
-        v, n = level_stats(coeffs, train)
+        # a sensor the model leaves as another model had it: its statistics are that one's
+        v, n = reuse.derived(coeffs, "levels", train, lambda c=coeffs: level_stats(c, train))
+        floor = reuse.derived(coeffs, "floor", train, lambda c=coeffs: floor_stat(c.block, train))
         walk = sensor == "gyr" and "bias_random_walk" in effects
         inputs[sensor] = dict(v=v, n=n, fs=fs_of[sensor], step=steps.get(sensor),
-                              random_walk=walk, floor=floor_stat(coeffs.block, train),
+                              random_walk=walk, floor=floor,
                               pairs=MeanPairs.of(coeffs.block, train) if walk else None)
     filtered = [s for s in ("acc", "gyr") if s in inputs]
     cutoff = shared_cutoff([inputs[s] for s in filtered]) if "lowpass_filter" in effects \

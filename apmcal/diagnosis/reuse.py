@@ -48,6 +48,7 @@ class _Recent:
 
 _COEFFICIENTS = _Recent(KEPT)
 _CELLS = _Recent(KEPT)
+_DERIVED = _Recent(2 * KEPT)
 
 
 def _same_values(a: np.ndarray, b: np.ndarray) -> bool:
@@ -70,15 +71,18 @@ def coefficients(block, compute):
     (list of Coefficients, Coefficients)
         Shared with the other blocks of the same values: read them, never write to them.
     """
-    def match(key) -> bool:
-        values, i0, i1 = key
-        return np.array_equal(i0, block.i0) and np.array_equal(i1, block.i1) and \
+    names = tuple(block.names)
+
+    def match(key) -> bool:        # the cheap tests first: most kept blocks are another's
+        kept_names, values, i0, i1 = key
+        return kept_names == names and values.shape == block.values.shape and \
+            np.array_equal(i0, block.i0) and np.array_equal(i1, block.i1) and \
             _same_values(values, block.values)
 
     known = _COEFFICIENTS.find(match)
     if known is None:
         known = compute(block)
-        _COEFFICIENTS.keep((block.values, block.i0, block.i1), known)
+        _COEFFICIENTS.keep((names, block.values, block.i0, block.i1), known)
     return known
 
 
@@ -123,3 +127,28 @@ def cells(real, twin, keep, in_sample: bool, compute) -> list:
         _CELLS.keep((real.levels, twin.levels, keep_bytes, in_sample, _scoring(block),
                      block.piece, block.radial), known)
     return [replace(c, block=block) for c in known]
+
+
+def derived(coefficients, what: str, pieces, compute):
+    """``compute()``, a statistic ``what`` of ``coefficients`` (BlockCoefficients) over the
+    session-wide pieces ``pieces``: the one kept for the same coefficients (the very objects
+    :func:`coefficients` hands out), block pieces and pieces, or worked out and kept.
+
+    Returns
+    -------
+    object
+        Shared with the other callers: read it, never write to it.
+    """
+    block = coefficients.block
+    pieces_bytes = np.asarray(pieces).tobytes()
+
+    def match(key) -> bool:
+        kept_what, levels, kept_pieces, piece = key
+        return kept_what == what and levels is coefficients.levels and \
+            kept_pieces == pieces_bytes and np.array_equal(piece, block.piece)
+
+    known = _DERIVED.find(match)
+    if known is None:
+        known = compute()
+        _DERIVED.keep((what, coefficients.levels, pieces_bytes, block.piece), known)
+    return known
