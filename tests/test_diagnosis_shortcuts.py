@@ -186,3 +186,23 @@ def test_statistics_of_kept_coefficients_are_kept_with_them():
     renumbered = coefficients([replace(block, piece=block.piece[::-1].copy())])[0]
     reuse.derived(renumbered, "levels", train, lambda: stats(renumbered, train))
     assert len(calls) == 3
+
+
+def test_the_vectors_carried_along_a_path_are_the_plain_ones(evaluator):
+    """twin._carried keeps recent results for the very path objects and equal vectors: the same
+    numbers as trajectory.carried, read-only (shared by twins), and worked out afresh for other
+    vectors."""
+    from apmcal.diagnosis import trajectory
+    from apmcal.diagnosis.twin import _carried
+
+    hold_rot, traj = evaluator._motion_path(0)
+    vectors = np.random.default_rng(3).standard_normal((len(evaluator.session.holds), 3))
+    first = _carried(traj, hold_rot, vectors, True)
+    assert np.array_equal(first, trajectory.carried(traj, hold_rot, vectors, True))
+    assert not first.flags.writeable
+    assert _carried(traj, hold_rot, vectors.copy(), True) is first
+    moved = vectors.copy()
+    moved[0, 0] += 1e-12
+    other = _carried(traj, hold_rot, moved, True)
+    assert other is not first
+    assert np.array_equal(other, trajectory.carried(traj, hold_rot, moved, True))

@@ -23,8 +23,14 @@ KEPT = 24           # blocks kept of each kind (at 400 Hz a hold block is about 
 STRIDE = 251        # the quick check reads every STRIDE-th value
 
 
-class _Recent:
-    """Entries found by comparing arrays, least recently used forgotten first."""
+class Recent:
+    """Entries found by comparing arrays, least recently used forgotten first.
+
+    Parameters
+    ----------
+    size : int
+        Entries kept.
+    """
 
     def __init__(self, size: int):
         self.size = size
@@ -40,15 +46,17 @@ class _Recent:
         return None
 
     def keep(self, key, value) -> None:
+        """Keep ``value`` under ``key`` (what ``match`` reads), forgetting the oldest beyond
+        the size."""
         self.entries[self._next] = (key, value)
         self._next += 1
         while len(self.entries) > self.size:
             self.entries.popitem(last=False)
 
 
-_COEFFICIENTS = _Recent(KEPT)
-_CELLS = _Recent(KEPT)
-_DERIVED = _Recent(2 * KEPT)
+_COEFFICIENTS = Recent(KEPT)
+_CELLS = Recent(KEPT)
+_DERIVED = Recent(2 * KEPT)
 
 
 def _same_values(a: np.ndarray, b: np.ndarray) -> bool:

@@ -15,7 +15,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from apmcal.constants import EARTH_RATE
-from apmcal.diagnosis import trajectory
+from apmcal.diagnosis import reuse, trajectory
 from apmcal.diagnosis.draws import replayed
 from apmcal.diagnosis.model import ModelFit, calibrated_rate, hold_vectors, per_hold
 
@@ -184,10 +184,11 @@ def simulate(session, fit: ModelFit, noise, seed: int = 0, motion_path=None):
         traj = trajectory.with_hold_motion(traj, session, *fit.hold_motion)
     rot, rate = traj.rot, traj.rate
     f_hold, b_hold = hold_vectors(fit, len(session.holds))
-    f_body = trajectory.carried(traj, hold_rot, f_hold, still_holds=not tremor)
+    f_body = _carried(traj, hold_rot, f_hold, still_holds=not tremor)
     w_body = rate + _earth_rate(fit, rot)
     tau = fit.dynamics.time_offset_s
-    f_acc = Rotation.from_rotvec(rate * tau).apply(f_body) if tau else f_body
+    # (a copy for scipy's apply, which refuses the read-only, shared f_body)
+    f_acc = Rotation.from_rotvec(rate * tau).apply(f_body.copy()) if tau else f_body
     model = ImuErrorModel(truth, session.fs, TWIN_SEEDS + seed)
     # the same seed model after model: its draws are made once (the same samples)
     model.rng = replayed(model.rng, TWIN_SEEDS + seed)
@@ -198,6 +199,28 @@ def simulate(session, fit: ModelFit, noise, seed: int = 0, motion_path=None):
         twin.mag = replace(session.mag, values=_mag(session, traj, hold_rot, b_hold, model, noise,
                                                      still_holds=not tremor))
     return twin, truth
+
+
+_CARRIED = reuse.Recent(8)     # the holds' vectors carried along a motion path, recent ones
+
+
+def _carried(traj, hold_rot, vectors: np.ndarray, still_holds: bool) -> np.ndarray:
+    """:func:`trajectory.carried`, or its result for the same path (the very objects: one path
+    per fold serves every model) and equal vectors, which most models leave as the nominal
+    model has them (read-only: shared between twins)."""
+    vectors = np.asarray(vectors)
+
+    def match(key) -> bool:
+        kept_traj, kept_rot, kept_vectors, kept_still = key
+        return kept_traj is traj and kept_rot is hold_rot and kept_still == still_holds and \
+            kept_vectors.shape == vectors.shape and np.array_equal(kept_vectors, vectors)
+
+    known = _CARRIED.find(match)
+    if known is None:
+        known = trajectory.carried(traj, hold_rot, vectors, still_holds)
+        known.flags.writeable = False
+        _CARRIED.keep((traj, hold_rot, vectors.copy(), still_holds), known)
+    return known
 
 
 def _earth_rate(fit: ModelFit, rot: np.ndarray) -> np.ndarray:
@@ -215,7 +238,7 @@ def _mag(session, traj, hold_rot, b_hold, model, noise, still_holds: bool) -> np
     from sitl.truth import FULL_THROTTLE_CURRENT_A
 
     m = session.mag
-    b_imu = trajectory.carried(traj, hold_rot, b_hold, still_holds)
+    b_imu = _carried(traj, hold_rot, b_hold, still_holds)
     idx = np.clip(np.searchsorted(session.t, m.t), 0, len(session.t) - 1)
     throttle = (m.current / FULL_THROTTLE_CURRENT_A if m.current is not None
                 else np.zeros(len(m.t)))
