@@ -206,3 +206,14 @@ def test_the_vectors_carried_along_a_path_are_the_plain_ones(evaluator):
     other = _carried(traj, hold_rot, moved, True)
     assert other is not first
     assert np.array_equal(other, trajectory.carried(traj, hold_rot, moved, True))
+
+
+def test_the_compass_to_imu_index_is_found_once_per_pair_of_time_axes():
+    from apmcal.diagnosis.twin import _imu_index
+
+    t_imu = np.arange(1000) / 400.0
+    t_mag = np.arange(-3, 260) / 100.0 + 0.0013
+    first = _imu_index(t_imu, t_mag)
+    assert np.array_equal(first, np.clip(np.searchsorted(t_imu, t_mag), 0, 999))
+    assert _imu_index(t_imu, t_mag) is first and not first.flags.writeable
+    assert _imu_index(t_imu, t_mag.copy()) is not first     # other arrays: found again

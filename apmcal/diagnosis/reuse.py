@@ -15,7 +15,6 @@ Kept per process; a forked worker starts with what the main process kept.
 from __future__ import annotations
 
 from collections import OrderedDict
-from dataclasses import replace
 
 import numpy as np
 
@@ -134,7 +133,7 @@ def cells(real, twin, keep, in_sample: bool, compute) -> list:
         known = compute()
         _CELLS.keep((real.levels, twin.levels, keep_bytes, in_sample, _scoring(block),
                      block.piece, block.radial), known)
-    return [replace(c, block=block) for c in known]
+    return [c.on(block) for c in known]
 
 
 def derived(coefficients, what: str, pieces, compute):

@@ -223,6 +223,20 @@ def _carried(traj, hold_rot, vectors: np.ndarray, still_holds: bool) -> np.ndarr
     return known
 
 
+_IMU_INDEX = reuse.Recent(4)   # compass sample -> IMU sample, per pair of time axes
+
+
+def _imu_index(t_imu: np.ndarray, t_mag: np.ndarray) -> np.ndarray:
+    """The IMU sample at or after each compass sample (the last one beyond the end): found
+    once for a session's two time axes (the very arrays), which every twin shares."""
+    known = _IMU_INDEX.find(lambda key: key[0] is t_imu and key[1] is t_mag)
+    if known is None:
+        known = np.clip(np.searchsorted(t_imu, t_mag), 0, len(t_imu) - 1)
+        known.flags.writeable = False
+        _IMU_INDEX.keep((t_imu, t_mag), known)
+    return known
+
+
 def _earth_rate(fit: ModelFit, rot: np.ndarray) -> np.ndarray:
     """The fitted Earth rate in the body frame: Ω(a_north, 0, −a_up) in NED, rotated."""
     if "earth_rate" not in fit.effects:
@@ -239,7 +253,7 @@ def _mag(session, traj, hold_rot, b_hold, model, noise, still_holds: bool) -> np
 
     m = session.mag
     b_imu = _carried(traj, hold_rot, b_hold, still_holds)
-    idx = np.clip(np.searchsorted(session.t, m.t), 0, len(session.t) - 1)
+    idx = _imu_index(session.t, m.t)
     throttle = (m.current / FULL_THROTTLE_CURRENT_A if m.current is not None
                 else np.zeros(len(m.t)))
     values = model.mag(np.take(b_imu, idx, axis=0), throttle)
