@@ -6,6 +6,7 @@ fast effects (noise shape, low-pass, tremor) are fitted on the wavelet statistic
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -144,17 +145,29 @@ def block_means(x: np.ndarray, i0: np.ndarray, i1: np.ndarray, size: int
     piece : (b,) int array
         Index (into ``i0``) of each block's piece.
     """
+    bounds, pick, counts, piece = _layout(np.asarray(i0, int).tobytes(),
+                                          np.asarray(i1, int).tobytes(), size, len(x))
+    sums = np.add.reduceat(np.asarray(x, dtype=float), bounds, axis=0)[pick]
+    shape = (-1,) + (1,) * (sums.ndim - 1)
+    return sums / counts.reshape(shape), counts, piece
+
+
+@functools.lru_cache(maxsize=16)
+def _layout(i0_bytes: bytes, i1_bytes: bytes, size: int, n: int) -> tuple:
+    """Where :func:`block_means` sums: the reduceat boundaries, which of their sums are blocks,
+    the blocks' counts and pieces — the same for every sensor and model of a session, so found
+    once (read-only arrays)."""
+    i0, i1 = np.frombuffer(i0_bytes, int), np.frombuffer(i1_bytes, int)
     starts, piece = block_starts(i0, i1, size)
     ends = np.minimum(starts + size, i1[piece])
     # reduceat sums between consecutive boundaries: add the ends so gaps between pieces are
     # their own (discarded) intervals
     bounds = np.unique(np.concatenate((starts, ends)))
-    bounds = bounds[bounds < len(x)]
-    sums = np.add.reduceat(np.asarray(x, dtype=float), bounds, axis=0)
-    sums = sums[np.searchsorted(bounds, starts)]
-    counts = ends - starts
-    shape = (-1,) + (1,) * (sums.ndim - 1)
-    return sums / counts.reshape(shape), counts, piece
+    bounds = bounds[bounds < n]
+    out = bounds, np.searchsorted(bounds, starts), ends - starts, piece
+    for a in out:
+        a.flags.writeable = False
+    return out
 
 
 def make_blocks(t, values, i0, i1, piece_ids, group_of_piece, fs: float,
