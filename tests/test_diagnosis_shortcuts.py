@@ -117,6 +117,7 @@ def test_a_block_of_the_same_values_gets_the_same_coefficients_and_cells():
     bit, or another scoring of the piece means, and they are worked out afresh."""
     from dataclasses import replace
 
+    from apmcal.diagnosis import reuse
     from apmcal.diagnosis.gap import coefficients, compare
     from apmcal.diagnosis.haar import details
 
@@ -125,6 +126,9 @@ def test_a_block_of_the_same_values_gets_the_same_coefficients_and_cells():
     first = coefficients([real])[0]
     again = coefficients([replace(real, values=real.values.copy())])[0]
     assert again.levels is first.levels and again.means is first.means
+    reuse.forget()                      # a new session: nothing kept
+    assert coefficients([real])[0].levels is not first.levels
+    first = coefficients([real])[0]
     changed = real.values.copy()
     changed[2000, 1] = np.nextafter(changed[2000, 1], np.inf)
     other = coefficients([replace(real, values=changed)])[0]

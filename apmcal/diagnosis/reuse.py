@@ -22,6 +22,16 @@ KEPT = 24           # blocks kept of each kind (at 400 Hz a hold block is about 
 STRIDE = 251        # the quick check reads every STRIDE-th value
 
 
+_ALL: list = []     # every store, for forget()
+
+
+def forget() -> None:
+    """Drop everything kept (a new session: nothing of the last one can match, and what it
+    kept is hundreds of MB at 400 Hz)."""
+    for store in _ALL:
+        store.entries.clear()
+
+
 class Recent:
     """Entries found by comparing arrays, least recently used forgotten first.
 
@@ -35,6 +45,7 @@ class Recent:
         self.size = size
         self.entries: OrderedDict = OrderedDict()
         self._next = 0
+        _ALL.append(self)
 
     def find(self, match):
         """The value of the first entry ``match(entry key)`` accepts, or None."""

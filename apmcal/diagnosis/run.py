@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from apmcal.diagnosis import reuse
 from apmcal.diagnosis.breakdown import gap_summary
 from apmcal.diagnosis.decimate import FINE_EFFECTS, SHAPES_BLOCK_MEANS, block_factor
 from apmcal.diagnosis.evaluate import FOLDS, Evaluation, Evaluator
@@ -71,6 +72,7 @@ def diagnose(session, names=None, *, seed: int = 0, progress=None) -> Diagnosis:
     # the models are spread over processes (Evaluator.map); BLAS threads on top of those only
     # contend — an (n, 3) @ (3, 3) product ran 10-25× slower with two OpenBLAS threads on a
     # busy two-core machine than with one
+    reuse.forget()     # what the last session's models left can only take memory
     with threadpool_limits(limits=1):
         return _diagnose(session, names, seed, progress)
 
