@@ -480,13 +480,12 @@ class Evaluator:
         plots and the noise structure read fold 0's only)."""
         return self.evaluate_with(effects, [])[0]
 
-    def evaluate_with(self, effects, jobs: list, then=None, meanwhile=None,
-                      max_workers: int | None = None) -> tuple:
+    def evaluate_with(self, effects, jobs: list, then=None, meanwhile=None) -> tuple:
         """:meth:`evaluate`, with ``jobs`` (as for :meth:`map`) in the same workers, queued
-        behind its fold 1 (``max_workers``: at most so many workers); returns
-        (``then(evaluation)``, here as soon as the evaluation is complete while the jobs may
-        still run — the evaluation itself by default —, the jobs' results). ``meanwhile()``
-        is called here once fold 0 is done, while fold 1 may still run."""
+        behind its fold 1; returns (``then(evaluation)``, here as soon as the evaluation is
+        complete while the jobs may still run — the evaluation itself by default —, the jobs'
+        results). ``meanwhile()`` is called here once fold 0 is done, while fold 1 may still
+        run."""
         then = then or (lambda evaluation: evaluation)
         meanwhile = meanwhile or (lambda: None)
         key = frozenset(effects)
@@ -495,8 +494,7 @@ class Evaluator:
                 meanwhile()
                 return then(self._cache[key])
 
-            return workers.beside(self, jobs, done, max_workers=max_workers) if jobs \
-                else (done(), [])
+            return workers.beside(self, jobs, done) if jobs else (done(), [])
         # on a cold evaluator the nominal model's folds are what warm it (one fit for both)
         cold_nominal = not key and self._cold()
         if not cold_nominal:
@@ -514,8 +512,7 @@ class Evaluator:
             self._cache[key] = Evaluation(key, [first, second])
             return then(self._cache[key])
 
-        out, results = workers.beside(self, [fold_1] + list(jobs), both_folds, hand_over=True,
-                                      max_workers=max_workers)
+        out, results = workers.beside(self, [fold_1] + list(jobs), both_folds, hand_over=True)
         return out, results[1:]
 
     def _fold_without_coefficients(self, key: frozenset, fold: int) -> FoldResult:

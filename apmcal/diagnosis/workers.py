@@ -40,11 +40,9 @@ def run(target, jobs: list[tuple[str, tuple]]) -> list:
         return [_unship(r) for r in pool.map(_call, jobs, chunksize=1)]
 
 
-def beside(target, jobs: list[tuple[str, tuple]], work, hand_over: bool = False,
-           max_workers: int | None = None):
+def beside(target, jobs: list[tuple[str, tuple]], work, hand_over: bool = False):
     """``work()`` in this process while ``jobs`` (as for :func:`run`) run in forked workers,
-    one per job up to one per core (or ``max_workers``, the jobs then queued behind each
-    other); returns (work's result, the jobs' results).
+    one per job up to one per core; returns (work's result, the jobs' results).
 
     ``hand_over``: ``work`` is called with a function that returns job i's result as soon as
     that job is done, while the others may still run (work that needs one of them)."""
@@ -59,8 +57,7 @@ def beside(target, jobs: list[tuple[str, tuple]], work, hand_over: bool = False,
 
         out = work(result_here) if hand_over else work()
         return out, [result_here(i) for i in range(len(jobs))]
-    with _pool(target, max(1, min(len(jobs), os.cpu_count() or 1, max_workers or len(jobs)))
-               ) as pool:
+    with _pool(target, max(1, min(len(jobs), os.cpu_count() or 1))) as pool:
         pending = [pool.apply_async(_call, (job,)) for job in jobs]     # in order, one each
         got: dict = {}
 
