@@ -4,7 +4,8 @@
 
 A speed change to the diagnosis must not change a single number it reports. This runs
 ``apmcal gap FILE --json OUT`` with this tree and with revision ``--before`` (its apmcal and sitl
-exported with ``git archive``; default: main before the speed work of 2026-11-24) on:
+exported with ``git archive``; default: main before the speed work that began at 05:44 UTC on
+2026-11-24) on:
 
 * the 400 Hz session of ``gap_speed.py`` (made by it, kept in ``benchmarks/_data/``);
 * six 100 Hz sitl sessions, each with other effects withheld from the twin (made here once);
@@ -27,7 +28,7 @@ from gap_speed import make_session
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / "_data"
 SHARED = ROOT.parent / "shared" / "data"
-BEFORE = "521fba9"      # main before the speed work of 2026-11-24
+BEFORE = "521fba9"      # main before the speed work that began at 05:44 UTC on 2026-11-24
 SITE = ["--lat", "47.4", "--lon", "8.5"]
 # (effects withheld from the twin, seed): a pair, a fine effect, the hold motion, an effect of
 # the moves, none, a noise effect

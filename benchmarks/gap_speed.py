@@ -9,9 +9,9 @@ moves, to score the nominal model, to rank every candidate, to select a combinat
 the parameters on all the data, and in all; and, as the peer measured in the same run,
 pymavlink's DFReader reading the same file's IMU records; then the whole command as a user runs
 it, in a fresh process (imports included), ``--runs`` times, alternating with the same command of
-revision ``--before`` (its apmcal and sitl exported with ``git archive``; default: main before the
-speed work of 2026-11-24), so that both see the same machine load. Issue 8's target: under 10 s on
-this 2-core machine.
+revision ``--before`` (its apmcal and sitl exported with ``git archive``; default e130e47, main
+before the speed work that began after it on 2026-11-24), so that both see the same machine
+load. Issue 8's target: under 10 s on this 2-core machine.
 """
 from __future__ import annotations
 
