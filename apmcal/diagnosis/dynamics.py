@@ -248,12 +248,11 @@ def move_turns(session, forward: np.ndarray, moves: Moves, rate_cal: np.ndarray,
     rel : Rotation
         Attitudes relative to the hold before, one per kept move sample.
     """
-    # move by move: the moves hold about an eighth of a session's samples, and a fit of the
-    # gyro matrix turns them again at every step (each row is the same product either way)
-    to_body = np.linalg.inv(forward).T
+    # the moves' rows only: about an eighth of a session's samples, and a fit of the gyro
+    # matrix turns them again at every step (each row is the same product either way)
+    rows = moves.rows()
     rate = np.full_like(rate_cal, np.nan)
-    for a, b in zip(moves.i0, moves.i1):
-        rate[a - 1:b] = rate_cal[a - 1:b] @ to_body
+    rate[rows] = rate_cal[rows] @ np.linalg.inv(forward).T
     return rate, relative_attitudes(rate, session.t, moves, step)
 
 

@@ -233,6 +233,9 @@ class Evaluator:
         self.context = Context(count_orientations(self.reduced.acc, "acc"), self.steps)
         self.sample_sigma = sample_sigma(session)
         self.fs_of = {"acc": session.fs, "gyr": session.fs}
+        # the samples the moves' integration reads: the same for the session and its twins
+        # (simulated on its sample axis), so found once
+        self.move_rows = Moves.of(session).rows()
         if session.mag is not None:
             self.fs_of["mag"] = float(1.0 / np.median(np.diff(session.mag.t)))
         self._cache: dict[frozenset, Evaluation] = {}
@@ -312,7 +315,7 @@ class Evaluator:
         fit = fit_model(session, reduced, effects, train_fold, field_mgauss=self.field_mgauss,
                         declination_rad=self.declination_rad, start=start, with_sigma=with_sigma)
         train = session.pieces.select(fold=train_fold)
-        rate = calibrated_rate(session, fit, Moves.of(session).rows())    # moves read it only
+        rate = calibrated_rate(session, fit, self.move_rows)    # the moves read it only
         f_hold, b_hold = hold_vectors(fit, len(session.holds))
         fit.dynamics = fit_dynamics(session, fit, effects, train, rate, f_hold, b_hold,
                                     self.sample_sigma)
@@ -431,13 +434,20 @@ class Evaluator:
         self._motion.update(motion)
         self._real_models.update(real_models)
 
+    @property
+    def decimates(self) -> bool:
+        """Whether the slow effects are scored on block means (a session faster than
+        :data:`~apmcal.diagnosis.decimate.SLOW_RATE_HZ`), by :attr:`slow`."""
+        return block_factor(self.session.fs) > 1
+
     @cached_property
     def slow(self) -> "Evaluator":
         """The evaluator of this session's block means, where the slow effects are scored
         (:mod:`apmcal.diagnosis.decimate`); this one itself when the session is not faster
         than that. Made once, in this process, so that forked workers inherit it."""
-        k = block_factor(self.session.fs)
-        return self if k == 1 else Evaluator(decimated(self.session, k), self.seed)
+        if not self.decimates:
+            return self
+        return Evaluator(decimated(self.session, block_factor(self.session.fs)), self.seed)
 
     def _slow_nominal_fold(self, fold: int) -> tuple:
         """:meth:`_nominal_fold` of :attr:`slow` (a job: workers call methods of this one)."""

@@ -130,11 +130,12 @@ def cells(real, twin, keep, in_sample: bool, compute) -> list:
     """
     block = real.block
     keep_bytes = None if keep is None else np.asarray(keep).tobytes()
+    scoring = _scoring(block)
 
     def match(key) -> bool:
-        levels, twin_levels, kept, side, scoring, piece, radial = key
+        levels, twin_levels, kept, side, kept_scoring, piece, radial = key
         return levels is real.levels and twin_levels is twin.levels and kept == keep_bytes \
-            and side == in_sample and scoring == _scoring(block) \
+            and side == in_sample and kept_scoring == scoring \
             and np.array_equal(piece, block.piece) and \
             (radial is None if block.radial is None else
              radial is not None and np.array_equal(radial, block.radial))
@@ -142,8 +143,8 @@ def cells(real, twin, keep, in_sample: bool, compute) -> list:
     known = _CELLS.find(match)
     if known is None:
         known = compute()
-        _CELLS.keep((real.levels, twin.levels, keep_bytes, in_sample, _scoring(block),
-                     block.piece, block.radial), known)
+        _CELLS.keep((real.levels, twin.levels, keep_bytes, in_sample, scoring, block.piece,
+                     block.radial), known)
     return [c.on(block) for c in known]
 
 

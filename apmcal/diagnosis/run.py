@@ -13,7 +13,7 @@ import numpy as np
 
 from apmcal.diagnosis import reuse
 from apmcal.diagnosis.breakdown import gap_summary
-from apmcal.diagnosis.decimate import FINE_EFFECTS, SHAPES_BLOCK_MEANS, block_factor
+from apmcal.diagnosis.decimate import FINE_EFFECTS, SHAPES_BLOCK_MEANS
 from apmcal.diagnosis.evaluate import FOLDS, Evaluation, Evaluator
 from apmcal.diagnosis.noise_structure import merged as merged_structure
 from apmcal.diagnosis.noise_terms import prepare as prepare_noise_terms
@@ -116,8 +116,7 @@ def _score_nominal(ev: Evaluator) -> Evaluation:
     own block means). Once fold 0 is done, while fold 1 may still run, this process makes what
     the workers forked later inherit: the block means' evaluator and the noise-structure fits'
     fixed integrals."""
-    decimated = block_factor(ev.session.fs) > 1
-    jobs = [("_slow_nominal_fold", (fold,)) for fold in FOLDS] if decimated else []
+    jobs = [("_slow_nominal_fold", (fold,)) for fold in FOLDS] if ev.decimates else []
 
     def meanwhile():
         _ = ev.slow
@@ -149,8 +148,7 @@ def _rank_and_select(ev: Evaluator, names, say):
     out, a random walk would stand in for it); then the fine effects' combination at the
     recorded rate, on top of the slow effects selected."""
     preload_imports()       # before the first workers that may need them are forked
-    slow_ev = ev.slow
-    if slow_ev is ev:
+    if not ev.decimates:
         say("candidate effects")
         ranked = rank_effects(ev, names)
         say("combination")
@@ -160,9 +158,9 @@ def _rank_and_select(ev: Evaluator, names, say):
     say("candidate effects")
     ranked_fine = rank_effects(ev, fine_names)
     carried = tuple(s.name for s in ranked_fine if s.supported and s.name in SHAPES_BLOCK_MEANS)
-    ranked_slow = rank_effects(slow_ev, slow_names, base=carried)
+    ranked_slow = rank_effects(ev.slow, slow_names, base=carried)
     say("combination")
-    slow = forward_selection(slow_ev, ranked_slow, base=carried)
+    slow = forward_selection(ev.slow, ranked_slow, base=carried)
     fine = forward_selection(ev, ranked_fine, base=tuple(slow.order()))
     return rank(ranked_slow + ranked_fine), merged(slow, fine)
 
