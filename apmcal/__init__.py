@@ -7,7 +7,7 @@ Data flow (one sub-package per stage):
     vehicle/        turn a calibration into ArduPilot parameters, write .param files, upload
     diagnosis/      compare simulation with real data
 """
-from apmcal.errors import ApmcalError
+from apmcal.core.errors import ApmcalError
 
 __all__ = ["ApmcalError", "Recording", "LogContents"]
 __version__ = "0.1.0"
@@ -17,7 +17,7 @@ def __getattr__(name: str):
     # Recording and LogContents import pandas: loaded when first asked for, so that the command
     # line starts light and a Ctrl-C during its imports falls inside its own handler (exit 130)
     if name in ("Recording", "LogContents"):
-        from apmcal import recording
+        from apmcal.core import recording
 
         return getattr(recording, name)
     raise AttributeError(f"module 'apmcal' has no attribute {name!r}")

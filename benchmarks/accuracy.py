@@ -4,7 +4,7 @@ Simulates sessions with known truth (seed 000 model S_p = W·S + V0, symmetric W
 ``M = W⁻¹``, ``o = V0``): a fixed design of field directions, isotropic Gaussian noise σ on each
 measured vector, many noise realisations. For each parameter (offset 3, symmetric matrix 6) it
 prints the RMSE of seed 000's analytical and numerical fits, of the robust fit, and of the robust
-fit with its second-order bias removed (apmcal.solvers.ellipsoid_debias), next to the CRLB of the
+fit with its second-order bias removed (apmcal.solvers.ellipsoid.debias), next to the CRLB of the
 same design, and the efficiency CRLB/MSE (1 = as good as any unbiased estimator).
 
 CRLB: the geometric model ``|M(s − o)| = r`` with the unknown directions as nuisance parameters;
@@ -24,11 +24,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from apmcal.solvers.ellipsoid_debias import (
+from apmcal.solvers.ellipsoid.debias import (
     debiased,  # noqa: E402
     warm_refit,  # noqa: E402
 )
-from apmcal.solvers.ellipsoid_paper import (  # noqa: E402
+from apmcal.solvers.ellipsoid.paper import (  # noqa: E402
     DIAGONAL_ENTRIES,
     SYMMETRIC_ENTRIES,
     fit_ellipsoid_analytical,
@@ -36,7 +36,7 @@ from apmcal.solvers.ellipsoid_paper import (  # noqa: E402
     geometric_residual,
     matrix_to_params,
 )
-from apmcal.solvers.ellipsoid_robust import fit_ellipsoid_robust  # noqa: E402
+from apmcal.solvers.ellipsoid.robust import fit_ellipsoid_robust  # noqa: E402
 
 NAMES = ["o_x", "o_y", "o_z", "M_xx", "M_yy", "M_zz", "M_xy", "M_xz", "M_yz"]
 RADIUS = 500.0          # e.g. mGauss

@@ -60,7 +60,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from apmcal.constants import EARTH_RATE, MG_TO_MS2, MRAD_TO_RAD  # noqa: E402
+from apmcal.core.constants import EARTH_RATE, MG_TO_MS2, MRAD_TO_RAD  # noqa: E402
 from apmcal.preprocessing.ferraris_regions import ferraris_regions  # noqa: E402
 from apmcal.solvers.ferraris import ferraris_calibration  # noqa: E402
 from apmcal.solvers.one_position import one_position_calibration  # noqa: E402

@@ -7,7 +7,7 @@ accelerometer, gyro and compass — six faces, corner holds, turns about each ax
 dataflash .bin of 20 MB) and kept in ``benchmarks/_data/``. Measured in this one run, each in a
 fresh process (so imports, numba's cache loading and the page cache are as for a user):
 
-* ``import``: ``python -c "import apmcal.cli, apmcal.pipeline, apmcal.sources"``;
+* ``import``: ``python -c "import apmcal.cli, apmcal.calibration.log, apmcal.sources"``;
 * the stages of ``apmcal log SESSION --lat 47.4 --lon 8.5`` run in-process: read, prepare
   (parameter changes, time base, the firmware's correction undone, units check), static holds,
   each solver (ferraris / ellipsoid / one-position, magnetometer), parameters, report; times are
@@ -43,19 +43,19 @@ TARGETS = {"beyond_read": 1.0, "whole_process": 2.0, "help": 0.3}
 STAGES = [
     ("apmcal.sources", "read_log", "read"),
     ("apmcal.sources.units", "require_plausible_units", "prepare"),
-    ("apmcal.pipeline", "pick_recording", "prepare"),
+    ("apmcal.calibration.log", "pick_recording", "prepare"),
     ("apmcal.preprocessing.param_changes", "split_at_param_changes", "prepare"),
-    ("apmcal.pipeline", "prepare", "prepare"),
+    ("apmcal.calibration.log", "prepare", "prepare"),
     ("apmcal.preprocessing.static", "find_static_segments", "static holds"),
     ("apmcal.preprocessing.ferraris_regions", "ferraris_regions", "static holds"),
     ("apmcal.solvers.ferraris", "ferraris_calibration", "solver: ferraris"),
     ("apmcal.solvers.holds", "ellipsoid_on_holds", "solver: ellipsoid"),
     ("apmcal.solvers.holds", "one_position_on_holds", "solver: one-position"),
     ("apmcal.solvers.magnetometer", "calibrate_magnetometer", "solver: magnetometer"),
-    ("apmcal.vehicle.params", "to_ardupilot_params", "parameters"),
-    ("apmcal.report", "summarize", "report"),
-    ("apmcal.report", "print_summary", "report"),
-    ("apmcal.report", "print_calibration", "report"),
+    ("apmcal.ardupilot.params", "to_ardupilot_params", "parameters"),
+    ("apmcal.report.text", "summarize", "report"),
+    ("apmcal.report.text", "print_summary", "report"),
+    ("apmcal.report.text", "print_calibration", "report"),
 ]
 
 
@@ -100,12 +100,12 @@ def child(session: str) -> None:
     (stdout's last line); the command's own output goes to /dev/null."""
     w0, c0 = _now()
     try:        # as `apmcal log` does before numpy loads (the code before this change did not)
-        from apmcal.solvers.blas_threads import one_blas_thread_from_start
+        from apmcal.core.blas_threads import one_blas_thread_from_start
         one_blas_thread_from_start()
     except ImportError:
         pass
+    import apmcal.calibration.log
     import apmcal.cli
-    import apmcal.pipeline
     import apmcal.sources
     w1, c1 = _now()
     times, cpu = {"import": w1 - w0}, {"import": c1 - c0}
@@ -128,7 +128,7 @@ def child(session: str) -> None:
 
 def make_session(path: Path) -> None:
     """The diagnosis script at 400 Hz (accelerometer, gyro, compass), firmware 3.3, seed 11."""
-    subprocess.run([sys.executable, "-m", "sitl.makelog", "--script", "diagnosis", "--rate",
+    subprocess.run([sys.executable, "-m", "apmcal_sim.makelog", "--script", "diagnosis", "--rate",
                     "400", "--fs", "400", "--firmware", "3.3", "--seed", "11", "--out",
                     str(path)], cwd=ROOT, check=True)
 
@@ -173,7 +173,7 @@ def measure(tree: Path, session: Path, runs: int, whole: bool = True) -> dict:
         best[name] = min(best.get(name, float("inf")), value)
 
     for _ in range(runs):
-        wall, _, cpu = _run(tree, ["-c", "import apmcal.cli, apmcal.pipeline, apmcal.sources"])
+        wall, _, cpu = _run(tree, ["-c", "import apmcal.cli, apmcal.calibration.log, apmcal.sources"])
         keep("import", wall)
         keep("cpu import process", cpu)
         out = json.loads(_run(tree, [__file__, "--child", str(session)])[1].splitlines()[-1])

@@ -44,7 +44,7 @@ REAL = [("ardupilot/pxf_copter_static_51.BIN", []),
 
 def sessions(with_real: bool) -> list[tuple[Path, list[str]]]:
     """(log, its extra arguments) of every session compared, made when missing."""
-    from apmcal.diagnosis.benchmark import simulate_log
+    from apmcal_sim.gap_benchmark import simulate_log
 
     DATA.mkdir(exist_ok=True)
     out = []

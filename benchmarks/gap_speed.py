@@ -32,9 +32,9 @@ BEFORE = "e130e47"      # main before the memo and the log read beside the impor
 
 
 def make_session(path: Path, rate: float, seconds: float) -> None:
-    from apmcal.diagnosis.benchmark import START_UNIX, truth_for
-    from sitl.makelog import write_bin
-    from sitl.vehicle import SimVehicle
+    from apmcal_sim.gap_benchmark import START_UNIX, truth_for
+    from apmcal_sim.makelog import write_bin
+    from apmcal_sim.vehicle import SimVehicle
 
     v = SimVehicle(truth_for(("temperature_drift",), 11), "diagnosis", "3.3", None, fs=rate,
                    seed=11, duration=seconds, start_unix=START_UNIX)
@@ -85,9 +85,9 @@ def main(argv=None) -> None:
         print(f"simulating {path.name} ...", flush=True)
         make_session(path, args.rate, args.seconds)
 
+    from apmcal.calibration.log import Options
     from apmcal.diagnosis.run import diagnose
-    from apmcal.diagnosis.session import session_from_log
-    from apmcal.pipeline import Options
+    from apmcal.diagnosis.session.log import session_from_log
     from apmcal.sources import read_log
 
     times = {}

@@ -28,24 +28,24 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from apmcal import joint_pipeline
-from apmcal.pipeline import Options, calibrate_log
+from apmcal.calibration import joint as joint_pipeline
+from apmcal.calibration.log import Options, calibrate_log
 from apmcal.sources import read_log
 
 SITE = {"lat_deg": 5.6037, "lon_deg": -0.187,          # sitl's default home (Accra) and the
-        "date": datetime.date(2026, 5, 28)}            # date sitl.makelog's logs carry
+        "date": datetime.date(2026, 5, 28)}            # date apmcal_sim.makelog's logs carry
 HELD = (("acc", "offset"), ("acc", "diag"), ("gyr", "offset"), ("mag", "offset"),
         ("mag", "diag"))
 UNITS = {"acc": "m/s²", "gyr": "rad/s", "mag": "mGauss"}
 
 
 def sitl_session(tmp: Path, seed: int, rate: float, seconds: float) -> tuple[Path, dict]:
-    from sitl.makelog import main as makelog
+    from apmcal_sim.makelog import main as makelog
     log, truth = tmp / f"hand_{seed}.bin", tmp / f"hand_{seed}.json"
     if makelog(["--script", "handheld", "--out", str(log), "--seed", str(seed), "--rate",
                 str(rate), "--fs", str(rate), "--duration", str(seconds),
                 "--truth-out", str(truth)]) != 0:
-        raise SystemExit("sitl.makelog failed")
+        raise SystemExit("apmcal_sim.makelog failed")
     return log, json.loads(truth.read_text())
 
 

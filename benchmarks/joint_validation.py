@@ -4,7 +4,7 @@
 
 Every method is fitted on one set of still poses and checked on poses it never saw: the gyro's
 orientation change between two consecutive still poses against the one the accelerometer (and
-compass, when there is one) gives at those poses (:mod:`apmcal.solvers.orientation_check`; the
+compass, when there is one) gives at those poses (:mod:`apmcal.calibration.orientation_check`; the
 gyro bias is re-measured on the checked session, as ArduPilot does at boot). Printed: RMS
 error over the pose pairs [deg] for raw samples, Ferraris, ellipsoid and joint, and for the
 simulated sessions the joint's gyro matrix against the injected one in reported σ.
@@ -28,14 +28,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from apmcal.errors import ApmcalError
-from apmcal.pipeline import Options
+from apmcal.calibration.log import Options
+from apmcal.calibration.validation import check, fit, session
+from apmcal.core.errors import ApmcalError
 from apmcal.solvers.result import Calibration
-from apmcal.validation import check, fit, session
 
 DATA = ROOT.parent / "shared" / "data"
 SITE = {"lat_deg": 5.6037, "lon_deg": -0.187,      # sitl's default home (Accra) and the
-        "date": __import__("datetime").date(2026, 5, 28)}   # date sitl.makelog's logs carry
+        "date": __import__("datetime").date(2026, 5, 28)}   # date apmcal_sim.makelog's logs carry
 UNMODELLED = ("temperature_drift,motion_contamination,scale_nonlinearity,gyro_bias_random_walk,"
               "earth_rate,gyro_bias_drift,lowpass_filter,time_offset,quantization")
 METHODS = ("raw", "ferraris", "ellipsoid", "joint")
@@ -43,14 +43,14 @@ METHODS = ("raw", "ferraris", "ellipsoid", "joint")
 
 def sitl_log(tmp: Path, script: str, seed: int, truth: Path | None, duration: float | None,
              rate: float) -> Path:
-    from sitl.makelog import main as makelog
+    from apmcal_sim.makelog import main as makelog
     out = tmp / f"{script}_{seed}.bin"
     args = ["--script", script, "--out", str(out), "--seed", str(seed), "--rate", str(rate),
             "--fs", str(rate), "--disable", UNMODELLED]
     args += ["--truth", str(truth)] if truth else ["--truth-out", str(tmp / "truth.json")]
     args += ["--duration", str(duration)] if duration else []
     if makelog(args) != 0:
-        raise SystemExit(f"sitl.makelog failed for {script}")
+        raise SystemExit(f"apmcal_sim.makelog failed for {script}")
     return out
 
 
@@ -123,7 +123,7 @@ def run_imucal() -> None:
 
 
 def _pairs(raw, holds):
-    from apmcal.solvers.orientation_check import pose_pairs
+    from apmcal.calibration.orientation_check import pose_pairs
     return pose_pairs(raw.t, holds)
 
 

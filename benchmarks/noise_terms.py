@@ -11,11 +11,11 @@ per seed. Each seed's 40-minute record is cut into the cases:
 
 For each record both methods estimate N (reported in sitl's one-sided convention) and K (= q):
 
-- ``gmwm``: :func:`apmcal.diagnosis.noise_terms.fit_noise_terms` with all three candidates
+- ``gmwm``: :func:`apmcal.diagnosis.noise.terms.fit_noise_terms` with all three candidates
   (white, bias instability, random walk) and selection by the criterion; a term the criterion
   leaves out counts as an infinite error (and is counted in "missed");
 - ``gmwm w+rw``: the same with candidates white and random walk only;
-- ``lines``: :func:`apmcal.diagnosis.noise_terms.noise_terms_allan_lines` (Kalibr /
+- ``lines``: :func:`apmcal.diagnosis.noise.terms.noise_terms_allan_lines` (Kalibr /
   allan_variance_ros: −½ line at τ = 1 s, +½ line at τ = 3 s); a missing +½ part counts as
   infinite.
 
@@ -40,10 +40,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from apmcal.diagnosis.bias_track import fit_random_walk_ml  # noqa: E402
-from apmcal.diagnosis.noise_terms import fit_noise_terms, noise_terms_allan_lines  # noqa: E402
-from sitl.errors_model import ImuErrorModel  # noqa: E402
-from sitl.truth import Truth  # noqa: E402
+from apmcal.diagnosis.noise.bias_track import fit_random_walk_ml  # noqa: E402
+from apmcal.diagnosis.noise.terms import fit_noise_terms, noise_terms_allan_lines  # noqa: E402
+from apmcal.sensor_model.imu import ImuErrorModel  # noqa: E402
+from apmcal.sensor_model.truth import Truth  # noqa: E402
 
 FS = 100.0
 N_SITL = 8.7e-5          # rad/s/√Hz, one-sided (sitl convention)

@@ -24,7 +24,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from sitl_helpers import session_recording, sigma_z  # noqa: E402
 
-from apmcal.pipeline import Options, calibrate  # noqa: E402
+from apmcal.calibration.log import Options, calibrate  # noqa: E402
 
 LAT = 5.6037                # sitl's default home (Accra)
 # a clean session: the errors ArduPilot's parameters hold, noise, and the physics apmcal

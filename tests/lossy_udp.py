@@ -18,8 +18,8 @@ from contextlib import contextmanager
 
 from sitl_helpers import only
 
-from sitl.mavlink_vehicle import MavlinkVehicle
-from sitl.vehicle import SimVehicle
+from apmcal_sim.mavlink_vehicle import MavlinkVehicle
+from apmcal_sim.vehicle import SimVehicle
 
 LOOPBACK = "127.0.0.1"
 

@@ -13,10 +13,10 @@ import time
 
 import numpy as np
 
-from sitl.firmware import euler_matrix
-from sitl.mavlink_vehicle import MavlinkVehicle
-from sitl.truth import Truth
-from sitl.vehicle import SimVehicle
+from apmcal.sensor_model.truth import Truth
+from apmcal_sim.firmware import euler_matrix
+from apmcal_sim.mavlink_vehicle import MavlinkVehicle
+from apmcal_sim.vehicle import SimVehicle
 
 # the truth's effects no six-face method models, off so that the accelerometer result can be
 # compared with the injected values
@@ -159,7 +159,7 @@ def arrival_times(v: SimVehicle, label: str) -> list[float]:
 
 def pose_error_deg(v: SimVehicle, acc_mean, face: str) -> float:
     """Angle between a measured mean specific force and the face's true one."""
-    from sitl.motion import pose_matrix
+    from apmcal_sim.motion import pose_matrix
 
     f = -pose_matrix(face).T @ np.array([0.0, 0.0, 1.0])
     a = np.asarray(acc_mean) / np.linalg.norm(acc_mean)

@@ -3,9 +3,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from sitl.errors_model import ImuErrorModel
-from sitl.truth import Truth
-from sitl.vehicle import SimVehicle
+from apmcal.sensor_model.imu import ImuErrorModel
+from apmcal.sensor_model.truth import Truth
+from apmcal_sim.vehicle import SimVehicle
 
 G0 = 9.80665
 
@@ -54,14 +54,14 @@ def session_recording(seed: int, disable=(), enable=(), script: str = "ferraris"
     """A whole sitl session's raw acc/gyr samples in one pass of the error model, at ``fs``.
 
     The vehicle's script, tremor, Earth rate, gravity and every enabled effect as in
-    ``python -m sitl.makelog``, but without the telemetry (no RAW_IMU int16 rounding, no
+    ``python -m apmcal_sim.makelog``, but without the telemetry (no RAW_IMU int16 rounding, no
     firmware correction to undo): a ferraris session in about 0.3 s instead of 40.
     ``mag``: also the compass samples. Returns (Truth, apmcal Recording, SimVehicle).
     """
     import pandas as pd
 
-    from apmcal.recording import Recording
-    from sitl.cli_common import DEFAULT_SITE
+    from apmcal.core.recording import Recording
+    from apmcal_sim.cli_common import DEFAULT_SITE
 
     truth = Truth.random(seed, dict(DEFAULT_SITE)).with_effects(disable=list(disable))
     truth = truth.with_effects(enable=list(enable))

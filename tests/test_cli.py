@@ -201,7 +201,7 @@ def test_unwritable_live_outputs_are_refused_before_connecting(tmp_path, capsys,
 
 
 def test_numpy_runtime_warnings_do_not_reach_the_user(tmp_path, capsys, monkeypatch):
-    from apmcal import report
+    from apmcal.report import text as report
 
     summarize = report.summarize
 
@@ -246,14 +246,14 @@ class FakeLink:
 
 @pytest.mark.parametrize("skipped", [None, [], ["FOO_BAR", "BAZ"]])
 def test_restore_reports_names_the_vehicle_does_not_have(tmp_path, capsys, monkeypatch, skipped):
+    import apmcal.link.upload
     import apmcal.sources.live
-    import apmcal.vehicle.upload
 
     result = SimpleNamespace(written={"INS_ACCOFFS_X": 0.0})
     if skipped is not None:                        # an UploadReport before/after 'skipped'
         result.skipped = skipped
     monkeypatch.setattr(apmcal.sources.live, "VehicleLink", FakeLink)
-    monkeypatch.setattr(apmcal.vehicle.upload, "restore_params", lambda link, path, **kw: result)
+    monkeypatch.setattr(apmcal.link.upload, "restore_params", lambda link, path, **kw: result)
     (tmp_path / "b.param").write_text("INS_ACCOFFS_X 0\n")    # read before connecting
     assert main(["restore", "fake:vehicle", str(tmp_path / "b.param")]) == 0
     out = capsys.readouterr().out
@@ -265,14 +265,14 @@ def test_restore_reports_names_the_vehicle_does_not_have(tmp_path, capsys, monke
 
 
 def test_upload_reports_skipped_names(tmp_path, capsys, monkeypatch):
+    import apmcal.link.upload
     import apmcal.sources.live
-    import apmcal.vehicle.upload
 
     param = tmp_path / "new.param"
     param.write_text("INS_ACCOFFS_X 0.1\n")
     result = SimpleNamespace(written={"INS_ACCOFFS_X": 0.1}, skipped=["NOPE"])
     monkeypatch.setattr(apmcal.sources.live, "VehicleLink", FakeLink)
-    monkeypatch.setattr(apmcal.vehicle.upload, "upload_params", lambda *a, **k: result)
+    monkeypatch.setattr(apmcal.link.upload, "upload_params", lambda *a, **k: result)
     assert main(["upload", "fake:vehicle", str(param), "--backup", str(tmp_path / "b.param")]) == 0
     assert "skipped 1 names the vehicle does not have: NOPE" in capsys.readouterr().out
 

@@ -53,7 +53,7 @@ def sphere_samples(radius_mgauss: float, n: int = 600, seed: int = 4) -> np.ndar
                                                        (0.6, True), (1.5, True)])
 def test_a_site_whose_field_disagrees_with_the_measured_one_is_warned(measured_over_wmm,
                                                                        warned):
-    from apmcal.geomag import decimal_year, earth_field_ned
+    from apmcal.core.geomag import decimal_year, earth_field_ned
     from apmcal.solvers.magnetometer import calibrate_magnetometer
     from apmcal.solvers.report_types import CalibrationReport
 

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from apmcal.errors import ApmcalError
-from apmcal.recording import LogContents
+from apmcal.core.errors import ApmcalError
+from apmcal.core.recording import LogContents
 from apmcal.sources import dataflash, read_log, tlog
 
 TLOG_IMU = ["RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "HIGHRES_IMU"]

@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from apmcal.errors import ApmcalError
+from apmcal.core.errors import ApmcalError
 from apmcal.sources.csv import (
     MPU6050_ACC_PER_COUNT,
     MPU6050_GYR_PER_COUNT,

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from apmcal.diagnosis.decimate import FINE_EFFECTS, block_factor, block_means, decimated
-from apmcal.diagnosis.session import MagAxis, Session, cut_session
+from apmcal.diagnosis.session.decimate import FINE_EFFECTS, block_factor, block_means, decimated
+from apmcal.diagnosis.session.log import MagAxis, Session, cut_session
 from apmcal.preprocessing.static import find_static_segments
 
 
@@ -66,7 +66,7 @@ def test_a_decimated_session_keeps_its_holds_pieces_and_folds():
 
 def test_block_means_of_rounded_readings_lie_on_the_step_over_the_block_length():
     """The twin's rounding then reproduces the block means' finer lattice."""
-    from apmcal.diagnosis.session_facts import lattice_steps
+    from apmcal.diagnosis.session.facts import lattice_steps
 
     s = _session()
     step = 0.01
@@ -97,11 +97,11 @@ def test_the_fine_effects_are_the_ones_block_means_erase():
 def test_a_fast_session_finds_a_slow_and_a_fine_effect_at_their_own_rates(tmp_path):
     """200 Hz: a temperature drift (scored on 100 Hz block means) and rounding (at 200 Hz),
     both withheld from the twin, are the two effects the selected combination needs most."""
-    from apmcal.diagnosis.benchmark import SITE, simulate_log
+    from apmcal.calibration.log import Options
     from apmcal.diagnosis.run import diagnose
-    from apmcal.diagnosis.session import session_from_log
-    from apmcal.pipeline import Options
+    from apmcal.diagnosis.session.log import session_from_log
     from apmcal.sources import read_log
+    from apmcal_sim.gap_benchmark import SITE, simulate_log
 
     path = tmp_path / "session.bin"
     withheld = ("temperature_drift", "quantization")

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from apmcal.diagnosis.gap import (
+from apmcal.diagnosis.scoring.gap import (
     LEVEL_MEANS,
     ResidualBlock,
     coefficients,
@@ -14,7 +14,7 @@ from apmcal.diagnosis.gap import (
     level_groups,
     variance_shares,
 )
-from apmcal.diagnosis.haar import details, piece_means
+from apmcal.diagnosis.scoring.haar import details, piece_means
 
 RNG = np.random.default_rng(20261123)
 

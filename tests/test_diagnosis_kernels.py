@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from apmcal.diagnosis.draws import ReplayedGenerator, replayed
-from apmcal.diagnosis.gap import (
+from apmcal.diagnosis.model.static_fit import MIN_CHORD, distinct_directions
+from apmcal.diagnosis.scoring.gap import (
     SHAPE_BINS,
     bin_index,
     shape_shares,
@@ -14,9 +14,9 @@ from apmcal.diagnosis.gap import (
     variance_shares,
     variance_shares_by_row,
 )
-from apmcal.diagnosis.haar import details
-from apmcal.diagnosis.static_fit import MIN_CHORD, distinct_directions
-from apmcal.diagnosis.trajectory import prefix_products, quat_multiply
+from apmcal.diagnosis.scoring.haar import details
+from apmcal.diagnosis.session.trajectory import prefix_products, quat_multiply
+from apmcal.diagnosis.twin.draws import ReplayedGenerator, replayed
 
 RNG = np.random.default_rng(20261124)
 

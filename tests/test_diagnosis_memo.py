@@ -1,13 +1,13 @@
-"""Results kept by the content of their inputs (apmcal.diagnosis.memo): the very result the
+"""Results kept by the content of their inputs (apmcal.diagnosis.compute.memo): the very result the
 function returns, never a stale one, and the entries forked workers make come back."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from apmcal.diagnosis import memo, workers
-from apmcal.diagnosis.blocks import Blocks
-from apmcal.diagnosis.static_fit import _fit_geometry, fit_geometry
+from apmcal.diagnosis.compute import memo, workers
+from apmcal.diagnosis.model.blocks import Blocks
+from apmcal.diagnosis.model.static_fit import _fit_geometry, fit_geometry
 
 RNG = np.random.default_rng(20261124)
 _TEST_MEMO = memo.ContentMemo("test_diagnosis_memo", 3)
@@ -94,9 +94,9 @@ def test_noise_effects_leave_the_fit_of_the_real_data_as_it_is():
     the real data exactly as the model without them (fit, hold and move residuals)."""
     from pathlib import Path
 
-    from apmcal.diagnosis.evaluate import NOISE_ONLY, Evaluator
-    from apmcal.diagnosis.session import session_from_log
-    from apmcal.pipeline import Options
+    from apmcal.calibration.log import Options
+    from apmcal.diagnosis.scoring.evaluate import NOISE_ONLY, Evaluator
+    from apmcal.diagnosis.session.log import session_from_log
     from apmcal.sources import read_log
 
     log = Path(__file__).resolve().parents[1] / "logs" / "gap.bin"

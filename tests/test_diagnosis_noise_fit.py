@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 from scipy.signal import butter, lfilter
 
-from apmcal.diagnosis.gap import ResidualBlock
-from apmcal.diagnosis.haar import details
-from apmcal.diagnosis.noise_fit import MeanPairs, fit_channels, lattice_step, lowpass_gain, random_walk_gain
+from apmcal.diagnosis.noise.fit import MeanPairs, fit_channels, lattice_step, lowpass_gain, random_walk_gain
+from apmcal.diagnosis.scoring.gap import ResidualBlock
+from apmcal.diagnosis.scoring.haar import details
 
 RNG = np.random.default_rng(7)
 FS = 100.0
@@ -87,7 +87,7 @@ def test_fit_with_rounding_survives_a_pair_of_equal_piece_means():
 
 
 def test_floor_sees_white_noise_not_a_strong_slow_signal():
-    from apmcal.diagnosis.noise_fit import floor_gain, floor_stat
+    from apmcal.diagnosis.noise.fit import floor_gain, floor_stat
     t = np.arange(40_000) / FS
     x = 0.01 * RNG.standard_normal((40_000, 1)) + 0.5 * np.sin(2 * np.pi * 5 * t)[:, None]
     block = ResidualBlock(["g_x"], x, np.array([0, 20_000]), np.array([20_000, 40_000]),
@@ -99,7 +99,7 @@ def test_floor_sees_white_noise_not_a_strong_slow_signal():
 
 
 def test_lowpass_cutoff_found_from_filtered_noise():
-    from apmcal.diagnosis.noise_fit import shared_cutoff
+    from apmcal.diagnosis.noise.fit import shared_cutoff
     b, a = butter(2, 20.0 / (FS / 2))
     x = lfilter(b, a, RNG.standard_normal((2 ** 17, 3)), axis=0)
     coeffs = details(x, np.arange(0, 2 ** 17, 2 ** 13), np.arange(2 ** 13, 2 ** 17 + 1, 2 ** 13))

@@ -7,9 +7,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from apmcal.diagnosis.plausible import implausible
-from apmcal.diagnosis.session import scorable_holds
-from apmcal.diagnosis.wald import wald_p_value
+from apmcal.diagnosis.model.plausible import implausible
+from apmcal.diagnosis.model.wald import wald_p_value
+from apmcal.diagnosis.session.log import scorable_holds
 
 
 def _param(value, sigma):

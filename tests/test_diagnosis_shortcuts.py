@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from apmcal.diagnosis import workers
+from apmcal.diagnosis.compute import workers
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "logs" / "gap.bin"      # sitl, 100 Hz, with temperature and a compass
@@ -20,9 +20,9 @@ SAMPLE = ROOT / "logs" / "gap.bin"      # sitl, 100 Hz, with temperature and a c
 
 @pytest.fixture(scope="module")
 def evaluator():
-    from apmcal.diagnosis.evaluate import Evaluator
-    from apmcal.diagnosis.session import session_from_log
-    from apmcal.pipeline import Options
+    from apmcal.calibration.log import Options
+    from apmcal.diagnosis.scoring.evaluate import Evaluator
+    from apmcal.diagnosis.session.log import session_from_log
     from apmcal.sources import read_log
 
     session = session_from_log(read_log(SAMPLE), Options(lat_deg=5.6037, lon_deg=-0.187))
@@ -33,8 +33,8 @@ def test_the_rate_of_the_move_rows_is_the_rate_of_every_sample_there(evaluator):
     """calibrated_rate and move_turns compute the moves' rows only: value for value what the
     whole session's arrays hold there, for bias terms of every kind (temperature, time,
     triangle) and a gyro matrix off the identity."""
-    from apmcal.diagnosis.dynamics import Moves, gyro_forward, move_turns, relative_attitudes
-    from apmcal.diagnosis.model import calibrated_rate
+    from apmcal.diagnosis.model.dynamics import Moves, gyro_forward, move_turns, relative_attitudes
+    from apmcal.diagnosis.model.nominal import calibrated_rate
 
     s = evaluator.session
     effects = frozenset({"temperature_drift", "bias_drift", "triangle_drift"})
@@ -61,8 +61,8 @@ def test_the_rate_of_the_move_rows_is_the_rate_of_every_sample_there(evaluator):
 def test_the_block_means_nominal_model_made_in_a_worker_is_the_one_made_here(evaluator):
     """apmcal.diagnosis.run scores the nominal model of the block means in a worker beside the
     recorded rate's: its summary and warm state are those prefetch would have made."""
-    from apmcal.diagnosis.decimate import decimated
-    from apmcal.diagnosis.evaluate import FOLDS, Evaluator
+    from apmcal.diagnosis.scoring.evaluate import FOLDS, Evaluator
+    from apmcal.diagnosis.session.decimate import decimated
 
     s = evaluator.session
     # a 50 Hz decimation stands in for the block means of a faster recording
@@ -78,8 +78,8 @@ def test_the_block_means_nominal_model_made_in_a_worker_is_the_one_made_here(eva
 
 
 def test_the_chi2_functions_are_scipy_stats_own():
-    from apmcal.diagnosis.allan import _chi2_ppf
-    from apmcal.diagnosis.wald import wald_p_value
+    from apmcal.diagnosis.model.wald import wald_p_value
+    from apmcal.diagnosis.noise.allan import _chi2_ppf
 
     edf = np.array([0.7, 1.0, 2.5, 17.0, 380.0, 12345.6])
     for q in (0.025, 0.5, 0.975):
@@ -93,7 +93,7 @@ def test_the_diagnosis_starts_without_pandas_scipy_stats_or_scipy_signal():
     """The log is read in a worker (pandas) while the main process imports the diagnosis; the
     candidates' packages are imported beside the nominal model. A module that imports one of
     them at its top puts its import time (0.3-0.8 s each) back on every start."""
-    code = ("import sys, apmcal.cli, apmcal.diagnosis.cli, apmcal.diagnosis.run; "
+    code = ("import sys, apmcal.cli, apmcal.cli.gap, apmcal.diagnosis.run; "
             "print(sorted(m for m in ('pandas', 'scipy.stats', 'scipy.signal', 'filterpy', "
             "'allantools') if m in sys.modules))")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
@@ -103,7 +103,7 @@ def test_the_diagnosis_starts_without_pandas_scipy_stats_or_scipy_signal():
 
 def _hold_block(rng, pieces=10, length=500, dof=1):
     """Still-hold residuals of ten pieces of 500 samples (100 Hz), session-wide ids 0, 2, ..."""
-    from apmcal.diagnosis.gap import ResidualBlock
+    from apmcal.diagnosis.scoring.gap import ResidualBlock
 
     n = pieces * length
     i0 = np.arange(pieces) * length
@@ -113,13 +113,13 @@ def _hold_block(rng, pieces=10, length=500, dof=1):
 
 
 def test_a_block_of_the_same_values_gets_the_same_coefficients_and_cells():
-    """apmcal.diagnosis.reuse hands back kept results only for the same numbers: one changed
+    """apmcal.diagnosis.compute.reuse hands back kept results only for the same numbers: one changed
     bit, or another scoring of the piece means, and they are worked out afresh."""
     from dataclasses import replace
 
-    from apmcal.diagnosis import reuse
-    from apmcal.diagnosis.gap import coefficients, compare
-    from apmcal.diagnosis.haar import details
+    from apmcal.diagnosis.compute import reuse
+    from apmcal.diagnosis.scoring.gap import coefficients, compare
+    from apmcal.diagnosis.scoring.haar import details
 
     rng = np.random.default_rng(20261124)
     real, twin = _hold_block(rng), _hold_block(rng)
@@ -149,7 +149,7 @@ def test_a_block_of_the_same_values_gets_the_same_coefficients_and_cells():
 
 
 def test_an_effect_of_the_gyro_leaves_the_other_sensors_hold_residuals_as_they_were(evaluator):
-    """The premise of apmcal.diagnosis.reuse: after the nominal model, a gyro-only effect's
+    """The premise of apmcal.diagnosis.compute.reuse: after the nominal model, a gyro-only effect's
     accelerometer and compass hold coefficients, real and twin, are the nominal model's own
     objects (found equal, so not worked out again); the gyro's are new."""
     nominal = evaluator._fold(frozenset(), 0)
@@ -167,9 +167,9 @@ def test_statistics_of_kept_coefficients_are_kept_with_them():
     pieces, or the same values under other piece ids, are worked out afresh."""
     from dataclasses import replace
 
-    from apmcal.diagnosis import reuse
-    from apmcal.diagnosis.gap import coefficients
-    from apmcal.diagnosis.noise_fit import level_stats
+    from apmcal.diagnosis.compute import reuse
+    from apmcal.diagnosis.noise.fit import level_stats
+    from apmcal.diagnosis.scoring.gap import coefficients
 
     block = _hold_block(np.random.default_rng(7))
     coeffs = coefficients([block])[0]
@@ -196,8 +196,8 @@ def test_the_vectors_carried_along_a_path_are_the_plain_ones(evaluator):
     """twin._carried keeps recent results for the very path objects and equal vectors: the same
     numbers as trajectory.carried, read-only (shared by twins), and worked out afresh for other
     vectors."""
-    from apmcal.diagnosis import trajectory
-    from apmcal.diagnosis.twin import _carried
+    from apmcal.diagnosis.session import trajectory
+    from apmcal.diagnosis.twin.simulate import _carried
 
     hold_rot, traj = evaluator._motion_path(0)
     vectors = np.random.default_rng(3).standard_normal((len(evaluator.session.holds), 3))
@@ -213,7 +213,7 @@ def test_the_vectors_carried_along_a_path_are_the_plain_ones(evaluator):
 
 
 def test_the_compass_to_imu_index_is_found_once_per_pair_of_time_axes():
-    from apmcal.diagnosis.twin import _imu_index
+    from apmcal.diagnosis.twin.simulate import _imu_index
 
     t_imu = np.arange(1000) / 400.0
     t_mag = np.arange(-3, 260) / 100.0 + 0.0013

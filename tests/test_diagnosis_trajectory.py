@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from apmcal.diagnosis.trajectory import (
+from apmcal.diagnosis.session.trajectory import (
     attitude,
     body_rates,
     corrected_move,

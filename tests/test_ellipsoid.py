@@ -7,8 +7,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from apmcal.errors import ApmcalError
-from apmcal.solvers.ellipsoid import (
+from apmcal.core.errors import ApmcalError
+from apmcal.solvers.ellipsoid.fit import (
     ellipsoid_calibration,
     fit_ellipsoid_analytical,
     fit_ellipsoid_numerical,
@@ -39,7 +39,7 @@ def simulate(n=600, noise=1.0, seed=0, mask=None):
 
 def verdict(samples, cal, radius, *, sensor="sensor", info=None) -> list[str]:
     """The report's lines on an ellipsoid fit, from the numbers the solver gives."""
-    from apmcal.report_lines import ellipsoid_lines
+    from apmcal.report.lines import ellipsoid_lines
 
     return ellipsoid_lines(sensor, fit_report(samples, cal, radius, info),
                            cal.sigma.get("offset"))
@@ -271,7 +271,7 @@ def test_real_gyro_offset_matches_reference_bias(shared_data):
 
 
 def test_bootstrap_counts_failed_refits_and_says_so(monkeypatch):
-    import apmcal.solvers.ellipsoid_robust as robust
+    import apmcal.solvers.ellipsoid.robust as robust
 
     real_fit, calls = robust.fit_ellipsoid_robust, {"n": 0}
 
@@ -290,7 +290,7 @@ def test_bootstrap_counts_failed_refits_and_says_so(monkeypatch):
 
 
 def test_few_residual_degrees_of_freedom_are_flagged():
-    from apmcal.report_lines import calibration_lines, few_residuals_lines
+    from apmcal.report.lines import calibration_lines, few_residuals_lines
 
     assert few_residuals_lines("acc", 100, 9) == []
     assert "only 1 residual degree" in few_residuals_lines("acc", 7, 6)[0]
@@ -304,7 +304,7 @@ def test_second_order_bias_removed_on_a_half_sphere():
     """Upper half sphere, 800 samples, σ = 3: the geometric fit's offset along the missing
     direction is biased by about one Monte-Carlo sigma (a bias that more samples do not
     shrink); the antithetic parametric bootstrap removes most of it and adds little spread."""
-    from apmcal.solvers.ellipsoid_debias import debiased
+    from apmcal.solvers.ellipsoid.debias import debiased
 
     def fit(s):
         return fit_ellipsoid_robust(s, R)
@@ -324,11 +324,11 @@ def test_second_order_bias_removed_on_a_half_sphere():
 
 
 def test_debiasing_leaves_a_noise_free_fit_alone():
-    from apmcal.solvers.ellipsoid_debias import debiased
+    from apmcal.solvers.ellipsoid.debias import debiased
 
     s = simulate(n=300, noise=0.0)
     cal = fit_ellipsoid_robust(s, R)
-    from apmcal.report_lines import debias_line
+    from apmcal.report.lines import debias_line
 
     out, shift = debiased(lambda x: fit_ellipsoid_robust(x, R), s, cal, R)
     np.testing.assert_allclose(out.offset, cal.offset, atol=1e-6)
@@ -340,7 +340,7 @@ def test_debiasing_leaves_a_noise_free_fit_alone():
 def test_magnetometer_reports_the_papers_figure_of_merit_on_held_out_blocks():
     """calibrate_magnetometer scores seed 000's relative MSE on blocks the fit never saw: it must
     fall from the raw value to about (noise / field)² = (1/500)² = 4e-6 for this simulation."""
-    from apmcal.report_lines import calibration_lines, score_line
+    from apmcal.report.lines import calibration_lines, score_line
     from apmcal.solvers.magnetometer import calibrate_magnetometer, held_out_score
     from apmcal.solvers.report_types import CalibrationReport
 

@@ -32,7 +32,7 @@ def calibrate(log: Path, tmp_path: Path, *extra) -> dict:
 def make_session(tmp_path: Path, script: str, seed: int, out_name: str) -> tuple[Path, dict]:
     log = tmp_path / out_name
     truth = tmp_path / (out_name + ".truth.json")
-    subprocess.run([sys.executable, "-m", "sitl.makelog", "--script", script, "--out", str(log),
+    subprocess.run([sys.executable, "-m", "apmcal_sim.makelog", "--script", script, "--out", str(log),
                     "--seed", str(seed), "--truth-out", str(truth), "--rate", "50",
                     "--disable", UNMODELLED], check=True, cwd=ROOT, capture_output=True,
                    timeout=300)

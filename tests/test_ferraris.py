@@ -9,8 +9,8 @@ import pandas as pd
 import pytest
 from scipy.spatial.transform import Rotation as Rot
 
-from apmcal.constants import EARTH_RATE
-from apmcal.errors import ApmcalError
+from apmcal.core.constants import EARTH_RATE
+from apmcal.core.errors import ApmcalError
 from apmcal.preprocessing.ferraris_regions import ferraris_regions
 from apmcal.preprocessing.static import POSES, make_segment
 from apmcal.solvers.ferraris import (

@@ -1,4 +1,4 @@
-"""The firmware correction forwards and backwards (apmcal.preprocessing.firmware, .orientation).
+"""The firmware correction forwards and backwards (apmcal.ardupilot.firmware, .orientation).
 
 Truth: the formulas of ardupilot-facts.md worked by hand, ArduPilot's own hand-coded axis swaps
 for a few rotations (AP_Math vector3.cpp) and the explicit matrix it uses for rotation 38.
@@ -11,10 +11,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from apmcal.errors import ApmcalError
-from apmcal.preprocessing import firmware as fw
-from apmcal.preprocessing.orientation import ROTATIONS, rotation_matrix
-from apmcal.recording import Recording
+from apmcal.ardupilot import firmware as fw
+from apmcal.ardupilot.orientation import ROTATIONS, rotation_matrix
+from apmcal.core.errors import ApmcalError
+from apmcal.core.recording import Recording
 
 H = math.sqrt(0.5)
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import pytest
 
-from apmcal.diagnosis.benchmark import QUICK, run_case
+from apmcal_sim.gap_benchmark import QUICK, run_case
 
 RATE_HZ = 50.0      # the quick benchmark's rate: every logged sample is one sensor sample
 

@@ -96,7 +96,7 @@ def test_report_has_its_figures(diagnosed):
 
 
 def test_twin_file_is_a_sitl_truth_with_the_selected_effect(diagnosed):
-    from sitl.truth import NOMINAL_EFFECTS, Truth
+    from apmcal.sensor_model.truth import NOMINAL_EFFECTS, Truth
 
     _, out, _ = diagnosed
     twin = Truth.load(out / "twin.json")
@@ -131,7 +131,7 @@ def test_the_twin_of_the_board_behaves_like_it(diagnosed, tmp_path):
     is modelled."""
     _, out, real = diagnosed
     log = tmp_path / "twin.bin"
-    subprocess.run([sys.executable, "-m", "sitl.makelog", "--script", "diagnosis", "--out",
+    subprocess.run([sys.executable, "-m", "apmcal_sim.makelog", "--script", "diagnosis", "--out",
                     str(log), "--seed", "5", "--rate", "50", "--twin", str(out / "twin.json")],
                    check=True, cwd=ROOT, timeout=300)
     json_out = tmp_path / "twin_gap.json"
@@ -154,10 +154,10 @@ def test_the_log_read_in_a_worker_is_the_log_read_here():
     session this process would have made, array for array."""
     from dataclasses import fields
 
-    from apmcal.diagnosis import workers
-    from apmcal.diagnosis.cli import LogReading
-    from apmcal.diagnosis.session import session_from_log
-    from apmcal.pipeline import Options
+    from apmcal.calibration.log import Options
+    from apmcal.cli.gap import LogReading
+    from apmcal.diagnosis.compute import workers
+    from apmcal.diagnosis.session.log import session_from_log
     from apmcal.sources import read_log
 
     opts = Options(lat_deg=5.6037, lon_deg=-0.187)

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from pygeomag import GeoMag
 
-from apmcal.geomag import decimal_year, earth_field_ned
-from apmcal.pipeline import Options, calibrate_log
-from apmcal.report_lines import calibration_lines
+from apmcal.calibration.log import Options, calibrate_log
+from apmcal.core.geomag import decimal_year, earth_field_ned
+from apmcal.report.lines import calibration_lines
 from apmcal.sources import read_log
 
 LOGS = Path(__file__).resolve().parents[1] / "logs"

@@ -20,16 +20,16 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from sim_operator import TILTED_45, SimOperator, ThreadedSim, arrival_times, pose_error_deg
 
-from apmcal.cli import main
-from apmcal.sources.guided import (
+from apmcal.calibration.guided import (
     FACES,
     GuideOptions,
     TerminalOperator,
     detect_face,
     record_six_faces,
 )
+from apmcal.cli import main
 from apmcal.sources.live import VehicleLink
-from sitl.motion import pose_matrix
+from apmcal_sim.motion import pose_matrix
 
 ROOT = Path(__file__).resolve().parents[1]
 G0 = 9.80665

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from apmcal.errors import ApmcalError
+from apmcal.core.errors import ApmcalError
 from apmcal.preprocessing.highpass import highpass, highpass_t, pad_length, sampling_rate
 
 FS = 100.0

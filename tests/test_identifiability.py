@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from apmcal.constants import MG_TO_MS2, MRAD_TO_RAD, STANDARD_GRAVITY, earth_rate_ned
-from apmcal.errors import ApmcalError
+from apmcal.core.constants import MG_TO_MS2, MRAD_TO_RAD, STANDARD_GRAVITY, earth_rate_ned
+from apmcal.core.errors import ApmcalError
 from apmcal.solvers.identifiability import identifiability, jacobian, six_faces
 
 G = STANDARD_GRAVITY

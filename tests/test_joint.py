@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from apmcal.cli import main
-from apmcal.report_lines import calibration_lines
+from apmcal.report.lines import calibration_lines
 from apmcal.solvers.result import Calibration
 
 SITE = ["--lat", "5.6037", "--lon", "-0.187"]      # sitl's default home (Accra)
@@ -26,7 +26,7 @@ K_SIGMA = 4.0
 
 
 def make_log(tmp: Path, name: str, script: str, seed: int, seconds: float, *extra) -> Path:
-    from sitl.makelog import main as makelog
+    from apmcal_sim.makelog import main as makelog
     out = tmp / name
     assert makelog(["--script", script, "--out", str(out), "--seed", str(seed), "--rate", "50",
                     "--fs", "50", "--duration", str(seconds), "--disable", UNMODELLED,
@@ -118,9 +118,9 @@ def test_the_check_above_sees_an_ignored_gyro_scale(fitted):
 def test_joint_beats_the_other_methods_out_of_sample(fitted):
     """Seed 001 §5's check on another session of the same board: gyro-integrated orientation
     change between still poses against accelerometer + compass at those poses."""
-    from apmcal.pipeline import Options, calibrate_log
+    from apmcal.calibration.log import Options, calibrate_log
+    from apmcal.calibration.validation import check, session
     from apmcal.sources import read_log
-    from apmcal.validation import check, session
 
     val = make_log(fitted["tmp"], "val.bin", "handheld", 42, 40.0, "--truth",
                    str(fitted["truth_file"]))
@@ -154,7 +154,7 @@ def test_auto_picks_the_joint_method_for_hand_held_poses_with_a_compass(fitted):
 def test_auto_falls_back_to_the_ellipsoid_when_the_joint_fit_refuses(fitted):
     """A gyro that saw no turns (here: its samples replaced by still noise) fails the joint
     fit's motion check; auto then fits the ellipsoid and says why."""
-    from apmcal.pipeline import Options, calibrate, pick_recording
+    from apmcal.calibration.log import Options, calibrate, pick_recording
     from apmcal.sources import read_log
 
     rec, mag_rec = pick_recording(read_log(fitted["log"]), None)
@@ -168,8 +168,8 @@ def test_auto_falls_back_to_the_ellipsoid_when_the_joint_fit_refuses(fitted):
 
 def handheld_csv_without_compass(tmp_path: Path, seconds: float) -> Path:
     """A sitl hand-held session (50 Hz) as a CSV with accelerometer and gyro columns only."""
-    from sitl.truth import Truth
-    from sitl.vehicle import SimVehicle
+    from apmcal.sensor_model.truth import Truth
+    from apmcal_sim.vehicle import SimVehicle
     v = SimVehicle(Truth.random(3), "handheld", "3.3", fs=50.0, record=True, seed=3,
                    duration=seconds)
     v.run_for(seconds)
@@ -211,8 +211,8 @@ def test_session_without_motion_is_refused_in_one_line(tmp_path, capsys):
 def test_mpu6050_joint_without_compass_beats_raw_on_a_separate_turn(shared_data):
     """Real MPU-6050 (no compass: accelerometer and gyro conditions only, tilt checked):
     fitted on the six-orientation run, checked on the separate 90° turn recording."""
-    from apmcal.pipeline import Options
-    from apmcal.validation import check, fit, session
+    from apmcal.calibration.log import Options
+    from apmcal.calibration.validation import check, fit, session
 
     s = session(shared_data / "mpu6050" / "example_data_calibration.csv", "mpu6050")
     _, _, raw, _, holds = session(shared_data / "mpu6050" / "imu_90_x_rot.csv", "mpu6050")

@@ -24,7 +24,7 @@ def start_sitl(tmp_path, connection, *extra, speedup: float = 4.0):
     """The simulated vehicle; a low ``speedup`` keeps it answering on a loaded machine (it
     advances its sensors to the wall clock before it reads what the ground station sent)."""
     return subprocess.Popen(
-        [sys.executable, "-m", "sitl", connection, "--firmware", "3.3", "--speedup", str(speedup),
+        [sys.executable, "-m", "apmcal_sim", connection, "--firmware", "3.3", "--speedup", str(speedup),
          "--param-file", str(tmp_path / "sitl-params.json"), "--disable", SITL_QUIET,
          "--write-truth", str(tmp_path / "truth.json"), *extra],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -195,7 +195,7 @@ def test_version_comes_from_the_package_metadata(capsys):
 
 def test_only_the_rejected_sensor_is_withheld_from_an_upload(capsys):
     """A compass out of the firmware's limits does not stop the gyro's upload."""
-    from apmcal.vehicle.params import ParamProposal
+    from apmcal.ardupilot.params import ParamProposal
 
     proposal = ParamProposal(values={"INS_GYROFFS_X": 0.01, "INS_GYROFFS_Y": -0.02},
                              rejected={"COMPASS_OFS_X": "offset vector length 2500 > 1800"})

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from apmcal.ardupilot.paramfile import read_param_file
 from apmcal.cli import main
 from apmcal.sources.live import VehicleLink
-from apmcal.vehicle.paramfile import read_param_file
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -44,7 +44,7 @@ def wait_for_boot(param_file: Path, timeout_s: float = 60.0) -> None:
 def vehicle(tmp_path):
     port = free_udp_port()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "sitl", f"udpout:127.0.0.1:{port}", "--script", "onepos",
+        [sys.executable, "-m", "apmcal_sim", f"udpout:127.0.0.1:{port}", "--script", "onepos",
          "--firmware", "3.3", "--speedup", "4", "--seed", "21",
          "--param-file", str(tmp_path / "sitl-params.json"),
          "--disable", "motion_contamination,temperature_drift",
@@ -102,7 +102,7 @@ def test_live_refuses_a_recording_whose_parameters_changed(tmp_path, capsys):
     """Connecting during the boot gyro calibration: RAW_IMU's correction changes mid-recording."""
     port = free_udp_port()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "sitl", f"udpout:127.0.0.1:{port}", "--script", "onepos",
+        [sys.executable, "-m", "apmcal_sim", f"udpout:127.0.0.1:{port}", "--script", "onepos",
          "--firmware", "3.3", "--speedup", "0.25", "--param-file", str(tmp_path / "p.json")],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:

@@ -1,4 +1,4 @@
-"""Noise structure of still periods (apmcal.diagnosis.allan, .noise_terms, .bias_track): wavelet
+"""Noise structure of still periods (apmcal.diagnosis.noise.allan, .noise_terms, .bias_track): wavelet
 variance, Allan deviation, GMWM noise terms, the fixed-slope baseline and the Kalman/RTS
 random-walk check."""
 from __future__ import annotations
@@ -9,9 +9,10 @@ import allantools
 import numpy as np
 import pytest
 
-from apmcal.diagnosis import allan, bias_track, noise_terms
-from sitl.errors_model import ImuErrorModel
-from sitl.truth import Truth
+from apmcal.diagnosis.noise import allan, bias_track
+from apmcal.diagnosis.noise import terms as noise_terms
+from apmcal.sensor_model.imu import ImuErrorModel
+from apmcal.sensor_model.truth import Truth
 
 # the three modules under one prefix, the one the tests used before noise.py was split
 nz = SimpleNamespace(

@@ -4,10 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from apmcal.constants import EARTH_RATE, STANDARD_GRAVITY, earth_rate_ned
-from apmcal.errors import ApmcalError
+from apmcal.core.constants import EARTH_RATE, STANDARD_GRAVITY, earth_rate_ned
+from apmcal.core.errors import ApmcalError
 from apmcal.preprocessing.highpass import highpass
-from apmcal.report_lines import calibration_lines
+from apmcal.report.lines import calibration_lines
 from apmcal.solvers.one_position import c_ecef_to_ned, one_position_calibration
 from apmcal.solvers.result import Calibration
 
@@ -148,7 +148,7 @@ def test_real_still_minute_from_dataflash(shared_data):
 
 
 def test_body_to_sensor_gives_the_same_calibrated_samples():
-    from apmcal.preprocessing.orientation import rotation_matrix
+    from apmcal.ardupilot.orientation import rotation_matrix
     from apmcal.solvers.holds import body_to_sensor
     from apmcal.solvers.result import SensorCalibration
 
@@ -167,7 +167,7 @@ def test_body_to_sensor_gives_the_same_calibrated_samples():
 def test_board_mounted_upside_down_on_a_level_vehicle_is_level():
     """AHRS_ORIENTATION = 8 (ROLL_180): a level vehicle's board reads z up. The one-position
     method must run in the vehicle's frame and return a sensor-frame result."""
-    from apmcal.preprocessing.orientation import rotation_matrix
+    from apmcal.ardupilot.orientation import rotation_matrix
     from apmcal.preprocessing.static import find_static_segments
     from apmcal.solvers.holds import one_position_on_holds
 

@@ -1,6 +1,6 @@
-"""Calibration → ArduPilot parameters (apmcal.vehicle.params) and parameter files (.paramfile).
+"""Calibration → ArduPilot parameters (apmcal.ardupilot.params) and parameter files (.paramfile).
 
-Truth: hand-worked algebra, the firmware formulas applied by apmcal.preprocessing.firmware
+Truth: hand-worked algebra, the firmware formulas applied by apmcal.ardupilot.firmware
 (itself tested against hand-worked examples), brute-force sampling of the sphere for the cost
 figures, and pymavlink's own parameter-file loader (MAVProxy's) for the file format.
 """
@@ -11,13 +11,13 @@ import math
 import numpy as np
 import pytest
 
-from apmcal.constants import STANDARD_GRAVITY as G
-from apmcal.errors import ApmcalError
-from apmcal.preprocessing import firmware as fw
-from apmcal.preprocessing.orientation import rotation_matrix
+from apmcal.ardupilot import firmware as fw
+from apmcal.ardupilot.orientation import rotation_matrix
+from apmcal.ardupilot.paramfile import format_value, read_param_file, write_param_file
+from apmcal.ardupilot.params import ParamProposal, cost_of_diagonal_only, to_ardupilot_params
+from apmcal.core.constants import STANDARD_GRAVITY as G
+from apmcal.core.errors import ApmcalError
 from apmcal.solvers.result import Calibration, SensorCalibration
-from apmcal.vehicle.paramfile import format_value, read_param_file, write_param_file
-from apmcal.vehicle.params import ParamProposal, cost_of_diagonal_only, to_ardupilot_params
 
 RIGHT_ANGLE_ROTATIONS = [0, 2, 4, 8, 12, 16, 20, 24, 25, 28, 33, 37]
 

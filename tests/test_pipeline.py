@@ -8,10 +8,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from apmcal.errors import ApmcalError
-from apmcal.pipeline import Options, calibrate, calibrate_log, pick_recording, prepare
+from apmcal.calibration.log import Options, calibrate, calibrate_log, pick_recording, prepare
+from apmcal.core.errors import ApmcalError
+from apmcal.core.recording import LogContents, ParamChange, Recording
 from apmcal.preprocessing.param_changes import after_param_changes, split_at_param_changes
-from apmcal.recording import LogContents, ParamChange, Recording
 from apmcal.sources import read_log
 
 LOGS = Path(__file__).resolve().parent.parent / "logs"

@@ -15,12 +15,12 @@ import pymavlink_ref as ref
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
-from apmcal.report import summarize
+from apmcal.report.text import summarize
 from apmcal.sources import read_log
 from apmcal.sources.dataflash import read_bin_messages
 from apmcal.sources.tlog import read_tlog_messages
-from sitl import makelog, motion
-from sitl.logwriter import DataflashWriter, TlogWriter
+from apmcal_sim import makelog, motion
+from apmcal_sim.logwriter import DataflashWriter, TlogWriter
 
 UNIX0 = 1.7e9
 MOTORS_S = 40.0        # motors script: idle 5 s, ramp 12.5 s, full 5 s, ramp 12.5 s, idle 5 s

@@ -7,7 +7,7 @@ import numpy as np
 import pymavlink_ref as ref
 import pytest
 
-from apmcal.errors import ApmcalError
+from apmcal.core.errors import ApmcalError
 from apmcal.sources import read_log
 from apmcal.sources.dataflash import read_bin_messages
 
@@ -173,7 +173,7 @@ def test_parm_change_after_imu_start_bin(tmp_path):
     """Written with the simulator's DataflashWriter (PARM with TimeUS). The whole list written
     again mid-log with the same values is no change; a new INS_GYROFFS_Z value after the first
     IMU record is, with the PARM's own time; a non-calibration parameter is not."""
-    from sitl.logwriter import DataflashWriter
+    from apmcal_sim.logwriter import DataflashWriter
 
     listing = {"INS_GYROFFS_Z": 0.002, "INS_ACCSCAL_X": 1.02, "COMPASS_DIA_X": 1.0,
                "LOG_BITMASK": 830.0}

@@ -10,7 +10,7 @@ import pytest
 from pymavlink.dialects.v10 import ardupilotmega as mav1
 from pymavlink.dialects.v20 import ardupilotmega as mav2
 
-from apmcal.errors import ApmcalError
+from apmcal.core.errors import ApmcalError
 from apmcal.sources import read_log
 from apmcal.sources.tlog import read_tlog_messages
 
@@ -172,7 +172,7 @@ def test_param_change_after_imu_start_is_reported(tmp_path):
     """Written with the simulator's TlogWriter. Only a calibration parameter that takes a new
     float32 value after the first IMU message counts: not identical repeats of the list (ground
     stations re-request it), not a change before the samples, not a non-calibration parameter."""
-    from sitl.logwriter import TlogWriter
+    from apmcal_sim.logwriter import TlogWriter
 
     m = v2()
     listing = {"INS_ACCOFFS_X": 0.1, "COMPASS_OFS_Y": -12.5, "AHRS_ORIENTATION": 0.0,
@@ -220,7 +220,7 @@ def test_no_param_change_in_real_tlogs(shared_data):
 def test_start_time_from_the_first_frame_only_when_a_plausible_date(tmp_path, unix0, expected):
     """The ground station's clock of the first frame dates the recording (WMM field); a clock
     never set (seconds since boot) or a timestamp beyond 2100 is no date."""
-    from sitl.logwriter import TlogWriter
+    from apmcal_sim.logwriter import TlogWriter
 
     p = tmp_path / "clock.tlog"
     with TlogWriter(p) as w:
@@ -237,7 +237,7 @@ def test_start_time_of_a_real_session(shared_data):
 def test_raw_imu_without_temperature_gets_the_barometers_interpolated(tmp_path):
     """APM 2.x RAW_IMU carries no temperature: SCALED_PRESSURE's (cdegC) is interpolated to the
     IMU sample times on the boot clock, NaN outside the barometer's samples, with a note."""
-    from sitl.logwriter import TlogWriter
+    from apmcal_sim.logwriter import TlogWriter
 
     p = tmp_path / "baro.tlog"
     with TlogWriter(p) as w:
@@ -258,7 +258,7 @@ def test_barometer_temperature_is_not_attached_across_a_clock_restart(tmp_path):
     """Barometer times 1, 2, 3, then a reboot (0.5, 1.5), then 4 s: a time no longer says which
     boot a sample belongs to, so no temperature is attached (a note says why), as in the
     pymavlink reference."""
-    from sitl.logwriter import TlogWriter
+    from apmcal_sim.logwriter import TlogWriter
 
     p = tmp_path / "reboot.tlog"
     with TlogWriter(p) as w:
@@ -279,7 +279,7 @@ def test_barometer_temperature_is_not_attached_across_a_clock_restart(tmp_path):
 def test_only_the_autopilots_parameters_are_read(tmp_path, version):
     """A gimbal (component 154, autopilot INVALID) sends its own parameter list, with a name the
     autopilot also has: the vehicle's parameters are the autopilot's alone (component 1)."""
-    from sitl.logwriter import TlogWriter
+    from apmcal_sim.logwriter import TlogWriter
 
     dialect = mav1 if version == "v1" else mav2
     autopilot = dialect.MAVLink(None, srcSystem=1, srcComponent=1)

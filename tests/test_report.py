@@ -5,9 +5,9 @@ import numpy as np
 import pandas as pd
 from rich.console import Console
 
-from apmcal import report
-from apmcal.recording import LogContents, Recording
-from apmcal.report_lines import calibration_lines
+from apmcal.core.recording import LogContents, Recording
+from apmcal.report import text as report
+from apmcal.report.lines import calibration_lines
 from apmcal.solvers.misfit import HoldMisfit
 from apmcal.solvers.report_types import (
     CalibrationReport,
@@ -156,7 +156,7 @@ def test_recording_date_and_its_source_are_shown():
 
 
 def test_calibration_parameter_changes_are_warned_in_the_summary():
-    from apmcal.recording import ParamChange
+    from apmcal.core.recording import ParamChange
 
     c = contents()
     c.param_changes = [ParamChange("INS_ACCOFFS_X", 0.1, 0.25, 5.0, "PARM record at byte 99")]

@@ -11,13 +11,13 @@ import pandas as pd
 import pytest
 from sitl_helpers import session_recording
 
-from apmcal.errors import ApmcalError
-from apmcal.pipeline import Options, calibrate, calibrate_log
-from apmcal.recording import Recording
-from apmcal.report_lines import calibration_lines
+from apmcal.calibration.log import Options, calibrate, calibrate_log
+from apmcal.core.errors import ApmcalError
+from apmcal.core.recording import Recording
+from apmcal.report.lines import calibration_lines
+from apmcal.report.verdict import judge
 from apmcal.solvers.result import SCHEMA, Calibration, SensorCalibration
 from apmcal.sources import read_log
-from apmcal.verdict import judge
 
 ROOT = Path(__file__).resolve().parents[1]
 SITE = Options(lat_deg=5.6037, lon_deg=-0.187)

@@ -7,9 +7,9 @@ from pygeomag import GeoMag
 from scipy.spatial.transform import Rotation
 from sitl_helpers import G0, only, run
 
-from sitl import EFFECTS
-from sitl.errors_model import ImuErrorModel
-from sitl.truth import Truth
+from apmcal.sensor_model.imu import ImuErrorModel
+from apmcal.sensor_model.truth import Truth
+from apmcal_sim import EFFECTS
 
 
 def test_effect_names_are_the_canonical_list():
@@ -177,8 +177,8 @@ def test_magnetometer_field_hard_soft_iron_interference():
 
 
 def test_truth_json_roundtrip_and_unknown_effect(tmp_path):
+    from apmcal.core.errors import ApmcalError
     from apmcal.solvers.result import SensorCalibration
-    from sitl.errors import SitlError
     tr = Truth.random(7).with_effects(disable=["acc_noise"])
     tr.save(tmp_path / "t.json")
     back = Truth.load(tmp_path / "t.json")
@@ -187,7 +187,7 @@ def test_truth_json_roundtrip_and_unknown_effect(tmp_path):
     d = json.loads((tmp_path / "t.json").read_text())
     acc = SensorCalibration.from_dict(d["acc"])
     np.testing.assert_allclose(acc.offset, tr.acc_bias)
-    with pytest.raises(SitlError):
+    with pytest.raises(ApmcalError):
         tr.with_effects(disable=["acc_bais"])
 
 
@@ -207,7 +207,7 @@ def test_gyro_scale_nonlinearity_quadratic():
 
 
 def test_output_does_not_depend_on_chunking():
-    from sitl.vehicle import SimVehicle
+    from apmcal_sim.vehicle import SimVehicle
     outs = []
     for chunk in (0.013, 0.5):
         v = SimVehicle(Truth.random(11), "tumble", "3.3", record=True, seed=4, duration=5.0,
@@ -221,7 +221,7 @@ def test_output_does_not_depend_on_chunking():
 
 def test_ferraris_script_rotations_are_minus_360_deg_about_each_axis():
     _, h = run(only(), 470.0, script="ferraris")
-    from sitl.motion import ferraris
+    from apmcal_sim.motion import ferraris
     secs = {name: (a, b) for name, a, b in ferraris().sections()}
     assert [n for n in secs if n != "transition"] == ["x_p", "x_a", "y_p", "y_a", "z_p", "z_a",
                                                        "x_rot", "y_rot", "z_rot"]
@@ -265,7 +265,7 @@ def _mean(h, key, span, margin=0.5):
 
 
 def test_only_the_motors_script_runs_the_motors():
-    from sitl import motion
+    from apmcal_sim import motion
     for name in motion.SCRIPTS:
         script = motion.build(name, seed=1)
         t = np.linspace(0.0, script.duration, 6001)     # the whole script, however long
@@ -323,7 +323,7 @@ def test_mag_interference_shifts_the_field_by_interference_times_throttle():
     (1, 1.0, +1, 2.0),     # wrong sign doubles it (the firmware adds, never subtracts)
 ])
 def test_compass_mot_compensates_the_interference(motct, per_unit, sign, expect_factor):
-    from sitl.vehicle import SimVehicle
+    from apmcal_sim.vehicle import SimVehicle
     tr = only("mag_interference")
     v = SimVehicle(tr, "motors", "3.3", record=True, seed=5)
     v.params.set("INS_GYR_CAL", 0, save=False)
@@ -431,7 +431,7 @@ def test_lowpass_at_or_above_nyquist_is_skipped(cutoff):
 def test_per_axis_and_per_sensor_parameters_roundtrip_and_are_checked(tmp_path):
     import json
 
-    from sitl.errors import SitlError
+    from apmcal.core.errors import ApmcalError
     tr = Truth.random(2)
     tr.acc_noise, tr.mag_noise, tr.gyro_bias_random_walk = [1e-3, 2e-3, 3e-3], [1, 2, 3], [1e-5] * 3
     tr.lowpass_hz = {"acc": 42.0, "gyro": 98.0}
@@ -442,12 +442,12 @@ def test_per_axis_and_per_sensor_parameters_roundtrip_and_are_checked(tmp_path):
                      ("lowpass_hz", {"acc": 20.0}), ("lowpass_hz", -5.0)):
         e = dict(d["effects"], **{key: bad})
         (tmp_path / "bad.json").write_text(json.dumps({"effects": e}))
-        with pytest.raises(SitlError, match=key):
+        with pytest.raises(ApmcalError, match=key):
             Truth.load(tmp_path / "bad.json")
 
 
 def test_battery_current_constant_is_20_amps_per_unit_throttle():
-    from sitl import FULL_THROTTLE_CURRENT_A
+    from apmcal_sim import FULL_THROTTLE_CURRENT_A
     assert FULL_THROTTLE_CURRENT_A == 20.0
     v, _ = run(only(), 0.0, script="motors")
     t = np.array([0.0, 10.0, 16.25, 27.5, 60.0])

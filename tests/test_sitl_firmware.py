@@ -9,7 +9,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from sitl_helpers import messages, only, run
 
-from sitl.vehicle import SimVehicle
+from apmcal_sim.vehicle import SimVehicle
 
 
 def _set(v, name, value):
@@ -171,8 +171,8 @@ def test_raw_imu_rounds_instead_of_truncating_when_quantization_off():
 
 
 def test_parm_file_persistence_and_bad_file(tmp_path):
-    from sitl.errors import SitlError
-    from sitl.params_store import ParamStore
+    from apmcal.core.errors import ApmcalError
+    from apmcal_sim.params_store import ParamStore
     path = tmp_path / "vehicle.parm"
     path.write_text("# saved by a GCS\nINS_ACCSCAL_Z,1.05\nCOMPASS_OFS_X 12.5\nNOT_A_PARAM 3\n")
     store = ParamStore("3.2", path)
@@ -182,7 +182,7 @@ def test_parm_file_persistence_and_bad_file(tmp_path):
     assert "INS_ACCOFFS_Y -0.25\n" in path.read_text()
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")
-    with pytest.raises(SitlError, match="bad.json: not a parameter file"):
+    with pytest.raises(ApmcalError, match="bad.json: not a parameter file"):
         ParamStore("3.2", bad)
 
 
@@ -198,7 +198,7 @@ def test_parm_file_persistence_and_bad_file(tmp_path):
     ("3.2", 1, [100.0, -200.0, -300.0]),     # external: COMPASS_ORIENT only
 ])
 def test_compass_orient_and_external_rules(gen, external, expect):
-    from sitl.firmware import apply_compass
+    from apmcal_sim.firmware import apply_compass
     p = {"AHRS_ORIENTATION": 2, "COMPASS_ORIENT": 8, "COMPASS_EXTERNAL": external}
     np.testing.assert_allclose(apply_compass(np.array([[100.0, 200.0, 300.0]]), p, gen),
                                [expect], atol=1e-12)
@@ -228,7 +228,7 @@ def test_external_compass_mounted_apart_from_the_board(gen):
 
 
 def test_all_zero_compass_diagonals_mean_ones_with_offdiagonals_kept():
-    from sitl.firmware import apply_compass
+    from apmcal_sim.firmware import apply_compass
     raw = np.array([[100.0, 200.0, 300.0]])
     p = {"COMPASS_OFS_X": 100.0, "COMPASS_DIA_X": 0.0, "COMPASS_DIA_Y": 0.0, "COMPASS_DIA_Z": 0.0,
          "COMPASS_ODI_X": 0.5, "COMPASS_ODI_Y": 0.0, "COMPASS_ODI_Z": 0.0}
@@ -259,7 +259,7 @@ def test_vehicle_resets_all_zero_diagonals_to_one_in_ram(tmp_path):
 
 @pytest.mark.parametrize("motct,drive", [(1, 0.5), (2, 10.0)])
 def test_compass_mot_is_added_and_inside_the_matrix_on_33(motct, drive):
-    from sitl.firmware import apply_compass
+    from apmcal_sim.firmware import apply_compass
     p = {"COMPASS_MOTCT": motct, "COMPASS_MOT_X": 20.0, "COMPASS_MOT_Y": -4.0,
          "COMPASS_MOT_Z": 0.0, "COMPASS_DIA_X": 2.0, "COMPASS_DIA_Y": 1.0, "COMPASS_DIA_Z": 1.0}
     raw = np.array([[100.0, 0.0, 0.0]])
@@ -277,7 +277,7 @@ def test_compass_mot_is_added_and_inside_the_matrix_on_33(motct, drive):
 def test_rotation_the_simulator_does_not_model_is_refused_not_fatal(tmp_path):
     """AHRS_ORIENTATION 38 exists on real firmware but not in the simulator: the set is dropped
     (the ground station reads back the old value) and the vehicle keeps running."""
-    from sitl.params_store import ParamStore
+    from apmcal_sim.params_store import ParamStore
 
     store = ParamStore("3.3", tmp_path / "p.json")
     assert store.set("AHRS_ORIENTATION", 38) is None

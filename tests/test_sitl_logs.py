@@ -11,7 +11,7 @@ import pytest
 from pymavlink import DFReader, mavutil
 
 from apmcal.solvers.result import SensorCalibration
-from sitl.makelog import main as makelog
+from apmcal_sim.makelog import main as makelog
 
 LOGS = Path(__file__).resolve().parents[1] / "logs"
 G0 = 9.80665

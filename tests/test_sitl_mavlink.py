@@ -16,8 +16,8 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from sitl_helpers import messages, only
 
-from sitl.mavlink_vehicle import MavlinkVehicle
-from sitl.vehicle import SimVehicle, parse_pose_text
+from apmcal_sim.mavlink_vehicle import MavlinkVehicle
+from apmcal_sim.vehicle import SimVehicle, parse_pose_text
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -154,7 +154,7 @@ def test_command_line_serves_and_writes_truth(tmp_path):
     gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
     truth = tmp_path / "truth.json"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "sitl", f"udpout:127.0.0.1:{port}", "--firmware", "3.3",
+        [sys.executable, "-m", "apmcal_sim", f"udpout:127.0.0.1:{port}", "--firmware", "3.3",
          "--duration", "6", "--speedup", "4", "--seed", "9", "--write-truth", str(truth),
          "--param-file", str(tmp_path / "p.json"), "--disable", "acc_noise,gyro_noise"],
         cwd=ROOT, stderr=subprocess.PIPE)
@@ -190,7 +190,7 @@ def test_a_stalled_endpoint_lags_instead_of_bursting():
 def test_operator_console_turns_the_vehicle_to_typed_poses():
     import io
 
-    from sitl.__main__ import start_operator_console
+    from apmcal_sim.__main__ import start_operator_console
 
     class Endpoint:
         calls = []

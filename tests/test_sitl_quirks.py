@@ -9,9 +9,9 @@ import pytest
 from scipy.stats import kurtosis
 from sitl_helpers import G0, only, still
 
-from sitl import DIAGNOSIS_EFFECTS, EFFECTS, NOMINAL_EFFECTS, SIMULATOR_QUIRKS
-from sitl.errors import SitlError
-from sitl.truth import Truth
+from apmcal.core.errors import ApmcalError
+from apmcal.sensor_model.truth import Truth
+from apmcal_sim import DIAGNOSIS_EFFECTS, EFFECTS, NOMINAL_EFFECTS, SIMULATOR_QUIRKS
 
 QUIRKS = ("uniform_noise", "triangle_drift")
 
@@ -193,19 +193,19 @@ def test_with_effects_accepts_diagnosis_names():
     assert _on(Truth().with_effects(disable=["all"], enable=["gyro_scale"])) == {"gyro_scale"}
     tr = Truth().with_effects(disable=["all"], enable=["gyro_scale"], prefer="diagnosis")
     assert _on(tr) == {"gyro_scale", "gyro_misalignment"}
-    with pytest.raises(SitlError) as err:
+    with pytest.raises(ApmcalError) as err:
         Truth().with_effects(enable=["bias_drfit"])
     assert "gyro_bias_drift" in str(err.value) and "bias_random_walk" in str(err.value)
 
 
 def test_cli_accepts_diagnosis_names():
-    from sitl.__main__ import parse_args
-    from sitl.cli_common import make_truth
+    from apmcal_sim.__main__ import parse_args
+    from apmcal_sim.cli_common import make_truth
     tr = make_truth(parse_args(["--disable", "all", "--enable", "bias_drift,cross_axis"]))
     assert _on(tr) == {"gyro_bias_drift", "acc_cross_axis"}
     tr = make_truth(parse_args(["--disable", "bias_random_walk,mag_interference"]))
     assert not tr.on("gyro_bias_random_walk") and not tr.on("mag_interference")
-    with pytest.raises(SitlError, match="diagnosis names"):
+    with pytest.raises(ApmcalError, match="diagnosis names"):
         make_truth(parse_args(["--enable", "no_such_effect"]))
 
 
@@ -220,8 +220,8 @@ def _twin_file(tmp_path):
 
 
 def test_twin_option_loads_a_twin_file_with_extra_keys(tmp_path, capsys):
-    from sitl.__main__ import parse_args
-    from sitl.cli_common import make_truth
+    from apmcal_sim.__main__ import parse_args
+    from apmcal_sim.cli_common import make_truth
     tr, path = _twin_file(tmp_path)
     assert "twin" in json.loads(path.read_text())
     assert make_truth(parse_args(["--twin", str(path)])) == tr
@@ -232,7 +232,7 @@ def test_twin_option_loads_a_twin_file_with_extra_keys(tmp_path, capsys):
 
 
 def test_makelog_twin_equals_truth_and_refuses_both(tmp_path, capsys):
-    from sitl.makelog import main as makelog
+    from apmcal_sim.makelog import main as makelog
     _, path = _twin_file(tmp_path)
     args = ["--script", "onepos", "--duration", "3", "--seed", "2"]
     assert makelog(args + ["--twin", str(path), "--out", str(tmp_path / "a.tlog")]) == 0
@@ -249,7 +249,7 @@ def test_makelog_twin_equals_truth_and_refuses_both(tmp_path, capsys):
 
 
 def test_sitl_cli_twin_help_and_exclusion(capsys):
-    from sitl.__main__ import parse_args
+    from apmcal_sim.__main__ import parse_args
     with pytest.raises(SystemExit):
         parse_args(["--help"])
     assert "apmcal gap --write-twin" in " ".join(capsys.readouterr().out.split())
@@ -260,7 +260,7 @@ def test_sitl_cli_twin_help_and_exclusion(capsys):
 
 # ---- the diagnosis motion script -------------------------------------------------------------
 def test_diagnosis_script_faces_rotations_and_throttle_ramp():
-    from sitl import motion
+    from apmcal_sim import motion
     assert "diagnosis" in motion.SCRIPTS
     m = motion.build("diagnosis", duration=10.0)     # shorter than the session: no effect
     secs = [(n, a, b) for n, a, b in m.sections() if n != "transition"]

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from apmcal.errors import ApmcalError
+from apmcal.core.errors import ApmcalError
 from apmcal.preprocessing.rotations import find_rotations
 from apmcal.preprocessing.static import ARDUPILOT_FACE, find_static_segments, label_poses, pose_of
 

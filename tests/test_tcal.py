@@ -18,14 +18,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from apmcal.ardupilot.paramfile import read_param_file, write_param_file
+from apmcal.ardupilot.tcal_params import polynomial
+from apmcal.calibration.tcal import calibrate_temperature, tcal_params
 from apmcal.cli import main
+from apmcal.sensor_model.truth import Truth
 from apmcal.sources import read_log
-from apmcal.tcal_pipeline import calibrate_temperature, tcal_params
-from apmcal.vehicle.paramfile import read_param_file, write_param_file
-from apmcal.vehicle.tcal_params import polynomial
-from sitl.logwriter import HEAD, DataflashWriter
-from sitl.makelog import main as makelog
-from sitl.truth import Truth
+from apmcal_sim.logwriter import HEAD, DataflashWriter
+from apmcal_sim.makelog import main as makelog
 
 ROOT = Path(__file__).resolve().parents[1]
 EFFECTS = ["temperature_drift", "acc_noise", "gyro_noise", "acc_bias", "gyro_bias", "acc_scale",
@@ -75,8 +75,8 @@ def assert_matches_truth(fit: dict, truth: Truth) -> None:
 def test_correction_agrees_with_the_simulated_firmware():
     """apmcal's reading of the parameters (what it adds back) and sitl's firmware (what it
     subtracts) agree, clamping to [TMIN, TMAX] and the default CALTEMP −300 included."""
-    from apmcal.vehicle.tcal_params import tcal_from_params
-    from sitl.firmware import temperature_correction
+    from apmcal.ardupilot.tcal_params import tcal_from_params
+    from apmcal_sim.firmware import temperature_correction
 
     rng = np.random.default_rng(4)
     temps = np.linspace(-10.0, 80.0, 200)
@@ -288,7 +288,7 @@ def test_upload_through_the_verified_path(warm, tmp_path):
     log, _ = warm
     port = free_udp_port()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "sitl", f"udpout:127.0.0.1:{port}", "--script", "onepos",
+        [sys.executable, "-m", "apmcal_sim", f"udpout:127.0.0.1:{port}", "--script", "onepos",
          "--firmware", "3.3", "--speedup", "1", "--seed", "21",
          "--param-file", str(tmp_path / "sitl-params.json")],     # speedup 1: light on a
         # loaded machine (a vehicle that cannot keep up stops answering)

@@ -9,11 +9,11 @@ import pandas as pd
 import pytest
 
 from apmcal.cli import main
-from apmcal.recording import LogContents, Recording
-from sitl import motion
-from sitl.makelog import START_UNIX, write_tlog
-from sitl.truth import Truth
-from sitl.vehicle import FAULTY_HIGHRES_MAG_PER_MGAUSS, SimVehicle
+from apmcal.core.recording import LogContents, Recording
+from apmcal.sensor_model.truth import Truth
+from apmcal_sim import motion
+from apmcal_sim.makelog import START_UNIX, write_tlog
+from apmcal_sim.vehicle import FAULTY_HIGHRES_MAG_PER_MGAUSS, SimVehicle
 
 
 def short_ferraris_tlog(path, faulty_highres_mag: bool) -> None:
@@ -23,7 +23,7 @@ def short_ferraris_tlog(path, faulty_highres_mag: bool) -> None:
     v = SimVehicle(truth, "ferraris", "3.3", None, fs=100.0, seed=7, start_unix=START_UNIX)
     v.motion = motion.ferraris(hold=6.0, pause=4.0)
     v.params.set("INS_GYR_CAL", 0, save=False)
-    v._boot_gyro = None                       # neutral parameters, as sitl.makelog makes them
+    v._boot_gyro = None                       # neutral parameters, as apmcal_sim.makelog makes them
     if faulty_highres_mag:
         v.highres_mag_per_mgauss = FAULTY_HIGHRES_MAG_PER_MGAUSS
     write_tlog(v, path, 25.0, v.motion.duration + 1.0, highres=True)
@@ -104,7 +104,7 @@ def test_plausible_units_pass_including_an_uncalibrated_compass():
 
 
 def test_a_log_with_nothing_plausible_is_refused_with_the_reason():
-    from apmcal.errors import ApmcalError
+    from apmcal.core.errors import ApmcalError
     from apmcal.sources.units import require_plausible_units
 
     out = LogContents(path="x.tlog", format="tlog",

@@ -11,11 +11,11 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from apmcal.ardupilot.paramfile import read_param_file, write_param_file
 from apmcal.cli import main
-from apmcal.errors import ApmcalError
+from apmcal.core.errors import ApmcalError
+from apmcal.link.upload import restore_params, upload_params
 from apmcal.sources.live import VehicleLink
-from apmcal.vehicle.paramfile import read_param_file, write_param_file
-from apmcal.vehicle.upload import restore_params, upload_params
 
 
 class FakeLink:

@@ -2,7 +2,7 @@
 proxy losing a quarter of the packets each way (issue 9).
 
 The simulated vehicle answers a set of a vector's _X with _X, _Y and _Z, as ArduPilot does
-(sitl.params_store.ParamStore.answered_set_with): the echo of the _X write carries _Y's old value
+(apmcal_sim.params_store.ParamStore.answered_set_with): the echo of the _X write carries _Y's old value
 and arrives before the answer to the _Y write.
 """
 from __future__ import annotations
@@ -15,12 +15,12 @@ import pytest
 from lossy_udp import ServedVehicle, free_udp_port, vehicle_behind_lossy_link
 from sitl_helpers import only
 
+from apmcal.ardupilot.paramfile import write_param_file
 from apmcal.cli import main
-from apmcal.errors import ApmcalError
+from apmcal.core.errors import ApmcalError
+from apmcal.link.upload import UploadReport, upload_params
 from apmcal.sources.live import VehicleLink
-from apmcal.vehicle.paramfile import write_param_file
-from apmcal.vehicle.upload import UploadReport, upload_params
-from sitl.vehicle import SimVehicle
+from apmcal_sim.vehicle import SimVehicle
 
 NEW = {"INS_ACCOFFS_X": 0.31, "INS_ACCOFFS_Y": -0.27, "INS_ACCOFFS_Z": 0.52,
        "COMPASS_OFS_X": 41.5, "COMPASS_OFS_Y": -63.25, "COMPASS_OFS_Z": 120.0}

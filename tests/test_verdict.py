@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from sitl_helpers import session_recording, sigma_z
 
-from apmcal.pipeline import Options, calibrate
+from apmcal.calibration.log import Options, calibrate
+from apmcal.report.verdict import compass, judge
 from apmcal.solvers.report_types import CalibrationReport, MagneticField
 from apmcal.solvers.result import Calibration, SensorCalibration
-from apmcal.verdict import compass, judge
 
 LAT = 5.6037
 # clean: the errors ArduPilot's parameters hold, noise, and the physics apmcal models
@@ -61,7 +61,7 @@ def test_compass_coverage_rules(cover, grade):
 
 
 def test_firmware_refusal_is_redo():
-    from apmcal.vehicle.params import ParamProposal
+    from apmcal.ardupilot.params import ParamProposal
 
     cal = Calibration("ferraris", {"acc": SensorCalibration(
         sigma={"offset": [0.01] * 3, "matrix": np.full((3, 3), 1e-3)})})

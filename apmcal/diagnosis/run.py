@@ -1,4 +1,4 @@
-"""``apmcal gap`` end to end: a session in, a :class:`~apmcal.diagnosis.result.GapResult` out.
+"""``apmcal gap`` end to end: a session in, a :class:`~apmcal.diagnosis.output.result.GapResult` out.
 
 Steps: score the nominal model (in-sample and held-out, with the breakdown of where its gap
 lies); score every candidate effect alone and rank them; select a combination greedily; score
@@ -11,15 +11,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from apmcal.diagnosis import reuse
-from apmcal.diagnosis.breakdown import gap_summary
-from apmcal.diagnosis.decimate import FINE_EFFECTS, SHAPES_BLOCK_MEANS
-from apmcal.diagnosis.evaluate import FOLDS, Evaluation, Evaluator
-from apmcal.diagnosis.noise_structure import merged as merged_structure
-from apmcal.diagnosis.noise_terms import prepare as prepare_noise_terms
-from apmcal.diagnosis.params import white_noise_of_folds
-from apmcal.diagnosis.result import GapResult
-from apmcal.diagnosis.select import candidates, forward_selection, merged, rank, rank_effects
+from apmcal.diagnosis.compute import reuse
+from apmcal.diagnosis.model.params import white_noise_of_folds
+from apmcal.diagnosis.noise.structure import merged as merged_structure
+from apmcal.diagnosis.noise.terms import prepare as prepare_noise_terms
+from apmcal.diagnosis.output.result import GapResult
+from apmcal.diagnosis.scoring.breakdown import gap_summary
+from apmcal.diagnosis.scoring.evaluate import FOLDS, Evaluation, Evaluator
+from apmcal.diagnosis.scoring.select import candidates, forward_selection, merged, rank, rank_effects
+from apmcal.diagnosis.session.decimate import FINE_EFFECTS, SHAPES_BLOCK_MEANS
 
 
 @dataclass
@@ -112,7 +112,7 @@ def _diagnose(session, names, seed: int, progress) -> Diagnosis:
 def _score_nominal(ev: Evaluator) -> Evaluation:
     """The nominal model: fold 0 here, fold 1 in a worker, and in another worker beside them
     the two folds of the nominal model of the block means, where the slow effects start (a
-    session faster than :data:`~apmcal.diagnosis.decimate.SLOW_RATE_HZ`; that worker makes its
+    session faster than :data:`~apmcal.diagnosis.session.decimate.SLOW_RATE_HZ`; that worker makes its
     own block means). Once fold 0 is done, while fold 1 may still run, this process makes what
     the workers forked later inherit: the block means' evaluator and the noise-structure fits'
     fixed integrals."""
@@ -142,7 +142,7 @@ def preload_imports() -> None:
 def _rank_and_select(ev: Evaluator, names, say):
     """Every candidate scored alone, and the stepwise combination.
 
-    A recording faster than :data:`~apmcal.diagnosis.decimate.SLOW_RATE_HZ` is scored in
+    A recording faster than :data:`~apmcal.diagnosis.session.decimate.SLOW_RATE_HZ` is scored in
     stages: the fine effects alone at its own rate; the slow ones on its block means, on top of
     a low-pass filter when one was found (it colours the noise down into the slow band: left
     out, a random walk would stand in for it); then the fine effects' combination at the

@@ -10,8 +10,8 @@ import struct
 import time
 from pathlib import Path
 
-from apmcal.constants import DEFAULT_BAUD
-from apmcal.errors import ApmcalError
+from apmcal.core.constants import DEFAULT_BAUD
+from apmcal.core.errors import ApmcalError
 
 MAV_AUTOPILOT_INVALID = 8       # HEARTBEAT.autopilot of anything that is not a flight controller
 

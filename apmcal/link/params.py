@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 
-from apmcal.errors import ApmcalError
+from apmcal.core.errors import ApmcalError
 
 # PARAM_REQUEST_READs sent before waiting for their answers: a bounded batch, so that the
 # vehicle's request queue (small on a flight controller) is not overrun

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from apmcal.errors import ApmcalError
+from apmcal.core.errors import ApmcalError
 from apmcal.preprocessing.rotations import Rotation, find_rotations, integrate_slice
 from apmcal.preprocessing.static import (
     POSES,

@@ -21,7 +21,7 @@ import math
 import numpy as np
 from scipy import signal
 
-from apmcal.errors import ApmcalError
+from apmcal.core.errors import ApmcalError
 
 DEFAULT_CUTOFF_HZ = 0.5     # seed 002 §5.1
 DEFAULT_ORDER = 2

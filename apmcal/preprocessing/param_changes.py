@@ -13,8 +13,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from apmcal.errors import ApmcalError
-from apmcal.recording import MAG, ParamChange, Recording, is_calibration_param
+from apmcal.core.errors import ApmcalError
+from apmcal.core.recording import MAG, ParamChange, Recording, is_calibration_param
 
 
 def split_at_param_changes(imu: Recording, mag: Recording | None, changes: list[ParamChange],
@@ -118,7 +118,7 @@ def after_param_changes(recording: Recording, changes: list[ParamChange],
 
 def enters_correction_of(sensors, instance: int):
     """Predicate on a parameter name: does it enter the firmware correction of these sensors?"""
-    from apmcal.preprocessing.firmware import correction_param_names
+    from apmcal.ardupilot.firmware import correction_param_names
 
     try:
         names = set().union(*(correction_param_names(s, instance) for s in sensors))

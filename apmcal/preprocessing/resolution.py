@@ -17,10 +17,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from apmcal.constants import MG_TO_MS2, MRAD_TO_RAD
+from apmcal.core.constants import MG_TO_MS2, MRAD_TO_RAD
 
-if TYPE_CHECKING:   # apmcal.recording loads pandas, which noise_std's users (the diagnosis) lack
-    from apmcal.recording import Recording
+if TYPE_CHECKING:   # apmcal.core.recording loads pandas, which noise_std's users (the diagnosis) lack
+    from apmcal.core.recording import Recording
 
 INT16_TELEMETRY = {"RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3"}
 STEP_SI = {"acc": MG_TO_MS2, "gyr": MRAD_TO_RAD, "mag": 1.0}   # m/s², rad/s, mGauss per count
@@ -87,7 +87,7 @@ def undo_truncation(recording: Recording) -> Recording:
 
     A count of 0 stands for (−1, 1) steps and is left at 0.
     """
-    from apmcal.recording import SENSOR_COLUMNS
+    from apmcal.core.recording import SENSOR_COLUMNS
 
     steps = telemetry_steps(recording)
     if not steps:

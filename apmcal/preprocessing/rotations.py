@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from apmcal.errors import ApmcalError
+from apmcal.core.errors import ApmcalError
 from apmcal.preprocessing.static import StaticSegment
 
 MIN_STEP_DEG = 45.0        # smaller motions between holds are not counted as rotation steps

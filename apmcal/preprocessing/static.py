@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from apmcal.errors import ApmcalError
+from apmcal.core.errors import ApmcalError
 from apmcal.preprocessing.hold_merge import MERGE_ANGLE_DEG, merge_holds
 from apmcal.preprocessing.stillness import (
     GAP_FACTOR,

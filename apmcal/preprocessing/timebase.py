@@ -10,8 +10,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from apmcal.errors import ApmcalError
-from apmcal.recording import Recording
+from apmcal.core.errors import ApmcalError
+from apmcal.core.recording import Recording
 
 
 def longest_increasing_run(t: np.ndarray) -> slice:

@@ -1,6 +1,6 @@
 """How well samples seen from a centre cover the directions of the unit sphere: what decides
-whether an ellipsoid's off-diagonal terms can be determined (:mod:`apmcal.solvers.ellipsoid_robust`)
-and what the verdict says about a compass session (:mod:`apmcal.verdict`)."""
+whether an ellipsoid's off-diagonal terms can be determined (:mod:`apmcal.solvers.ellipsoid.robust`)
+and what the verdict says about a compass session (:mod:`apmcal.report.verdict`)."""
 from __future__ import annotations
 
 import numpy as np

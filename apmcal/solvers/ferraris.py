@@ -52,12 +52,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from apmcal.constants import EARTH_RATE, normal_gravity
-from apmcal.errors import ApmcalError
+from apmcal.core.blas_threads import single_threaded_blas
+from apmcal.core.constants import EARTH_RATE, normal_gravity
+from apmcal.core.errors import ApmcalError
 from apmcal.preprocessing.ferraris_regions import AXES, FerrarisRegions
 from apmcal.preprocessing.rotations import Rotation, integrate_slice, sample_intervals
 from apmcal.preprocessing.static import ARDUPILOT_FACE, POSES, StaticSegment
-from apmcal.solvers.blas_threads import single_threaded_blas
 from apmcal.solvers.gyro_bias import fit_gyro_bias, integrate_motions, motions_between_holds
 from apmcal.solvers.misfit import hold_misfit
 from apmcal.solvers.report_types import CalibrationReport, GyroTurns, Hold, Holds, SixFaceFit, Turn

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from apmcal.errors import ApmcalError
+from apmcal.core.errors import ApmcalError
 from apmcal.preprocessing.rotations import Rotation, integrate_slice, sample_intervals
 
 

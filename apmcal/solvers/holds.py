@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from apmcal.constants import STANDARD_GRAVITY
-from apmcal.errors import ApmcalError
+from apmcal.core.constants import STANDARD_GRAVITY
+from apmcal.core.errors import ApmcalError
 from apmcal.solvers.report_types import Hold, Holds
 from apmcal.solvers.result import Calibration, SensorCalibration
 
@@ -210,7 +210,7 @@ def ellipsoid_on_holds(gyr, segments, gravity: float) -> Calibration:
     ApmcalError
         With too few holds or orientations.
     """
-    from apmcal.solvers.ellipsoid import ellipsoid_calibration
+    from apmcal.solvers.ellipsoid.fit import ellipsoid_calibration
 
     n_orient = distinct_orientations(segments)
     if len(segments) < MIN_ELLIPSOID_HOLDS or n_orient < MIN_ORIENTATIONS:

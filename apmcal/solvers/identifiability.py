@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from apmcal.constants import STANDARD_GRAVITY
-from apmcal.errors import ApmcalError
+from apmcal.core.constants import STANDARD_GRAVITY
+from apmcal.core.errors import ApmcalError
 
 AXES = "xyz"
 UNITS = {"acc": "m/s²", "gyr": "rad/s", "mag": "mGauss"}

@@ -1,16 +1,16 @@
 """Magnetometer calibration: coverage check, field magnitude, robust ellipsoid fit (seed 000)
-with its second-order bias removed (:mod:`apmcal.solvers.ellipsoid_debias`)."""
+with its second-order bias removed (:mod:`apmcal.solvers.ellipsoid.debias`)."""
 from __future__ import annotations
 
 import datetime
 
 import numpy as np
 
-from apmcal.errors import ApmcalError
-from apmcal.geomag import field_magnitude
-from apmcal.solvers.blas_threads import single_threaded_blas
-from apmcal.solvers.ellipsoid import fit_ellipsoid_robust, fit_report, relative_mse, sphere_fit
-from apmcal.solvers.ellipsoid_debias import debiased, warm_refit
+from apmcal.core.blas_threads import single_threaded_blas
+from apmcal.core.errors import ApmcalError
+from apmcal.core.geomag import field_magnitude
+from apmcal.solvers.ellipsoid.debias import debiased, warm_refit
+from apmcal.solvers.ellipsoid.fit import fit_ellipsoid_robust, fit_report, relative_mse, sphere_fit
 from apmcal.solvers.report_types import CalibrationReport, MagneticField, MseScore
 from apmcal.solvers.result import SensorCalibration
 

@@ -13,7 +13,7 @@ Step 2 ("the norm of the mean is subtracted from the z output") removes the grav
 z: for ArduPilot's z ≈ −g that means adding ‖mean‖ (we subtract sign(mean_z)·‖mean‖).
 
 Degeneracies of the paper's recipe, reported to the user (in words by
-:func:`apmcal.report_lines.one_position_lines`):
+:func:`apmcal.report.lines.one_position_lines`):
 
 * A zero-phase high-pass of a static signal has mean ≈ 0, so ``R_f ≈ 0`` and the bias
   ``b = R − R_f ≈ R``: x/y bias = the mean itself (a tilt of θ reads as g·sin θ bias, 1° ≈
@@ -31,8 +31,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from apmcal.constants import EARTH_RATE
-from apmcal.errors import ApmcalError
+from apmcal.core.constants import EARTH_RATE
+from apmcal.core.errors import ApmcalError
 from apmcal.preprocessing.highpass import highpass  # zero-phase Butterworth (seed 002 §5)
 from apmcal.solvers.report_types import (
     CalibrationReport,

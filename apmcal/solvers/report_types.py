@@ -1,6 +1,6 @@
 """What a calibration run found, as numbers: one small dataclass per stage.
 
-Solvers fill these in; :mod:`apmcal.report_lines` turns them into words and :mod:`apmcal.verdict`
+Solvers fill these in; :mod:`apmcal.report.lines` turns them into words and :mod:`apmcal.report.verdict`
 into grades. Every field is a number, an array, a name or a message; units are in the field name
 or the docstring (accelerometer m/s², gyroscope rad/s, magnetometer mGauss, time s, angles deg
 unless the name says rad). :func:`to_plain` and :func:`from_plain` turn any of them into plain
@@ -141,7 +141,7 @@ class MseScore:
 
 @dataclass
 class Debias:
-    """The geometric fit's second-order bias removed (:mod:`apmcal.solvers.ellipsoid_debias`):
+    """The geometric fit's second-order bias removed (:mod:`apmcal.solvers.ellipsoid.debias`):
     offset moved by ``offset_shift`` (3,) [sensor units], matrix entries by up to
     ``matrix_shift_max``, from ``pairs`` antithetic refit pairs."""
 
@@ -294,7 +294,7 @@ class OnePositionFit:
 class JointFit:
     """Seed 001's joint fit: conditions and robust rejections per family, each family's noise
     scale (1 = the still periods' white noise), the parameters (name → [value, σ] in the units
-    of :data:`apmcal.solvers.joint_model.UNITS`), those held fixed and those the t-test dropped,
+    of :data:`apmcal.solvers.joint.model.UNITS`), those held fixed and those the t-test dropped,
     and what ArduPilot cannot hold: the gyro matrix's cost [deg per 360° turn] and the
     g-sensitivity's largest effect at 1 g [rad/s]. ``block_samples`` > 1: the fit ran on
     means of that many samples of a ``recorded_rate_hz`` recording; ``compass_own_fit``: the
@@ -309,7 +309,7 @@ class JointFit:
     n_estimated, n_params : int
         Parameters estimated, of all.
     parameters : dict
-        name → [value, σ] in the units of :data:`apmcal.solvers.joint_model.UNITS`.
+        name → [value, σ] in the units of :data:`apmcal.solvers.joint.model.UNITS`.
     fixed, dropped_t_test : list of str
         Parameters held fixed, and those the t-test dropped.
     gyr_matrix_cost_deg_per_turn : float

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from apmcal.errors import ApmcalError
+from apmcal.core.errors import ApmcalError
 from apmcal.solvers.misfit import HoldMisfit
 from apmcal.solvers.report_types import (
     CalibrationReport,
@@ -158,7 +158,7 @@ class Calibration:
     """The result of one calibration run: per-sensor corrections plus what produced them.
 
     ``sensors`` maps "acc", "gyr", "mag" to :class:`SensorCalibration`. ``params`` holds the
-    ArduPilot parameters proposed for this result (filled by :mod:`apmcal.vehicle.params`),
+    ArduPilot parameters proposed for this result (filled by :mod:`apmcal.ardupilot.params`),
     ``report`` what the run found (:class:`~apmcal.solvers.report_types.CalibrationReport`).
 
     Attributes
@@ -186,8 +186,8 @@ class Calibration:
         g-sensitivity (calibrated here with this result's "acc" when it has one).
         ``apply(recording)`` / ``apply(dataframe)``: a copy of the same type with every sensor
         this result calibrates replaced by its calibrated values (columns of
-        :data:`apmcal.recording.SENSOR_COLUMNS`, times from "t"). The samples must be raw and in
-        the sensor frame (:func:`apmcal.pipeline.prepare` undoes a firmware correction).
+        :data:`apmcal.core.recording.SENSOR_COLUMNS`, times from "t"). The samples must be raw and in
+        the sensor frame (:func:`apmcal.calibration.log.prepare` undoes a firmware correction).
 
         Parameters
         ----------
@@ -335,7 +335,7 @@ class Calibration:
 
 def _apply_to_table(cal: Calibration, data):
     """:meth:`Calibration.apply` on a Recording or a DataFrame (a copy of the same type)."""
-    from apmcal.recording import SENSOR_COLUMNS, Recording
+    from apmcal.core.recording import SENSOR_COLUMNS, Recording
 
     if isinstance(data, Recording):
         if data.corrected or data.frame != "sensor":

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from apmcal.errors import ApmcalError
+from apmcal.core.errors import ApmcalError
 
 TEMP_REFERENCE_C = 35.0     # AP_InertialSensor_tempcal.cpp TEMP_REFERENCE
 SCALE_FACTOR = 1.0e6        # ... SCALE_FACTOR (parameters hold the coefficients × 1e6)

@@ -1,17 +1,17 @@
-"""Sources: read logs and files into :class:`~apmcal.recording.LogContents`.
+"""Sources: read logs and files into :class:`~apmcal.core.recording.LogContents`.
 
 :func:`read_log` sniffs the content (and, as a tie-breaker, the extension) and dispatches to
 :func:`apmcal.sources.tlog.read_tlog` (.tlog), :func:`apmcal.sources.dataflash.read_dataflash`
 (dataflash .bin), :func:`apmcal.sources.dataflash_text.read_dataflash_text` (dataflash text
 .log) or ``apmcal.sources.csv.read_csv`` (CSV and other text tables). Whatever the bytes, only
-:class:`~apmcal.errors.ApmcalError` escapes.
+:class:`~apmcal.core.errors.ApmcalError` escapes.
 """
 from __future__ import annotations
 
 from pathlib import Path
 
-from apmcal.errors import ApmcalError
-from apmcal.recording import LogContents
+from apmcal.core.errors import ApmcalError
+from apmcal.core.recording import LogContents
 
 __all__ = ["read_log", "sniff_format"]
 

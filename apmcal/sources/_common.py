@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from apmcal.errors import ApmcalError
-from apmcal.recording import (
+from apmcal.core.errors import ApmcalError
+from apmcal.core.recording import (
     ACC,
     CALIBRATION_PARAM_PREFIXES,
     GYR,
@@ -181,7 +181,7 @@ def param_changes(names: np.ndarray, values: np.ndarray, positions: np.ndarray,
     (ardupilot-facts.md, "What the telemetry really carries"), so a log in which, say,
     INS_ACCOFFS_X changes once the samples have begun cannot be un-corrected with one parameter
     set. A change is a parameter record (PARM, PARAM_VALUE) of a calibration parameter
-    (:data:`~apmcal.recording.CALIBRATION_PARAM_PREFIXES`) that comes after the first sensor
+    (:data:`~apmcal.core.recording.CALIBRATION_PARAM_PREFIXES`) that comes after the first sensor
     sample and whose value differs, at float32 precision (the firmware's storage), from the
     previous record of that name. Identical repeats (logs write the whole list again, ground
     stations re-request it) are not changes; non-finite values are ignored (``_params`` warns).
@@ -241,7 +241,7 @@ def drop_zero_sensors(df: pd.DataFrame, label: str, out: LogContents) -> pd.Data
     return df
 
 
-#: name of the optional battery current column [A] (see :mod:`apmcal.recording`)
+#: name of the optional battery current column [A] (see :mod:`apmcal.core.recording`)
 CURRENT_COLUMN = "current"
 
 

@@ -1,4 +1,4 @@
-"""CSV (and plain-text column) recordings → :class:`~apmcal.recording.LogContents`.
+"""CSV (and plain-text column) recordings → :class:`~apmcal.core.recording.LogContents`.
 
 Layouts (``layout=``):
 
@@ -38,9 +38,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from apmcal.constants import STANDARD_GRAVITY
-from apmcal.errors import ApmcalError
-from apmcal.recording import ACC, GYR, MAG, LogContents, Recording
+from apmcal.core.constants import STANDARD_GRAVITY
+from apmcal.core.errors import ApmcalError
+from apmcal.core.recording import ACC, GYR, MAG, LogContents, Recording
 
 LAYOUTS = ("auto", "apmcal", "imucal", "imucal_annotated", "mpu6050", "imu_tk")
 _ALIASES = {"si": "apmcal"}         # the CLI's --layout help calls the default layout "si"

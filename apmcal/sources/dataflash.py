@@ -30,8 +30,8 @@ from functools import partial
 import numpy as np
 import pandas as pd
 
-from apmcal.errors import ApmcalError
-from apmcal.recording import ACC, GYR, MAG, LogContents
+from apmcal.core.errors import ApmcalError
+from apmcal.core.recording import ACC, GYR, MAG, LogContents
 from apmcal.sources import _fastscan
 from apmcal.sources._common import (
     MAX_DAMAGE_OFFSETS,

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from apmcal.errors import ApmcalError
-from apmcal.recording import LogContents
+from apmcal.core.errors import ApmcalError
+from apmcal.core.recording import LogContents
 from apmcal.sources._common import MAX_DAMAGE_OFFSETS, load_bytes
 from apmcal.sources.dataflash import (
     IMU_RE,

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from apmcal.errors import ApmcalError
+from apmcal.core.errors import ApmcalError
 
 TCLR_COLUMNS = ("TimeUS", "I", "SType", "Temp", "X", "Y", "Z", "NSamp")
 STYPE = {0: "acc", 1: "gyr"}

@@ -46,9 +46,9 @@ import numpy as np
 import pandas as pd
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from apmcal.constants import GAUSS_TO_MGAUSS, MG_TO_MS2, MRAD_TO_RAD
-from apmcal.errors import ApmcalError
-from apmcal.recording import LogContents
+from apmcal.core.constants import GAUSS_TO_MGAUSS, MG_TO_MS2, MRAD_TO_RAD
+from apmcal.core.errors import ApmcalError
+from apmcal.core.recording import LogContents
 from apmcal.sources import _fastscan
 from apmcal.sources._common import (
     MAX_DAMAGE_OFFSETS,

@@ -22,9 +22,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from apmcal.constants import STANDARD_GRAVITY
-from apmcal.errors import ApmcalError
-from apmcal.recording import SENSOR_COLUMNS, LogContents, Recording
+from apmcal.core.constants import STANDARD_GRAVITY
+from apmcal.core.errors import ApmcalError
+from apmcal.core.recording import SENSOR_COLUMNS, LogContents, Recording
 
 # The Earth's field is 150..1000 mGauss at the surface (issue 9; ArduPilot's compass calibrator
 # accepts radii 150..950, ardupilot-facts.md "ArduPilot's own calibrators"). An uncalibrated

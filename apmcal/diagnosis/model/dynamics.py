@@ -1,0 +1,463 @@
+"""The moves between holds: the accelerometer and compass predicted from the gyro.
+
+During a move the gyro is the only sensor that measures the turn, so the model predicts the
+other two from it (the consistency seed 001 builds its joint calibration on): starting from the
+hold before, the calibrated rate ω = F_g⁻¹(measured − bias) is integrated into the attitude
+change R(t), and the hold's own specific force f_k and field b_k are carried along::
+
+    acc(t) = F_a·R(t − τ)ᵀ f_k + offset + …        mag(t) = S·R(t)ᵀ b_k + offset + …
+
+F_g is sitl's gyro forward matrix (diag(scale)·T_g⁻¹, seed 002 §2.2: ``gyro_scale``), τ the
+accelerometer's delay behind the gyro (``time_offset``). Their residuals are scored like the
+holds', and the ``gyro_scale``, ``time_offset`` and ``cross_axis`` parameters are fitted to them.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from apmcal.diagnosis.scoring.gap import ResidualBlock
+from apmcal.diagnosis.session.trajectory import prefix_products
+
+AXES = ("x", "y", "z")
+FIT_RATE_HZ = 50.0      # the dynamic fits integrate the moves in steps of about 1/50 s
+
+
+def gyro_forward(scale, gamma) -> np.ndarray:
+    """sitl's F_g = diag(scale)·T_g⁻¹ with seed 002's six misalignment angles γ (yz, zy, zx,
+    xz, xy, yx) [rad] (:meth:`apmcal.sensor_model.truth.Truth.gyro_forward`).
+
+    Parameters
+    ----------
+    scale : (3,) array
+        Gyro scale factors (1: none).
+    gamma : (6,) array
+        Misalignment angles γ [rad].
+
+    Returns
+    -------
+    (3, 3) array
+        F_g: measured rate = F_g · true rate.
+    """
+    g_yz, g_zy, g_zx, g_xz, g_xy, g_yx = gamma
+    t_g = np.array([[1, -g_yz, g_zy], [g_xz, 1, -g_zx], [-g_xy, g_yx, 1.0]])
+    return np.diag(scale) @ np.linalg.inv(t_g)
+
+
+@dataclass
+class Dynamics:
+    """The parameters the moves determine: gyro scale and misalignment, accelerometer delay
+    [s], and the accelerometer terms that holds in fitted orientations hardly see — its
+    non-orthogonality α [rad] and quadratic scale k2 [1/(m/s²)] (``acc_terms``, None when
+    neither is modelled; moved into the accelerometer itself once fitted).
+
+    Attributes
+    ----------
+    gyro_scale : (3,) array
+        Gyro scale factors (1: none).
+    gyro_gamma : (6,) array
+        Gyro misalignment angles γ (yz, zy, zx, xz, xy, yx) [rad].
+    time_offset_s : float
+        Accelerometer delay behind the gyro [s].
+    acc_terms : dict or None
+        "alpha" (3,) [rad] and/or "k2" (3,) [1/(m/s²)].
+    sigma : dict
+        One-sigma of the fitted parameters: "params" (values) and "names" (the parameter
+        block of each value).
+    """
+
+    gyro_scale: np.ndarray = field(default_factory=lambda: np.ones(3))
+    gyro_gamma: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    time_offset_s: float = 0.0
+    acc_terms: dict | None = None
+    sigma: dict = field(default_factory=dict)
+
+    @property
+    def forward(self) -> np.ndarray:
+        """The gyro matrix F_g (3, 3) of ``gyro_scale`` and ``gyro_gamma``."""
+        return gyro_forward(self.gyro_scale, self.gyro_gamma)
+
+
+# prior one-sigma of the move parameters (MAP fit; wide against real sensors: MPU-6000 gyro
+# sensitivity ±3 %, cross-axis ±2 %; a delay of a few samples at most; the accelerometer
+# terms as in static_fit.PRIOR_SIGMA)
+PRIOR_SIGMA = {"gyro_scale": 0.05, "gyro_gamma": 0.05, "time_offset": 0.005, "alpha": 0.05,
+               "k2": 1e-3}
+ACC_TERMS = {"cross_axis": "alpha", "scale_nonlinearity": "k2"}
+# the physical limit of each move parameter (apmcal.diagnosis.model.plausible.LIMITS)
+BOUND = {"gyro_scale": 0.1, "gyro_gamma": 0.05, "time_offset": 0.05, "alpha": 0.05,
+         "k2": 1e-3}
+
+
+def acc_with_terms(geo, terms: dict):
+    """The accelerometer geometry with its non-orthogonality ``alpha`` and/or quadratic scale
+    ``k2`` replaced by the given values.
+
+    Parameters
+    ----------
+    geo : GeometryFit
+        The accelerometer's fit (:class:`apmcal.diagnosis.model.static_fit.GeometryFit`).
+    terms : dict
+        "alpha" (3,) [rad] and/or "k2" (3,) [1/(m/s²)].
+
+    Returns
+    -------
+    GeometryFit
+        A copy; ``geo`` is left as it is.
+    """
+    from dataclasses import replace
+
+    from apmcal.diagnosis.model.static_fit import non_orthogonality
+
+    out = replace(geo, params=dict(geo.params))
+    if "alpha" in terms:
+        scale = np.exp(np.asarray(geo.params["log_scale"]))
+        out.forward = np.diag(scale) @ np.linalg.inv(non_orthogonality(terms["alpha"]))
+        out.params["alpha"] = list(terms["alpha"])
+    if "k2" in terms:
+        out.k2 = np.asarray(terms["k2"], float)
+        out.params["k2"] = list(terms["k2"])
+    return out
+
+
+@dataclass
+class Moves:
+    """The move pieces to evaluate: session sample ranges, the hold before each, piece ids.
+
+    Attributes
+    ----------
+    i0, i1 : (k,) int arrays
+        Half-open session sample ranges of the moves.
+    hold : (k,) int array
+        Index (into ``Session.holds``) of the hold before each move.
+    piece : (k,) int array
+        Session-wide piece id of each move.
+    """
+
+    i0: np.ndarray
+    i1: np.ndarray
+    hold: np.ndarray
+    piece: np.ndarray
+
+    @classmethod
+    def of(cls, session, pieces: np.ndarray | None = None) -> "Moves":
+        """The move pieces of ``session``, or of those among the piece ids ``pieces``."""
+        ids = session.pieces.select(hold=False)
+        if pieces is not None:
+            ids = ids[np.isin(ids, pieces)]
+        holds = np.array([session.segments[session.pieces.segment[p]].before for p in ids],
+                         dtype=int)
+        return cls(session.pieces.i0[ids], session.pieces.i1[ids], holds, ids)
+
+    def __len__(self) -> int:
+        return len(self.i0)
+
+    def rows(self) -> np.ndarray:
+        """Session sample indices the moves' integration reads: each move's samples and the
+        last hold sample before it."""
+        if not len(self):
+            return np.zeros(0, int)
+        return np.concatenate([np.arange(a - 1, b) for a, b in zip(self.i0, self.i1)])
+
+
+def relative_attitudes(rate: np.ndarray, t: np.ndarray, moves: Moves, step: int = 1
+                       ) -> Rotation:
+    """R(t) relative to the hold before, at every ``step``-th move sample (one Rotation of
+    them all, moves one after the other): the integral of ``rate`` [rad/s] from the last hold
+    sample on. Each sample interval turns by the mean of its two end rates (trapezoid: the
+    rectangle rule's O(Δt) error would be a gap of the real data only); ``step`` > 1 joins
+    ``step`` intervals into one rotation (their summed rotation vectors, second-order error),
+    for the fits' cheaper passes.
+
+    Parameters
+    ----------
+    rate : (n, 3) array
+        Body rate at every session sample [rad/s].
+    t : (n,) array
+        Session sample times [s].
+    moves : Moves
+    step : int
+        Keep every ``step``-th move sample.
+
+    Returns
+    -------
+    Rotation
+        One rotation per kept move sample (the samples of :func:`move_index`), body frame
+        relative to the hold before.
+    """
+    turns, segment = [], []
+    for m, (a, b) in enumerate(zip(moves.i0, moves.i1)):
+        dt = t[a:b] - t[a - 1:b - 1]
+        turn = 0.5 * (rate[a - 1:b - 1] + rate[a:b]) * dt[:, None]
+        if step > 1:
+            ends = np.arange(step - 1, b - a, step)
+            turn = np.diff(np.vstack([np.zeros(3), np.cumsum(turn, axis=0)[ends]]), axis=0)
+        turns.append(turn)
+        segment.append(np.full(len(turn), m))
+    if not turns:
+        return Rotation.identity(0)
+    q = Rotation.from_rotvec(np.concatenate(turns)).as_quat()
+    return Rotation.from_quat(prefix_products(q, np.concatenate(segment)))
+
+
+def move_index(moves: Moves, step: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Session sample index of every ``step``-th move sample (the ones relative_attitudes
+    returns), and the hold before it.
+
+    Returns
+    -------
+    index : (k,) int array
+        Session sample indices.
+    hold : (k,) int array
+        Index of the hold before each sample.
+    """
+    idx, hold = [], []
+    for a, b, k in zip(moves.i0, moves.i1, moves.hold):
+        i = np.arange(a, b) if step == 1 else np.arange(a + step - 1, b, step)
+        idx.append(i)
+        hold.append(np.full(len(i), k))
+    if not idx:
+        return np.zeros(0, int), np.zeros(0, int)
+    return np.concatenate(idx), np.concatenate(hold)
+
+
+def move_turns(session, forward: np.ndarray, moves: Moves, rate_cal: np.ndarray,
+               step: int = 1) -> tuple:
+    """The body rate (the gyro through its matrix ``forward``) at every session sample, and
+    the moves' attitudes relative to the hold before (:func:`relative_attitudes`).
+
+    Parameters
+    ----------
+    session : Session
+    forward : (3, 3) array
+        Gyro matrix F_g.
+    moves : Moves
+    rate_cal : (n, 3) array
+        Gyro minus its fitted bias terms at every session sample [rad/s].
+    step : int
+        Keep every ``step``-th move sample.
+
+    Returns
+    -------
+    rate : (n, 3) array
+        Body rate [rad/s] at the moves' samples and the last hold sample before each; NaN
+        elsewhere (nothing reads it there).
+    rel : Rotation
+        Attitudes relative to the hold before, one per kept move sample.
+    """
+    # the moves' rows only: about an eighth of a session's samples, and a fit of the gyro
+    # matrix turns them again at every step (each row is the same product either way)
+    rows = moves.rows()
+    rate = np.full_like(rate_cal, np.nan)
+    rate[rows] = rate_cal[rows] @ np.linalg.inv(forward).T
+    return rate, relative_attitudes(rate, session.t, moves, step)
+
+
+def predicted(session, fit, dyn: Dynamics, moves: Moves, rate_cal: np.ndarray,
+              hold_f: np.ndarray, hold_b: np.ndarray | None, step: int = 1,
+              turns: tuple | None = None) -> tuple:
+    """Predicted acc (and mag at the IMU times) of every ``step``-th move sample.
+
+    ``rate_cal`` is the gyro minus its fitted bias terms at every session sample; ``hold_f`` /
+    ``hold_b`` the calibrated specific force and field of each hold; ``turns``: what
+    :func:`move_turns` gives for ``dyn``'s gyro matrix, when known.
+
+    Parameters
+    ----------
+    session : Session
+    fit : ModelFit
+    dyn : Dynamics
+    moves : Moves
+    rate_cal : (n, 3) array
+        Gyro minus its fitted bias terms at every session sample [rad/s].
+    hold_f : (n_holds, 3) array
+        Specific force of each hold [m/s²] (:func:`apmcal.diagnosis.model.nominal.hold_vectors`).
+    hold_b : (n_holds, 3) array or None
+        Field of each hold [mGauss].
+    step : int
+        Keep every ``step``-th move sample.
+    turns : tuple, optional
+        (rate, rel) of :func:`move_turns`.
+
+    Returns
+    -------
+    idx : (k,) int array
+        Session sample index of each predicted sample.
+    acc : (k, 3) array
+        Predicted accelerometer [m/s²].
+    mag : (k, 3) array or None
+        Predicted compass [mGauss] (None without a compass fit or hold fields).
+    """
+    rate, rel = turns or move_turns(session, dyn.forward, moves, rate_cal, step)
+    idx, hold = move_index(moves, step)
+    f = rel.apply(np.take(hold_f, hold, axis=0), inverse=True)     # R(t)ᵀ·f_k
+    if dyn.time_offset_s:          # the accelerometer samples the past: f(t − τ) = Exp(ωτ)·f(t)
+        f = Rotation.from_rotvec(np.take(rate, idx, axis=0) * dyn.time_offset_s).apply(f)
+    temp = session.temp[idx] if session.temp is not None else None
+    geo = fit.acc if dyn.acc_terms is None else acc_with_terms(fit.acc, dyn.acc_terms)
+    acc = geo.predict(f / _radius(geo), fit.acc_columns(session.t[idx], temp))
+    mag = None
+    if hold_b is not None and fit.mag is not None:
+        b = rel.apply(np.take(hold_b, hold, axis=0), inverse=True)
+        cur = session.current[idx] if session.current is not None else None
+        mag = fit.mag.predict(b / _radius(fit.mag), fit.mag_columns(session.t[idx], cur))
+    return idx, acc, mag
+
+
+def _radius(geo) -> float:
+    return geo.radius if geo.geometry else 1.0
+
+
+def move_residuals(session, fit, dyn: Dynamics, rate_cal, hold_f, hold_b) -> list:
+    """Residual blocks of every move piece: accelerometer, and compass when it shares the
+    IMU's sample times (a separate, slower compass is left out of the moves).
+
+    Parameters
+    ----------
+    session : Session
+    fit : ModelFit
+    dyn : Dynamics
+    rate_cal : (n, 3) array
+        Gyro minus its fitted bias terms at every session sample [rad/s].
+    hold_f : (n_holds, 3) array
+        Specific force of each hold [m/s²].
+    hold_b : (n_holds, 3) array or None
+        Field of each hold [mGauss].
+
+    Returns
+    -------
+    list of ResidualBlock
+        Not scored by their distribution nor by their piece means (``shape`` False); empty
+        without moves.
+    """
+    moves = Moves.of(session)
+    if not len(moves):
+        return []
+    idx, acc, mag = predicted(session, fit, dyn, moves, rate_cal, hold_f, hold_b)
+    ends = np.cumsum(moves.i1 - moves.i0)
+    starts = ends - (moves.i1 - moves.i0)
+    t = session.t[idx]
+    temp = session.temp[idx] if session.temp is not None else None
+    blocks = [ResidualBlock([f"acc_{a}" for a in AXES], np.take(session.acc, idx, axis=0) - acc,
+                            starts, ends,
+                            moves.piece, t, temp, shape=False)]
+    if mag is not None and session.mag is not None and session.mag.t is session.t:
+        blocks.append(ResidualBlock([f"mag_{a}" for a in AXES],
+                                    np.take(session.mag.values, idx, axis=0) - mag,
+                                    starts, ends, moves.piece, t, None, shape=False))
+    return blocks
+
+
+def _layout(effects, fit) -> dict:
+    """Parameter blocks of the move fit: name -> (size, prior σ)."""
+    out = {}
+    if "gyro_scale" in effects:
+        out["gyro_scale"] = (3, PRIOR_SIGMA["gyro_scale"])
+        out["gyro_gamma"] = (6, PRIOR_SIGMA["gyro_gamma"])
+    if "time_offset" in effects:
+        out["time_offset"] = (1, PRIOR_SIGMA["time_offset"])
+    for effect, name in ACC_TERMS.items():      # when the holds left them to the moves
+        if effect in effects and fit.acc.geometry and fit.acc_terms_in_moves:
+            out[name] = (3, PRIOR_SIGMA[name])
+    return out
+
+
+def _unpack(p: np.ndarray, layout: dict, start: dict) -> Dynamics:
+    d, k = Dynamics(), 0
+    values = {}
+    for name, (size, _) in layout.items():
+        values[name] = p[k:k + size]
+        k += size
+    if "gyro_scale" in values:
+        d.gyro_scale, d.gyro_gamma = 1.0 + values["gyro_scale"], values["gyro_gamma"]
+    if "time_offset" in values:
+        d.time_offset_s = float(values["time_offset"][0])
+    terms = {name: start[name] + values[name] for name in ACC_TERMS.values() if name in values}
+    d.acc_terms = terms or None
+    return d
+
+
+def fit_dynamics(session, fit, effects, train: np.ndarray, rate_cal, hold_f, hold_b,
+                 sigma: dict) -> Dynamics:
+    """The move parameters fitted to the training moves (MAP with the priors above);
+    ``sigma`` gives each sensor's per-sample noise (the residuals are weighted by its inverse).
+
+    Parameters
+    ----------
+    session : Session
+    fit : ModelFit
+        The holds' fit.
+    effects : collection of str
+        The model's effects (``gyro_scale``, ``time_offset``, ``cross_axis`` and
+        ``scale_nonlinearity`` have move parameters).
+    train : (k,) int array
+        Session-wide ids of the training pieces.
+    rate_cal : (n, 3) array
+        Gyro minus its fitted bias terms at every session sample [rad/s].
+    hold_f : (n_holds, 3) array
+        Specific force of each hold [m/s²].
+    hold_b : (n_holds, 3) array or None
+        Field of each hold [mGauss].
+    sigma : dict
+        Per-sample noise: "acc" [m/s²] and, optionally, "mag" [mGauss].
+
+    Returns
+    -------
+    Dynamics
+        Neutral (no effect, scale 1) when no effect has move parameters or there are no
+        training moves.
+    """
+    layout = _layout(effects, fit)
+    moves = Moves.of(session, train)
+    if not layout or not len(moves):
+        return Dynamics()
+    step = max(1, int(round(session.fs / FIT_RATE_HZ)))
+    idx, _ = move_index(moves, step)
+    with_mag = hold_b is not None and fit.mag is not None and session.mag is not None \
+        and session.mag.t is session.t and "mag" in sigma
+    weight = {k: 1.0 / max(float(v), 1e-12) for k, v in sigma.items()}
+    prior_sigma = np.concatenate([np.full(size, s) for size, s in layout.values()])
+    # the accelerometer terms start from the holds' values (the prior is about the total)
+    start = {name: np.asarray(fit.acc.params.get(name, np.zeros(3)), float)
+             for name in ACC_TERMS.values()}
+    offset = np.concatenate([start[name] if name in start else np.zeros(size)
+                             for name, (size, _) in layout.items()])
+
+    acc_seen = np.take(session.acc, idx, axis=0)        # the same in every step
+    mag_seen = np.take(session.mag.values, idx, axis=0) if with_mag else None
+
+    turns: dict = {}    # by gyro matrix: the steps of the other parameters turn the moves alike
+
+    def residuals(p):
+        d = _unpack(p, layout, start)
+        key = d.forward.tobytes()
+        if key not in turns:
+            if len(turns) >= 2:             # a gyro fit's matrices are new step after step
+                turns.pop(next(iter(turns)))
+            turns[key] = move_turns(session, d.forward, moves, rate_cal, step)
+        _, acc, mag = predicted(session, fit, d, moves, rate_cal, hold_f, hold_b, step,
+                                turns[key])
+        r = [((acc_seen - acc) * weight["acc"]).ravel()]
+        if with_mag:
+            r.append(((mag_seen - mag) * weight["mag"]).ravel())
+        r.append((p + offset) / prior_sigma)
+        return np.concatenate(r)
+
+    n = len(prior_sigma)
+    # kept within twice the physical limits: beyond them a term is not itself any more
+    # (apmcal.diagnosis.model.plausible flags it) and the twin it makes can be nonsense
+    reach = np.concatenate([np.full(size, 2.0 * BOUND[name]) for name, (size, _) in
+                            layout.items()])
+    low, high = -reach - offset, reach - offset
+    # a holds' value already past the reach starts the fit at the nearest edge
+    sol = least_squares(residuals, np.clip(np.zeros(n), low, high), method="trf",
+                        x_scale=1e-3, bounds=(low, high))
+    out = _unpack(sol.x, layout, start)
+    from apmcal.solvers.uncertainty import covariance_from_jacobian
+    cov, _ = covariance_from_jacobian(sol.jac, sol.fun, n)
+    out.sigma = {"params": np.sqrt(np.clip(np.diag(cov), 0, None)).tolist(),
+                 "names": [name for name, (size, _) in layout.items() for _ in range(size)]}
+    return out

@@ -1,0 +1,546 @@
+"""Scoring one model: fitted on a fold of the real session and of its twin, compared in-sample
+(the fitting fold) and held-out (the other fold), both ways round.
+
+Real and twin go through exactly the same fit, so what a fit absorbs (nuisance orientations,
+parameters fitted to noise) it absorbs in both, and a correct model scores a gap of zero on
+average in-sample as well as held-out.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from functools import cached_property
+
+import numpy as np
+
+from apmcal.diagnosis.compute import workers
+from apmcal.diagnosis.model.dynamics import Moves, fit_dynamics, move_residuals
+from apmcal.diagnosis.model.nominal import (
+    ModelFit,
+    calibrated_rate,
+    fit_model,
+    hold_residuals,
+    hold_vectors,
+    reduce_session,
+    set_acc_terms,
+)
+from apmcal.diagnosis.model.params import effect_params, mean_of_folds
+from apmcal.diagnosis.model.static_fit import count_orientations
+from apmcal.diagnosis.noise.fit import NoiseModel, fit_noise
+from apmcal.diagnosis.scoring.gap import GapEstimate, coefficients, compare
+from apmcal.diagnosis.session.decimate import block_factor, decimated
+from apmcal.diagnosis.session.facts import earth_field, lattice_steps, sample_sigma
+from apmcal.diagnosis.session.hold_motion import (
+    amplitudes,
+    confirmed,
+    confirmed_by_accelerometer,
+    extract_motion,
+    hold_rotations,
+)
+from apmcal.diagnosis.twin.simulate import motion_of, simulate
+
+FOLDS = (0, 1)
+# effects whose models take about twice as long as the others' to fit (moves integrated in
+# every least-squares step, or the holds' own motion extracted): scheduled first
+SLOW_TO_FIT = frozenset({"gyro_scale", "motion_contamination", "time_offset"})
+ACC_TERM_ROUNDS = 2     # hold/move alternations of the accelerometer terms the moves fit
+# effects that change only the noise model and the twin, not the fit of the real data
+NOISE_ONLY = frozenset({"quantization", "lowpass_filter", "uniform_noise", "bias_random_walk"})
+REAL_MODELS_KEPT = 2    # real fits kept per process (each holds all its residuals: 44 MB
+                        # for a 10-minute 400 Hz session), the two folds of one model
+
+
+@dataclass
+class FoldResult:
+    """One direction of the cross-validation: fitted on ``fold``, held out on the other.
+
+    Attributes
+    ----------
+    fold : int
+        The fitting fold, 0 or 1.
+    fit : ModelFit
+    noise : NoiseModel
+    real : list of BlockCoefficients or None
+        Haar coefficients of the real residuals (all pieces); None once dropped (a result
+        sent back from a worker).
+    twin : list of BlockCoefficients or None
+        The same of the twin's residuals.
+    gap_in, gap_out : GapEstimate
+        In-sample (on ``fold``) and held-out (on the other fold) gap.
+    params : dict
+        Each effect's fitted parameters (:mod:`apmcal.diagnosis.model.params`).
+    """
+
+    fold: int
+    fit: ModelFit
+    noise: NoiseModel
+    real: list          # BlockCoefficients of the real residuals (all pieces)
+    twin: list          # ... of the twin's
+    gap_in: GapEstimate
+    gap_out: GapEstimate
+    params: dict        # each effect's fitted parameters (apmcal.diagnosis.model.params)
+
+
+@dataclass
+class Evaluation:
+    """A model's gaps, in-sample and held-out, over both folds."""
+
+    effects: frozenset
+    folds: list
+
+    @staticmethod
+    def _pooled(parts: list[GapEstimate]) -> float:
+        n = sum(p.n_samples for p in parts)
+        return sum(p.nats for p in parts) / n if n else 0.0
+
+    @property
+    def gap_in(self) -> float:
+        """In-sample gap [nats per sample]."""
+        return self._pooled([f.gap_in for f in self.folds])
+
+    @property
+    def gap_out(self) -> float:
+        """Held-out gap [nats per sample]."""
+        return self._pooled([f.gap_out for f in self.folds])
+
+    @property
+    def nats_out(self) -> float:
+        """Held-out gap in total [nats], both folds."""
+        return float(sum(f.gap_out.nats for f in self.folds))
+
+    def held_out_cells(self) -> list:
+        """Every held-out cell of both folds (CellShare)."""
+        return [c for f in self.folds for c in f.gap_out.cells]
+
+    def piece_nats(self, n_pieces: int, held_out: bool = True) -> np.ndarray:
+        """Gap [nats] attributed to each piece (held-out, or in-sample).
+
+        Parameters
+        ----------
+        n_pieces : int
+            Number of pieces of the session.
+        held_out : bool
+            The held-out cells (True) or the in-sample ones.
+
+        Returns
+        -------
+        (n_pieces,) array
+            Gap [nats] by session-wide piece id, both folds.
+        """
+        out = np.zeros(n_pieces)
+        for f in self.folds:
+            for c in (f.gap_out if held_out else f.gap_in).cells:
+                np.add.at(out, c.piece, c.nats)
+        return out
+
+
+@dataclass
+class Context:
+    """What the session offers the candidate effects (see :func:`effects.unmet`).
+
+    Attributes
+    ----------
+    orientations : int
+        Distinct still orientations.
+    steps : dict
+        Quantization step per axis of each sensor, (3,) in its unit (None: no lattice).
+    """
+
+    orientations: int       # distinct still orientations
+    steps: dict             # quantization step per axis of each sensor (None: no lattice)
+
+
+@dataclass(frozen=True)
+class FoldSummary:
+    """What ranking needs of one fold's result: its gaps [nats] over so many samples, and the
+    effects' fitted parameters (small enough to send back from a worker).
+
+    Attributes
+    ----------
+    nats_in, nats_out : float
+        In-sample and held-out gap [nats].
+    n_in, n_out : int
+        Residual samples they are over.
+    params : dict
+        Each effect's fitted parameters.
+    """
+
+    nats_in: float
+    n_in: int
+    nats_out: float
+    n_out: int
+    params: dict
+
+    @classmethod
+    def of(cls, fold: FoldResult) -> "FoldSummary":
+        """The summary of one fold's result."""
+        return cls(fold.gap_in.nats, fold.gap_in.n_samples, fold.gap_out.nats,
+                   fold.gap_out.n_samples, fold.params)
+
+
+@dataclass(frozen=True)
+class Summary:
+    """The numbers of an evaluation that ranking and selection need [nats per sample; nats],
+    and the effects' parameters, averaged over the two folds' fits.
+
+    Attributes
+    ----------
+    gap_in, gap_out : float
+        In-sample and held-out gap [nats per sample].
+    nats_out : float
+        Held-out gap in total [nats].
+    params : dict
+        Each effect's parameters, mean of the folds (:func:`apmcal.diagnosis.model.params.
+        mean_of_folds`).
+    """
+
+    gap_in: float
+    gap_out: float
+    nats_out: float
+    params: dict
+
+    @classmethod
+    def of(cls, evaluation: Evaluation) -> "Summary":
+        """The summary of a whole evaluation."""
+        return cls.of_folds(evaluation.effects, [FoldSummary.of(f) for f in evaluation.folds])
+
+    @classmethod
+    def of_folds(cls, effects, folds: list[FoldSummary]) -> "Summary":
+        """Pooled over the folds, as :class:`Evaluation` pools them."""
+        n_in, n_out = sum(f.n_in for f in folds), sum(f.n_out for f in folds)
+        nats_in, nats_out = sum(f.nats_in for f in folds), sum(f.nats_out for f in folds)
+        params = {name: mean_of_folds([f.params[name] for f in folds]) for name in effects}
+        return cls(nats_in / n_in if n_in else 0.0, nats_out / n_out if n_out else 0.0,
+                   float(nats_out), params)
+
+
+class Evaluator:
+    """Fits and scores models of one session; evaluations are cached by effect set.
+
+    Parameters
+    ----------
+    session : Session
+        The real session.
+    seed : int
+        Seed of the twins' noise (fold f uses ``seed + f``).
+    """
+
+    def __init__(self, session, seed: int = 0):
+        self.session = session
+        self.seed = seed
+        self.reduced = reduce_session(session)
+        self.field_mgauss, self.declination_rad = earth_field(session)
+        self.steps = lattice_steps(session)
+        self.context = Context(count_orientations(self.reduced.acc, "acc"), self.steps)
+        self.sample_sigma = sample_sigma(session)
+        self.fs_of = {"acc": session.fs, "gyr": session.fs}
+        # the samples the moves' integration reads: the same for the session and its twins
+        # (simulated on its sample axis), so found once
+        self.move_rows = Moves.of(session).rows()
+        if session.mag is not None:
+            self.fs_of["mag"] = float(1.0 / np.median(np.diff(session.mag.t)))
+        self._cache: dict[frozenset, Evaluation] = {}
+        self._summaries: dict[frozenset, Summary] = {}
+        self._motion: dict = {}     # per fold: the real motion (poses, moves, hold motion)
+        self._real_models: dict = {}    # (effects but the noise's, fold, σ) -> _model's result
+
+    def steps_for(self, effects) -> dict:
+        """Quantization steps the model reproduces: the log format's always, the sensors'
+        own (a lattice in floating-point samples) with the quantization effect."""
+        return {s: step for s, step in self.steps.items()
+                if s in self.session.integer_sensors or "quantization" in effects}
+
+    def fit(self, session, reduced, effects, train_fold, start=None, with_sigma=None,
+            with_noise=True):
+        """Model and noise fitted on ``train_fold`` (None: every piece), and the Haar
+        coefficients of all residuals (``with_sigma``: the fits' uncertainties too; by
+        default when fitting every piece; ``with_noise`` False: no noise model, None in its
+        place — a twin's, which nothing reads).
+
+        Parameters
+        ----------
+        session : Session
+            The real session or a twin.
+        reduced : Reduced
+            Its block means (:func:`apmcal.diagnosis.model.nominal.reduce_session`).
+        effects : collection of str
+            The effects on top of the nominal model.
+        train_fold : int or None
+            Fold fitted on (None: every piece).
+        start : ModelFit, optional
+            A fit to start from (the real one, for its twin).
+
+        Returns
+        -------
+        fit : ModelFit
+        noise : NoiseModel or None
+        coefficients : list of BlockCoefficients
+            Of the hold residuals, then of the move residuals, over all pieces.
+        """
+        effects = frozenset(effects)
+        with_sigma = train_fold is None if with_sigma is None else with_sigma
+        if session is self.session and start is None:
+            fit, holds, moves = self._real_model(effects, train_fold, with_sigma)
+        else:
+            fit, holds, moves = self._model(session, reduced, effects, train_fold, start,
+                                            with_sigma)
+        noise = None
+        if with_noise:
+            train = session.pieces.select(fold=train_fold)
+            noise = fit_noise(holds, train, effects, self.fs_of, self.steps_for(effects))
+            if fit.hold_motion is not None:
+                kappa = self._hold_motion(train_fold if train_fold is not None else 0)[2]
+                noise["gyr"].tremor_deg, noise["gyr"].sway_deg = amplitudes(fit.hold_motion[0],
+                                                                            self.session)
+                noise["gyr"].motion_confirmed = tuple(kappa)
+        return fit, noise, holds + moves
+
+    def _real_model(self, effects: frozenset, train_fold, with_sigma: bool) -> tuple:
+        """:meth:`_model` of the real session, kept for the models that differ from it only in
+        effects of the noise (:data:`NOISE_ONLY`): those leave the fit and its residuals as
+        they are (a low-pass filter scored at 400 Hz refits nothing the nominal model has not
+        fitted already)."""
+        key = (effects - NOISE_ONLY, train_fold, with_sigma)
+        if key not in self._real_models:
+            self._real_models[key] = self._model(self.session, self.reduced, key[0], train_fold,
+                                                 None, with_sigma)
+            while len(self._real_models) > REAL_MODELS_KEPT:
+                self._real_models.pop(next(iter(self._real_models)))
+        fit, holds, moves = self._real_models[key]
+        return replace(fit, effects=effects), holds, moves
+
+    def _model(self, session, reduced, effects: frozenset, train_fold, start,
+               with_sigma: bool) -> tuple:
+        """The model fitted on ``train_fold`` without its noise: (fit, hold coefficients, move
+        coefficients)."""
+        fit = fit_model(session, reduced, effects, train_fold, field_mgauss=self.field_mgauss,
+                        declination_rad=self.declination_rad, start=start, with_sigma=with_sigma)
+        train = session.pieces.select(fold=train_fold)
+        rate = calibrated_rate(session, fit, self.move_rows)    # the moves read it only
+        f_hold, b_hold = hold_vectors(fit, len(session.holds))
+        fit.dynamics = fit_dynamics(session, fit, effects, train, rate, f_hold, b_hold,
+                                    self.sample_sigma)
+        for _ in range(ACC_TERM_ROUNDS):
+            if fit.dynamics.acc_terms is None:
+                break
+            # the moves' accelerometer terms and the holds' offsets and scales depend on each
+            # other: alternate (each round refits the holds with them, then the moves)
+            set_acc_terms(fit, reduced, train, fit.dynamics.acc_terms)
+            f_hold, b_hold = hold_vectors(fit, len(session.holds))
+            fit.dynamics = fit_dynamics(session, fit, effects, train, rate, f_hold, b_hold,
+                                        self.sample_sigma)
+        if fit.dynamics.acc_terms is not None:
+            set_acc_terms(fit, reduced, train, fit.dynamics.acc_terms)
+            fit.dynamics.acc_terms = None           # now part of the accelerometer itself
+            f_hold, b_hold = hold_vectors(fit, len(session.holds))
+        if "motion_contamination" in effects:
+            # the real motion in the holds, measured by the gyro, is part of the model (and so
+            # of the twin); its size is what gets reported
+            motion, turn, _ = self._hold_motion(train_fold if train_fold is not None else 0)
+            fit.hold_motion = (motion, turn)
+        holds = coefficients(hold_residuals(session, fit))
+        moves = coefficients(move_residuals(session, fit, fit.dynamics, rate, f_hold, b_hold))
+        return fit, holds, moves
+
+    def _nominal(self, fold: int):
+        """The nominal fit and noise of ``fold`` (with σ: the very fit the nominal model's own
+        evaluation makes, :meth:`_fold`)."""
+        if ("nominal", fold) not in self._motion:
+            self._motion[("nominal", fold)] = self.fit(self.session, self.reduced, (), fold,
+                                                       with_sigma=True)[:2]
+        return self._motion[("nominal", fold)]
+
+    def _motion_path(self, fold: int):
+        """The real poses and moves as the nominal model sees them: one path for all models."""
+        if fold not in self._motion:
+            self._motion[fold] = motion_of(self.session, self._nominal(fold)[0])
+        return self._motion[fold]
+
+    def _hold_motion(self, fold: int) -> tuple:
+        """The real motion inside the holds, rate and turn, each band as far as the
+        accelerometer confirms it on the training pieces (for motion contamination)."""
+        key = ("hold_motion", fold)
+        if key not in self._motion:
+            fit, _ = self._nominal(fold)
+            s = self.session
+            f_hold, _ = hold_vectors(fit, len(s.holds))
+            train = s.pieces.select(fold=fold, hold=True)
+            bands = extract_motion(calibrated_rate(s, fit), s)
+            kappa = [confirmed_by_accelerometer(s, band, f_hold, train) for band in bands]
+            rate = sum(band for k, band in zip(kappa, bands) if confirmed(k)) \
+                if any(confirmed(k) for k in kappa) else np.zeros_like(bands[0])
+            self._motion[key] = (rate, hold_rotations(s, rate), kappa)
+        return self._motion[key]
+
+    def summary(self, effects) -> Summary:
+        """The model's gaps (cached; computed here unless :meth:`prefetch` did it)."""
+        key = frozenset(effects)
+        if key not in self._summaries:
+            self._summaries[key] = Summary.of(self.evaluate(key))
+        return self._summaries[key]
+
+    def _known(self, key: frozenset) -> bool:
+        return key in self._summaries or key in self._cache
+
+    def prefetch(self, models) -> None:
+        """Summaries of several models at once, on every core. The jobs are single folds (each
+        fold of each model is independent of the others), so that an odd number of models
+        still keeps both cores busy to the end."""
+        todo = list(dict.fromkeys(frozenset(m) for m in models if not self._known(frozenset(m))))
+        if not todo:
+            return
+        # the slowest models first, so that the last jobs are short ones and no core waits
+        # long for the other (longest-processing-time-first scheduling)
+        todo.sort(key=lambda key: -len(key & SLOW_TO_FIT))
+        if frozenset() in todo and self._cold():
+            # the nominal model's folds warm the evaluator: its fit is each fold's nominal fit
+            self.keep_nominal_folds(self.map([("_nominal_fold", (fold, True)) for fold in FOLDS]))
+            todo.remove(frozenset())
+        self.warm()
+        parts = self.map([("fold_summary", (key, fold)) for key in todo for fold in FOLDS])
+        for i, key in enumerate(todo):
+            self._summaries[key] = Summary.of_folds(key, parts[i * len(FOLDS):
+                                                               (i + 1) * len(FOLDS)])
+
+    def fold_summary(self, key: frozenset, fold: int) -> FoldSummary:
+        """One fold of one model, summarised (a :meth:`map` job)."""
+        if key in self._cache:
+            return FoldSummary.of(self._cache[key].folds[fold])
+        return FoldSummary.of(self._fold(key, fold))
+
+    def warm(self) -> None:
+        """Each fold's nominal fit and real motion path, which every model of that fold
+        starts from, computed once (both folds at once) before models are spread over
+        workers — a worker's own cache dies with it."""
+        missing = [fold for fold in FOLDS if fold not in self._motion]
+        for entries in self.map([("_warm_fold", (fold,)) for fold in missing]):
+            self._motion.update(entries)
+
+    def _warm_fold(self, fold: int) -> dict:
+        self._motion_path(fold)
+        return {key: self._motion[key] for key in (fold, ("nominal", fold))}
+
+    def _cold(self) -> bool:
+        return all(fold not in self._motion for fold in FOLDS)
+
+    def keep_nominal_folds(self, results: list) -> None:
+        """Keep the nominal model's summary and each fold's state from the results of
+        :meth:`_nominal_fold` jobs (with ``summary`` True), one per fold in order."""
+        self._summaries[frozenset()] = Summary.of_folds(frozenset(), [r for r, _ in results])
+        for _, state in results:
+            self._keep_fold_state(state)
+
+    def _keep_fold_state(self, state: tuple) -> None:
+        motion, real_models = state
+        self._motion.update(motion)
+        self._real_models.update(real_models)
+
+    @property
+    def decimates(self) -> bool:
+        """Whether the slow effects are scored on block means (a session faster than
+        :data:`~apmcal.diagnosis.session.decimate.SLOW_RATE_HZ`), by :attr:`slow`."""
+        return block_factor(self.session.fs) > 1
+
+    @cached_property
+    def slow(self) -> "Evaluator":
+        """The evaluator of this session's block means, where the slow effects are scored
+        (:mod:`apmcal.diagnosis.session.decimate`); this one itself when the session is not faster
+        than that. Made once, in this process, so that forked workers inherit it."""
+        if not self.decimates:
+            return self
+        return Evaluator(decimated(self.session, block_factor(self.session.fs)), self.seed)
+
+    def _slow_nominal_fold(self, fold: int) -> tuple:
+        """:meth:`_nominal_fold` of :attr:`slow` (a job: workers call methods of this one)."""
+        return self.slow._nominal_fold(fold, True)
+
+    def _nominal_fold(self, fold: int, summary: bool) -> tuple:
+        """Fold ``fold`` of the nominal model (its summary, or all of it but the residual
+        coefficients) and the fold's state its fit gives on the way: what warming the fold
+        keeps, and the real data's fit (:meth:`_real_model`), which the models of the noise
+        alone reuse — made in a worker, both would otherwise die with it."""
+        result = self._fold(frozenset(), fold)
+        result = FoldSummary.of(result) if summary else replace(result, real=None, twin=None)
+        real_models = {key: value for key, value in self._real_models.items()
+                       if not key[0] and key[1] == fold}
+        return result, (self._warm_fold(fold), real_models)
+
+    def map(self, jobs: list[tuple[str, tuple]]) -> list:
+        """``[self.method(*args) for method, args in jobs]``, spread over every core
+        (:func:`apmcal.diagnosis.compute.workers.run`)."""
+        return workers.run(self, jobs)
+
+    def gap_of(self, effects) -> dict:
+        """The model's gaps with their breakdowns (:func:`apmcal.diagnosis.scoring.breakdown.
+        gap_summary`; small enough to send back from a worker, unlike the evaluation)."""
+        from apmcal.diagnosis.scoring.breakdown import gap_summary
+
+        return gap_summary(self.evaluate(effects), self.session)
+
+    def noise_structure(self, parts=None) -> dict:
+        """White noise, bias instability and random walk of the nominal model's hold
+        residuals, real and twin (:mod:`apmcal.diagnosis.noise.structure`; of the (sensor,
+        axis) pairs ``parts`` only, when given)."""
+        from apmcal.diagnosis.noise.structure import noise_structure
+
+        return noise_structure(self.evaluate(()), self.fs_of, parts)
+
+    def evaluate(self, effects) -> Evaluation:
+        """The model nominal + ``effects`` scored both ways round (cached): fold 0 here, fold 1
+        beside it in a worker, which sends back all of it but the residual coefficients (the
+        plots and the noise structure read fold 0's only)."""
+        return self.evaluate_with(effects, [])[0]
+
+    def evaluate_with(self, effects, jobs: list, then=None, meanwhile=None) -> tuple:
+        """:meth:`evaluate`, with ``jobs`` (as for :meth:`map`) in the same workers, queued
+        behind its fold 1; returns (``then(evaluation)``, here as soon as the evaluation is
+        complete while the jobs may still run — the evaluation itself by default —, the jobs'
+        results). ``meanwhile()`` is called here once fold 0 is done, while fold 1 may still
+        run."""
+        then = then or (lambda evaluation: evaluation)
+        meanwhile = meanwhile or (lambda: None)
+        key = frozenset(effects)
+        if key in self._cache:
+            def done():
+                meanwhile()
+                return then(self._cache[key])
+
+            return workers.beside(self, jobs, done) if jobs else (done(), [])
+        # on a cold evaluator the nominal model's folds are what warm it (one fit for both)
+        cold_nominal = not key and self._cold()
+        if not cold_nominal:
+            self.warm()
+        fold_1 = ("_nominal_fold", (1, False)) if cold_nominal else \
+            ("_fold_without_coefficients", (key, 1))
+
+        def both_folds(result):
+            first = self._fold(key, 0)
+            meanwhile()
+            second = result(0)
+            if cold_nominal:
+                second, state = second
+                self._keep_fold_state(state)
+            self._cache[key] = Evaluation(key, [first, second])
+            return then(self._cache[key])
+
+        out, results = workers.beside(self, [fold_1] + list(jobs), both_folds, hand_over=True)
+        return out, results[1:]
+
+    def _fold_without_coefficients(self, key: frozenset, fold: int) -> FoldResult:
+        result = self._fold(key, fold)
+        return replace(result, real=None, twin=None)
+
+    def _fold(self, effects, fold: int) -> FoldResult:
+        s = self.session
+        fit, noise, real = self.fit(s, self.reduced, effects, fold, with_sigma=True)
+        if not effects:     # the fold's nominal fit: its motion path starts here (no refit)
+            self._motion.setdefault(("nominal", fold), (fit, noise))
+        # the same twin noise for every model (common random numbers): differences between
+        # models are not drowned in differences between noise draws
+        twin, _ = simulate(s, fit, noise, seed=self.seed + fold,
+                           motion_path=self._motion_path(fold))
+        _, _, tw = self.fit(twin, reduce_session(twin), effects, fold, start=fit,
+                            with_noise=False)
+        train, test = s.pieces.select(fold=fold), s.pieces.select(fold=1 - fold)
+        return FoldResult(fold, fit, noise, real, tw, compare(real, tw, train, in_sample=True),
+                          compare(real, tw, test, in_sample=False),
+                          {name: effect_params(name, fit, noise) for name in effects})

@@ -1,0 +1,247 @@
+"""Which unmodelled effect explains the gap: each candidate scored alone, then a combination.
+
+Each applicable effect is added to the nominal model and scored held-out
+(:mod:`apmcal.diagnosis.scoring.evaluate`). Its *shrink* is 1 − gap_after / gap_before, and its
+*evidence* the held-out gap it removes in total, in nats: the log of how many times better the
+model with the effect predicts the held-out data than the one without (the gap is a
+log-likelihood ratio, so this is a cross-validated likelihood ratio, an information criterion
+that needs no parameter count: overfitting is already paid for on the held-out side). An
+effect is *supported* when its evidence reaches ``MIN_EVIDENCE_NATS`` — odds of e^15, over
+three million to one. On simulated sessions without any extra effect the evidence of a useless
+candidate stays within a few nats (its parameters fit noise in the real data and in the twin
+alike); among 12 such sessions at 100 Hz (seeds 201-212, none of the benchmark's) the largest
+was 12.2 nats (a gyro random walk), which is what the threshold is set against (``apmcal gap
+--benchmark`` measures the false alarms on other seeds). Held-out evidence alone let a model
+with many parameters through by chance (gyro scale and misalignment, 18 nats with every value
+within 2σ of "off" on one benchmark seed), hence the Wald test as well. No share of the gap is
+asked for, because a real effect can sit under a much larger one and remove only a sliver of
+the total until that one is modelled.
+
+Stepwise selection then adds, round after round, the supported effect with the most evidence
+on top of those already chosen, for as long as one reaches the threshold, and drops an earlier
+one that the later ones explain; an effect is *significant* in the end when it is in that
+combination or still supported on top of it, and the combination is ranked by what it loses
+without each of its effects. An effect whose fitted parameters lie beyond physical limits
+(:mod:`apmcal.diagnosis.model.plausible`) is never supported, whatever its evidence: it stands in for
+something else; nor is one whose parameters are all within their noise of the values that
+switch it off (:mod:`apmcal.diagnosis.model.wald`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from apmcal.diagnosis.model.effects import BY_NAME, NAMES, unmet
+from apmcal.diagnosis.model.plausible import implausible
+from apmcal.diagnosis.model.wald import MAX_P_VALUE, wald_p_value
+
+MIN_EVIDENCE_NATS = 15.0    # held-out log-likelihood ratio an effect must reach
+MAX_ROUNDS = 5              # effects in a combination at most
+
+
+@dataclass
+class EffectScore:
+    """One candidate scored against a base model (held-out numbers are what rank it).
+
+    Attributes
+    ----------
+    name : str
+    reason : str or None
+        Why it could not be tested (None: it was).
+    gap_in, gap_out : float
+        In-sample and held-out gap of the base model plus the effect [nats per sample].
+    shrink_in, shrink_out : float
+        1 − gap_after / gap_before, in-sample and held-out.
+    evidence : float
+        Held-out gap removed [nats].
+    supported : bool
+        Evidence ≥ ``MIN_EVIDENCE_NATS``, plausible, and its parameters away from "off".
+    params : dict
+        Its fitted parameters (mean of the folds).
+    implausible : str or None
+        Why the fitted parameters cannot be this effect.
+    p_value : float or None
+        Wald test of the parameters (None: not testable).
+    rate_hz : float
+        Sample rate it was scored at [Hz].
+    """
+
+    name: str
+    reason: str | None = None            # why it could not be tested (None: it was)
+    gap_in: float = float("nan")
+    gap_out: float = float("nan")
+    shrink_in: float = float("nan")
+    shrink_out: float = float("nan")
+    evidence: float = float("nan")       # held-out gap removed [nats]
+    supported: bool = False              # evidence ≥ MIN_EVIDENCE_NATS, plausible, and
+                                         # its parameters away from "off" (Wald p)
+    params: dict = field(default_factory=dict)
+    implausible: str | None = None       # why the fitted parameters cannot be this effect
+    p_value: float | None = None         # Wald test of the parameters (None: not testable)
+    rate_hz: float = float("nan")        # sample rate it was scored at (the recording's, or
+                                         # lower for a slow effect: apmcal.diagnosis.session.decimate)
+
+    @property
+    def tested(self) -> bool:
+        """Whether it was tested (applicable to the session)."""
+        return self.reason is None
+
+
+def shrink(before: float, after: float) -> float:
+    """1 − after / before (NaN when there was no gap to shrink).
+
+    Parameters
+    ----------
+    before, after : float
+        Gap without and with the effect [nats per sample].
+
+    Returns
+    -------
+    float
+    """
+    return 1.0 - after / before if before > 0 else float("nan")
+
+
+def score(evaluator, base: tuple, name: str) -> EffectScore:
+    """Effect ``name`` added to ``base``, scored against ``base`` alone."""
+    reason = unmet(BY_NAME[name], evaluator.session, evaluator.context)
+    if reason:
+        return EffectScore(name, reason)
+    before, after = evaluator.summary(base), evaluator.summary(base + (name,))
+    evidence = before.nats_out - after.nats_out
+    params = after.params.get(name, {})
+    why = implausible(name, params) if np.isfinite(evidence) else "its fit diverged"
+    p = wald_p_value(name, params)
+    supported = evidence >= MIN_EVIDENCE_NATS and why is None and (p is None or p < MAX_P_VALUE)
+    return EffectScore(name, None, after.gap_in, after.gap_out,
+                       shrink(before.gap_in, after.gap_in), shrink(before.gap_out, after.gap_out),
+                       evidence, bool(supported), params, why, p, evaluator.session.fs)
+
+
+def rank(scores: list[EffectScore]) -> list[EffectScore]:
+    """Supported effects first, each group by evidence, untestable last.
+
+    On one base model evidence orders the effects as their held-out shrink does (both are the
+    held-out gap removed), and it stays defined when the base gap is zero or below (the
+    expectation of two draws of one process is subtracted, so a small gap can be negative)."""
+    def key(s: EffectScore):
+        return (not s.supported, not s.tested,
+                -(s.evidence if np.isfinite(s.evidence) else -np.inf))
+    return sorted(scores, key=key)
+
+
+def candidates(names=None) -> tuple:
+    """The candidate effects: ``names``, or every one when None."""
+    return tuple(NAMES if names is None else names)
+
+
+def testable(evaluator, names) -> list[str]:
+    """Those of ``names`` the evaluator's session can test."""
+    return [n for n in names if not unmet(BY_NAME[n], evaluator.session, evaluator.context)]
+
+
+def rank_effects(evaluator, names=None, base: tuple = ()) -> list[EffectScore]:
+    """Every candidate alone on top of the nominal model (and of ``base``, effects already
+    chosen at another rate), ranked."""
+    names, base = candidates(names), tuple(base)
+    evaluator.prefetch([base] + [base + (n,) for n in testable(evaluator, names)])
+    return rank([score(evaluator, base, n) for n in names])
+
+
+@dataclass
+class Selection:
+    """The stepwise combination and what each supported effect adds to it [nats].
+
+    Attributes
+    ----------
+    selected : list of str
+        The combination, in the order added.
+    joined : dict of str to float
+        Evidence of each selected effect in the round it was added [nats].
+    beyond : dict of str to float
+        Evidence each other supported effect still has on top of the final combination
+        [nats].
+    needed : dict of str to float
+        Evidence of each selected effect given all the others [nats].
+    """
+
+    selected: list[str]
+    joined: dict[str, float]      # evidence of each selected effect in the round it was added
+    beyond: dict[str, float]      # evidence each other supported effect still has on top of
+                                  # the final combination (below the threshold unless the
+                                  # rounds ran out)
+    needed: dict[str, float] = field(default_factory=dict)   # evidence each selected effect
+                                  # has given all the others: what the combination loses
+                                  # without it
+
+    def significant(self, name: str) -> bool:
+        """Part of the combination, or still supported on top of it."""
+        return name in self.selected or self.beyond.get(name, -np.inf) >= MIN_EVIDENCE_NATS
+
+    def order(self) -> list[str]:
+        """The combination, the effect it needs most first."""
+        return sorted(self.selected, key=lambda n: -self.needed.get(n, np.inf))
+
+
+def forward_selection(evaluator, ranked: list[EffectScore], max_rounds: int = MAX_ROUNDS,
+                      base: tuple = ()) -> Selection:
+    """Stepwise selection among the effects supported alone (module docstring). Every round
+    scores each remaining one on top of the current combination and adds the best; then an
+    effect added earlier that the later ones explain (no longer supported given all the others:
+    a random walk standing in for a temperature drift and a g-sensitivity together) is dropped
+    for good. The last round says what each effect left out would still add. ``base``: effects
+    already chosen (at another rate, :mod:`apmcal.diagnosis.session.decimate`), part of every model and
+    not questioned here."""
+    pool = [s.name for s in sorted((s for s in ranked if s.supported),
+                                   key=lambda s: -s.evidence)]
+    base = tuple(base)
+    selected: list[str] = []
+    joined: dict[str, float] = {}
+    dropped: list[str] = []
+    for _ in range(2 * max_rounds + 1):     # each effect is added once and dropped at most once
+        others = [n for n in pool if n not in selected]
+        evaluator.prefetch([base + tuple(selected) + (n,) for n in others])
+        trials = [score(evaluator, base + tuple(selected), n) for n in others]
+        beyond = {s.name: s.evidence for s in trials}
+        best = max((s for s in trials if s.name not in dropped), key=lambda s: s.evidence,
+                   default=None)
+        if best is None or not best.supported or len(base) + len(selected) >= max_rounds:
+            break
+        selected.append(best.name)
+        joined[best.name] = best.evidence
+        weakest = weakest_unsupported(evaluator, selected, base)
+        if weakest is not None:
+            selected.remove(weakest)
+            joined.pop(weakest)
+            dropped.append(weakest)
+    return Selection(selected, joined, beyond, leave_one_out(evaluator, selected, base))
+
+
+def _without(selected: list[str], name: str, base: tuple = ()) -> tuple:
+    return tuple(base) + tuple(n for n in selected if n != name)
+
+
+def leave_one_out(evaluator, selected: list[str], base: tuple = ()) -> dict[str, float]:
+    """Evidence of each selected effect on top of all the others (and ``base``) [nats]."""
+    evaluator.prefetch([_without(selected, name, base) for name in selected])
+    return {name: score(evaluator, _without(selected, name, base), name).evidence
+            for name in selected}
+
+
+def weakest_unsupported(evaluator, selected: list[str], base: tuple = ()) -> str | None:
+    """The earlier-selected effect with the least evidence given all the others, when that
+    evidence no longer supports it (the one just added is not questioned)."""
+    if len(selected) < 2:
+        return None
+    earlier = selected[:-1]
+    evaluator.prefetch([_without(selected, name, base) for name in earlier])
+    scores = [score(evaluator, _without(selected, name, base), name) for name in earlier]
+    worst = min(scores, key=lambda s: s.evidence)
+    return None if worst.supported else worst.name
+
+
+def merged(slow: Selection, fine: Selection) -> Selection:
+    """One selection from the slow effects' and the fine effects' (each made at its own rate)."""
+    return Selection(slow.selected + fine.selected, {**slow.joined, **fine.joined},
+                     {**slow.beyond, **fine.beyond}, {**slow.needed, **fine.needed})

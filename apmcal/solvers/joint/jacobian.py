@@ -1,0 +1,199 @@
+"""First design matrix A = ∂f/∂X of seed 001's conditions (eq. 15), by hand.
+
+Why by hand: a finite-difference Jacobian re-integrates the gyro of every window once per
+parameter (42 times per iteration); here the integration is done once and differentiated.
+For dR = E_0·…·E_{K−1}, E_k = Exp(ω_k·Δt_k), a change δω_k turns dR into dR·Exp(δθ) with
+
+    δθ = dRᵀ · Σ_k S_k·δω_k·Δt_k,      S_k = E_0·…·E_k
+
+(first order; the right Jacobian of Exp over one sample step, |ω·Δt| ≲ 0.05 rad, is taken as
+the identity — this only slows Gauss-Newton's convergence, never moves its fixed point, since
+the misclosures themselves are exact). The per-sample derivatives ∂a/∂X, ∂ω/∂X, ∂m/∂X come
+from forward differences of the closed-form corrections (cheap: no integration).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from apmcal.solvers.joint import model as jm
+from apmcal.solvers.strapdown import hat, midpoint, prefix_products, so3_exp
+
+STEP = 1e-7
+
+
+def _each(mats: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(n, 3, p): mats[p] @ v[n] for (p, 3, 3) matrices and (n, 3) vectors, by one BLAS
+    product (einsum loops in C here, ten times slower)."""
+    return np.tensordot(v, mats, axes=([1], [2])).transpose(0, 2, 1)
+
+
+def _left(mat: np.ndarray, arr: np.ndarray) -> np.ndarray:
+    """(n, 3, p): mat @ arr[n] for one (3, 3) matrix and (n, 3, p) arrays, by one BLAS product."""
+    return np.tensordot(mat, arr, axes=([1], [1])).transpose(1, 0, 2)
+
+
+def _signals(x: np.ndarray, d):
+    m = jm.matrices(x)
+    a = jm.correct_acc(d.acc, m)
+    w = jm.correct_gyr(d.gyr, a, m)
+    mc = jm.correct_mag(d.mag, m) if d.mag is not None else None
+    return a, w, mc
+
+
+def sample_derivatives(x: np.ndarray, d, free: np.ndarray):
+    """∂a, ∂ω, ∂m per sample: each (n, 3, p) over the free parameters (zeros where a sensor
+    does not depend on a parameter).
+
+    Closed form through the matrices: with a = K_a⁻¹(y_a − b_a), ∂a = −K_a⁻¹·(∂b_a + ∂K_a·a);
+    with ω = K_ω⁻¹(y_ω − b_ω − G_ω·a), ∂ω = −K_ω⁻¹·(∂b_ω + ∂G_ω·a + G_ω·∂a + ∂K_ω·ω);
+    with m = D⁻¹(y_m − o), ∂m = −D⁻¹·(∂o + ∂D·m). Only ∂K/∂x of the 3×3 matrices is taken
+    by differences (cheap: no samples involved).
+
+    Parameters
+    ----------
+    x : (42,) array
+        Parameters (:mod:`apmcal.solvers.joint.model`).
+    d : JointData
+        The session's samples and condition layout (:func:`apmcal.solvers.joint.residuals.layout`).
+    free : (42,) bool array
+        The parameters estimated (p of them).
+
+    Returns
+    -------
+    signals : tuple
+        a (n, 3) [m/s²], ω (n, 3) [rad/s], m (n, 3) [mGauss] or None.
+    derivatives : tuple
+        ∂a, ∂ω, ∂m, each (n, 3, p) (∂m None without a magnetometer).
+    """
+    m0 = jm.matrices(x)
+    a0, w0, mag0 = _signals(x, d)
+    cols = np.flatnonzero(free)
+    dmat = {k: [] for k in m0}
+    for i in cols:
+        h = STEP * max(1.0, abs(x[i]))
+        xh = x.copy()
+        xh[i] += h
+        mh = jm.matrices(xh)
+        for k in m0:
+            dmat[k].append((mh[k] - m0[k]) / h)
+    dmat = {k: np.array(v) for k, v in dmat.items()}             # (p, 3) or (p, 3, 3)
+    ka_inv, kw_inv = np.linalg.inv(m0["K_a"]), np.linalg.inv(m0["K_w"])
+    da = -_left(ka_inv, dmat["b_a"].T[None] + _each(dmat["K_a"], a0))
+    inner = (dmat["b_w"].T[None] + _each(dmat["G_w"], a0) + _left(m0["G_w"], da)
+             + _each(dmat["K_w"], w0))
+    dw = -_left(kw_inv, inner)
+    dm = None
+    if mag0 is not None:
+        dm = -_left(np.linalg.inv(m0["D_m"]), dmat["o_m"].T[None] + _each(dmat["D_m"], mag0))
+    return (a0, w0, mag0), (da, dw, dm)
+
+
+def unit_derivative(v: np.ndarray, dv: np.ndarray):
+    """d(v/|v|) = (I − uuᵀ)·dv/|v| for (c, 3) vectors and their (c, 3, p) derivatives;
+    returns (that, u).
+
+    Parameters
+    ----------
+    v : (c, 3) array
+    dv : (c, 3, p) array
+
+    Returns
+    -------
+    du : (c, 3, p) array
+    u : (c, 3) array
+        The unit vectors.
+    """
+    n = np.linalg.norm(v, axis=1, keepdims=True)
+    u = v / n
+    proj = (np.eye(3) - u[:, :, None] * u[:, None, :]) / n[:, :, None]
+    return proj @ dv, u
+
+
+def _rows_with_pad(v: np.ndarray) -> np.ndarray:
+    """Append a zero row: index n is the padding of integration rows."""
+    return np.concatenate([v, np.zeros((1,) + v.shape[1:])])
+
+
+def jacobian(x: np.ndarray, d, families, rows, free: np.ndarray) -> dict[str, np.ndarray]:
+    """∂w/∂X of each family: name → (n_c, dim, p) over the free parameters.
+
+    Parameters
+    ----------
+    x : (42,) array
+        Parameters.
+    d : JointData
+        The session's samples and condition layout (:func:`apmcal.solvers.joint.residuals.layout`).
+    families : tuple of str
+        The families to differentiate.
+    rows : (I, K+1) int array
+        :func:`apmcal.solvers.joint.residuals.interval_rows` of ``d``.
+    free : (42,) bool array
+        The parameters estimated (p of them).
+
+    Returns
+    -------
+    dict
+        family → (n_c, dim, p) array.
+    """
+    (a, w, mc), (da, dw, dm) = sample_derivatives(x, d, free)
+    mats, cols = jm.matrices(x), np.flatnonzero(free)
+    p = da.shape[2]
+    step_rot = so3_exp(_rows_with_pad(midpoint(w) * d.dt[:, None]))
+    phi = _rows_with_pad(midpoint(dw) * d.dt[:, None, None])   # δω_k·Δt_k per parameter
+    out = {}
+    bm = d.block_mean
+    a_blk = bm @ a
+    da_blk = (bm @ da.reshape(len(a), -1)).reshape(-1, 3, p)
+    if "acc_norm" in families:
+        u = a_blk / np.linalg.norm(a_blk, axis=1, keepdims=True)
+        out["acc_norm"] = np.einsum("ci,cip->cp", u, da_blk)[:, None, :]
+    if "zaru" in families:
+        out["zaru"] = (bm @ dw.reshape(len(w), -1)).reshape(-1, 3, p)
+    if d.intervals and ("level" in families or "zupt" in families):
+        i = np.array([iv[0] for iv in d.intervals])
+        j = np.array([iv[1] for iv in d.intervals])
+        s = prefix_products(step_rot[rows[:, :-1]])             # (I, K, 3, 3)
+        dr = s[:, -1]
+        sphi = np.einsum("wkij,wkjp->wkip", s, phi[rows[:, :-1]])
+        if "level" in families:
+            dui, ui = unit_derivative(a_blk[i], da_blk[i])
+            duj, _ = unit_derivative(a_blk[j], da_blk[j])
+            rui = np.einsum("wji,wj->wi", dr, ui)
+            dtheta = np.einsum("wji,wjp->wip", dr, sphi.sum(axis=1))
+            out["level"] = np.einsum("wia,wip->wap", d.level_basis,
+                                     duj - hat(rui) @ dtheta
+                                     - np.einsum("wji,wjp->wip", dr, dui))
+        if "zupt" in families:
+            f = _rows_with_pad(a * d.dt[:, None])[rows[:, :-1]]          # (I, K, 3)
+            df = _rows_with_pad(da * d.dt[:, None, None])[rows[:, :-1]]  # (I, K, 3, p)
+            eye = np.broadcast_to(np.eye(3), (len(rows), 1, 3, 3))
+            pk = np.concatenate([eye, s[:, :-1]], axis=1)              # P_k = S_{k−1}
+            c = np.cumsum(sphi, axis=1) - sphi                          # Σ_{l<k} S_l·φ_l
+            pf = np.einsum("wkij,wkj->wki", pk, f)
+            span = np.array([d.t[k1] - d.t[k0] for _, _, k0, k1 in d.intervals])
+            out["zupt"] = (-np.einsum("wkij,wkjp->wip", hat(pf), c)
+                           + np.einsum("wkij,wkjp->wip", pk, df)
+                           - da_blk[i] * span[:, None, None])
+    if mc is not None and "mag" in families:
+        parts = []
+        for idx in d.windows:
+            s = prefix_products(step_rot[idx[:, :-1]])
+            dr = s[:, -1]
+            sphi = np.einsum("wkij,wkjp->wip", s, phi[idx[:, :-1]])
+            dtheta = np.einsum("wji,wjp->wip", dr, sphi)
+            rms = np.einsum("wji,wj->wi", dr, mc[idx[:, 0]])
+            w_cal = mc[idx[:, -1]] - rms
+            dw_cal = (dm[idx[:, -1]] - hat(rms) @ dtheta
+                      - np.einsum("wji,wjp->wip", dr, dm[idx[:, 0]]))
+            # the condition is D_m·w_cal: product rule, D_m's own entries row-major
+            da = np.einsum("ij,wjp->wip", mats["D_m"], dw_cal)
+            for c, i in enumerate(cols):
+                if i in jm.SLICES_RANGE["D_m"]:
+                    row, col = divmod(i - jm.SLICES["D_m"].start, 3)
+                    da[:, row, c] += w_cal[:, col]
+            parts.append(da)
+        out["mag"] = np.concatenate(parts)
+        if "mag_datum" in families:
+            u = mc / np.linalg.norm(mc, axis=1, keepdims=True)
+            out["mag_datum"] = np.einsum("ni,nip->p", u, dm)[None, None, :] / len(mc)
+    return out

@@ -1,0 +1,291 @@
+"""The implicit conditions f(X, Y) = 0 of seed 001 §3.2, evaluated for a parameter vector.
+
+Each family is one of the paper's updates, written (as the paper does) without navigation
+states: the states are marginalised by integrating the gyro between the samples a condition
+compares, so the unknowns are the 42 calibration parameters only (seed 001 §3.3).
+
+=========  ======================================================  ==============================
+family     condition (sensor frame, calibrated quantities)          seed 001
+=========  ======================================================  ==============================
+acc_norm   |ā| − g = 0 on each still block                          eq. 5 (static norm = g)
+zaru       ω̄ = 0 on each still block                                eq. 6 (zero-rotation update)
+mag        D_m·(m(t+T) − dR(t, t+T)ᵀ·m(t)) = 0 on windows of T      eq. 7 with dR from eq. 8
+level      Eⱼᵀ·(û_j − dR(i, j)ᵀ·û_i) = 0 between consecutive poses  eq. 9 (levelling)
+zupt       Σ dR(i, τ)·a_τ·Δτ − ā_i·T = 0 between still poses        eq. 10 with Δv from eq. 11
+mag_datum  mean |m| − F = 0                                          (datum, see below)
+=========  ======================================================  ==============================
+
+û = ā/|ā| is the direction of the specific force and E_j (3×2) an orthonormal basis
+perpendicular to pose j's: the levelling compares inclinations only (two angles [rad]); the
+length of ā is the static norm's business — with it too, one combination of the three
+conditions would carry no noise at all (rotation keeps lengths) and make B·C_l·Bᵀ singular.
+Equation numbers are those the text of seed 001 refers to (the equations themselves are
+missing from the text we have): 1-3 sensor models, 4 mechanisation, 5 static norm, 6 ZARU,
+7-8 compass + gyro, 9 levelling, 10-11 ZUPT, 12-13 CUPT, 14-15 the adjustment. (§5.2 calls
+the compass + gyro pair "(6) and (7)"; its §3.2.3 text, "(7)" and "(8)", is followed here.)
+dR(t, t+T) = Π Exp(ω_k Δt_k) is the strap-down integration of the calibrated gyro (eq. 8, the
+quaternion product written with rotation matrices). In eq. 10 the gravity at the first still
+pose is −ā_i (specific force at rest), so the velocity change to the next still pose is zero.
+CUPT (eq. 12-13) needs loop closures detected by hand in the paper; it is not used here.
+
+The magnetometer condition is eq. 7 multiplied by D_m, i.e. written in the raw samples
+units, (y_e − o_m) − D_m·dRᵀ·D_m⁻¹·(y_s − o_m): its noise covariance then hardly depends on
+the soft iron, so holding B·C_l·Bᵀ fixed within a Gauss-Newton pass does not pull the fit
+towards a smaller D_m⁻¹ (over 0.1 s windows the misclosure is mostly noise, and in calibrated
+units shrinking D_m⁻¹ shrinks that noise: in sitl the hard iron came out 6σ off).
+The magnetometer updates only relate fields at different times, so they leave the overall
+scale of D_m free (seed 001 §2: "the magnitude can arbitrarily be constrained"): ``mag_datum``
+fixes it to the field magnitude F given (World Magnetic Model, else the samples' sphere fit).
+
+Simplifications, and why: (1) the still-pose conditions use block means (~1 s) instead of
+every sample — to first order the same information, a hundred times fewer conditions;
+(2) the observation covariance B·C_l·Bᵀ comes from white sensor noise
+(:mod:`apmcal.solvers.joint.covariance`, which says which correlations it keeps); the variance
+factor of each family is then estimated from its residuals (:mod:`apmcal.solvers.joint.solve`).
+(3) The magnetometer runs at three window lengths, 0.1 s, 1 s and 5 s, where the paper uses two
+rates (100 Hz and 10 Hz, which 50 Hz telemetry cannot give); the paper notes that
+longer windows drift less in heading and show outliers better, and on short hand-held sessions
+the two short windows alone leave the soft iron weakly determined (a sitl hand-held session
+checked on another one: attitude error 1.6° with 0.1 + 1 s windows, 0.4° with 5 s added, the
+tilt part unchanged at 0.05°).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import sparse
+
+from apmcal.solvers.joint.model import correct_acc, correct_gyr, correct_mag, matrices
+from apmcal.solvers.strapdown import integrate, midpoint, so3_exp
+
+BLOCK_S = 1.0                  # still conditions on means of blocks this long [s]
+MAG_WINDOWS_S = (0.1, 1.0, 5.0)   # magnetometer window lengths [s] (seed 001 §3.2.3)
+GAP_FACTOR = 5.0               # a step > GAP_FACTOR × median interval is a logging gap
+DIM = {"acc_norm": 1, "zaru": 3, "level": 2, "zupt": 3, "mag": 3, "mag_datum": 1}
+
+
+@dataclass
+class JointData:
+    """Samples and the condition layout (indices only; built once, by :func:`layout`).
+
+    Attributes
+    ----------
+    t : (n,) array, s
+    acc : (n, 3) array, m/s²
+    gyr : (n, 3) array, rad/s
+    mag : (n, 3) array, mGauss, or None
+        Raw, sensor frame, on one time base (as ``t``, ``acc`` and ``gyr``).
+    gravity : float
+        Local gravity [m/s²].
+    field : float or None
+        Field magnitude [mGauss].
+    dt : (n,) array
+        Step to the next sample [s] (0 for the last).
+    blocks : list of int arrays
+        Index arrays of still blocks.
+    level_basis : (I, 3, 2) array
+        E_j of each interval.
+    block_mean : scipy.sparse matrix, (n_blocks, n)
+        The block means as one product.
+    intervals : list of tuple
+        (last block of pose i, first block of pose j, k0, k1) with the moving samples
+        k0 .. k1−1 between them.
+    windows : list of int arrays
+        Per window length, an (W, K+1) index array of the samples each window spans.
+    noise : dict
+        Per-sample white-noise σ of "acc", "gyr", "mag" (sensor units).
+    """
+
+    t: np.ndarray
+    acc: np.ndarray
+    gyr: np.ndarray
+    mag: np.ndarray | None
+    gravity: float
+    field: float | None
+    dt: np.ndarray = None
+    blocks: list = field(default_factory=list)
+    level_basis: np.ndarray = None      # (I, 3, 2): E_j of each interval
+    block_mean: object = None           # sparse (n_blocks, n): the block means as one product
+    intervals: list = field(default_factory=list)
+    windows: list = field(default_factory=list)
+    noise: dict = field(default_factory=dict)
+
+
+def layout(t, acc, gyr, mag, holds, gravity: float, field_mgauss: float | None) -> JointData:
+    """Still blocks, moving intervals between consecutive holds and magnetometer windows.
+
+    ``holds`` are the still periods (:class:`apmcal.preprocessing.static.StaticSegment`, time
+    order). An interval runs from the centre of one pose's last block to the centre of the
+    next pose's first block; intervals across a logging gap are left out.
+
+    Parameters
+    ----------
+    t : (n,) array, s
+    acc : (n, 3) array, m/s²
+    gyr : (n, 3) array, rad/s
+    mag : (n, 3) array, mGauss, or None
+    holds : list of StaticSegment
+    gravity : float
+        Local gravity [m/s²].
+    field_mgauss : float or None
+        Field magnitude [mGauss].
+
+    Returns
+    -------
+    JointData
+    """
+    d = JointData(np.asarray(t, float), np.asarray(acc, float), np.asarray(gyr, float),
+                  None if mag is None else np.asarray(mag, float), gravity, field_mgauss)
+    dt = np.diff(d.t)
+    d.dt = np.append(dt, 0.0)
+    gap = GAP_FACTOR * float(np.median(dt))
+    hold_blocks = []
+    for h in holds:
+        kept = h.kept()
+        n_blocks = max(1, int((d.t[kept[-1]] - d.t[kept[0]]) // BLOCK_S))
+        hold_blocks.append([b for b in np.array_split(kept, n_blocks) if b.size >= 2])
+    d.blocks = [b for hb in hold_blocks for b in hb]
+    rows = np.repeat(np.arange(len(d.blocks)), [b.size for b in d.blocks])
+    cols = np.concatenate(d.blocks) if d.blocks else np.zeros(0, int)
+    d.block_mean = sparse.csr_matrix((1.0 / np.repeat([b.size for b in d.blocks],
+                                                      [b.size for b in d.blocks]), (rows, cols)),
+                                     shape=(len(d.blocks), d.t.size))
+    index = {id(b): k for k, b in enumerate(d.blocks)}
+    for _h0, _h1, b0, b1 in zip(holds, holds[1:], hold_blocks, hold_blocks[1:]):
+        if not b0 or not b1:
+            continue
+        # from the centre of pose i's last block to the centre of pose j's first: a block
+        # mean is the specific force at its centre, while a hold's edge sample may already
+        # be turning (the still detector's edges are soft)
+        k0, k1 = int(b0[-1][b0[-1].size // 2]), int(b1[0][b1[0].size // 2])
+        if k1 > k0 and dt[k0:k1].max() <= gap:
+            d.intervals.append((index[id(b0[-1])], index[id(b1[0])], k0, k1))
+    d.level_basis = np.array([perpendicular_basis(d.acc[d.blocks[j]].mean(axis=0))
+                              for _, j, _, _ in d.intervals]).reshape(-1, 3, 2)
+    if d.mag is not None:
+        for span in MAG_WINDOWS_S:
+            k = max(1, int(round(span / np.median(dt))))
+            # windows never share a sample: a shared end point would count its noise twice
+            starts = np.arange(0, d.t.size - k, k + 1)
+            idx = starts[:, None] + np.arange(k + 1)[None]
+            ok = dt[idx[:, :-1]].max(axis=1) <= gap
+            d.windows.append(idx[ok])
+    d.noise = white_noise(d)
+    return d
+
+
+def perpendicular_basis(v: np.ndarray) -> np.ndarray:
+    """(3, 2) orthonormal columns perpendicular to ``v``.
+
+    Parameters
+    ----------
+    v : (3,) array
+        Non-zero vector (any units).
+
+    Returns
+    -------
+    (3, 2) array
+    """
+    u = v / np.linalg.norm(v)
+    q, _ = np.linalg.qr(np.column_stack([u, np.eye(3)[np.argsort(np.abs(u))[:2]].T]))
+    return q[:, 1:]
+
+
+def white_noise(d: JointData) -> dict[str, float]:
+    """Per-sample white-noise σ of each sensor from the still blocks (median over blocks of the
+    per-axis std, first-differenced so that a slow sway does not count).
+
+    Parameters
+    ----------
+    d : JointData
+
+    Returns
+    -------
+    dict
+        "acc" [m/s²], "gyr" [rad/s], "mag" [mGauss] (those present) → σ, at least 1e-9.
+    """
+    out = {}
+    for name, y in (("acc", d.acc), ("gyr", d.gyr), ("mag", d.mag)):
+        if y is None or not d.blocks:
+            continue
+        s = [np.std(np.diff(y[b], axis=0), axis=0).mean() / np.sqrt(2) for b in d.blocks]
+        out[name] = max(float(np.median(s)), 1e-9)
+    return out
+
+
+def interval_rows(d: JointData) -> np.ndarray:
+    """(I, K+1) sample indices of the moving intervals' steps k0 .. k1−1, padded with n (the
+    identity step, no force) to one column more than the longest (``integrate`` integrates
+    the steps ``idx[:, :-1]``).
+
+    Parameters
+    ----------
+    d : JointData
+
+    Returns
+    -------
+    (I, K+1) int array
+    """
+    spans = [np.arange(k0, k1) for _, _, k0, k1 in d.intervals]
+    width = max((s.size for s in spans), default=0) + 1
+    out = np.full((len(spans), width), d.t.size, dtype=int)
+    for r, s in enumerate(spans):
+        out[r, :s.size] = s
+    return out
+
+
+def misclosures(x: np.ndarray, d: JointData, families, rows=None) -> dict[str, np.ndarray]:
+    """Each family's misclosure w = f(X, Y) at parameters ``x``: name → (n_c, dim) array.
+
+    Parameters
+    ----------
+    x : (42,) array
+        Parameters (:mod:`apmcal.solvers.joint.model`).
+    d : JointData
+        The session's samples and condition layout (:func:`layout`).
+    families : tuple of str
+        The families to evaluate.
+    rows : (I, K+1) int array, optional
+        :func:`interval_rows` of ``d``, when the caller has it.
+
+    Returns
+    -------
+    dict
+        family → (n_c, dim) array, in the family's units (acc_norm [m/s²], zaru [rad/s],
+        level [rad], zupt [m/s], mag and mag_datum [mGauss]).
+    """
+    m = matrices(x)
+    a = correct_acc(d.acc, m)
+    w = correct_gyr(d.gyr, a, m)
+    step_rot = so3_exp(np.vstack([midpoint(w) * d.dt[:, None], np.zeros((1, 3))]))
+    out: dict[str, np.ndarray] = {}
+    a_blk = d.block_mean @ a
+    if "acc_norm" in families:
+        out["acc_norm"] = (np.linalg.norm(a_blk, axis=1) - d.gravity)[:, None]
+    if "zaru" in families:
+        out["zaru"] = d.block_mean @ w
+    if d.intervals and ("level" in families or "zupt" in families):
+        rows = interval_rows(d) if rows is None else rows
+        dr, dv = integrate(step_rot, rows, np.vstack([a * d.dt[:, None], np.zeros((1, 3))]))
+        ai = a_blk[[iv[0] for iv in d.intervals]]
+        aj = a_blk[[iv[1] for iv in d.intervals]]
+        if "level" in families:
+            ui = ai / np.linalg.norm(ai, axis=1, keepdims=True)
+            uj = aj / np.linalg.norm(aj, axis=1, keepdims=True)
+            out["level"] = np.einsum("wia,wi->wa", d.level_basis,
+                                     uj - np.einsum("wji,wj->wi", dr, ui))
+        if "zupt" in families:
+            span = np.array([d.t[k1] - d.t[k0] for _, _, k0, k1 in d.intervals])
+            out["zupt"] = dv - ai * span[:, None]
+    if d.mag is not None and "mag" in families:
+        mc = correct_mag(d.mag, m)
+        parts = []
+        for idx in d.windows:
+            dr, _ = integrate(step_rot, idx)
+            parts.append((mc[idx[:, -1]] - np.einsum("wji,wj->wi", dr, mc[idx[:, 0]]))
+                         @ m["D_m"].T)
+        out["mag"] = np.concatenate(parts) if parts else np.zeros((0, 3))
+        if "mag_datum" in families:
+            out["mag_datum"] = np.array([[np.linalg.norm(mc, axis=1).mean() - d.field]])
+    return out
