@@ -25,7 +25,8 @@ def add_truth_args(ap) -> None:
 
 def make_truth(args) -> Truth:
     """Truth from --truth / --twin or --seed, then --lat/--lon/--alt (only when drawn) and
-    switches (sitl effect names or diagnosis names, see :data:`apmcal.sensor_model.truth.DIAGNOSIS_EFFECTS`)."""
+    switches (sitl effect names or diagnosis names, see
+    :data:`apmcal.sensor_model.truth.DIAGNOSIS_EFFECTS`)."""
     path = args.truth or getattr(args, "twin", None)
     if path:
         truth = Truth.load(path)       # only the "effects" block is read

@@ -1,6 +1,6 @@
 """How the simulated ArduCopter firmware turns raw sensor samples into what it reports.
 
-Written from ../shared/ardupilot-facts.md ("How the firmware applies the parameters") alone.
+Written from docs/ardupilot-facts.md ("How the firmware applies the parameters") alone.
 
 Generations
 -----------

@@ -5,7 +5,7 @@ and a motor run) in which the nominal errors plus one effect (or a pair) are swi
 "real" data — and runs ``apmcal gap`` on its dataflash log blind. A null case switches on no
 extra effect. Printed: the confusion table (withheld effect vs the effect ranked first), the
 held-out shrink of the withheld effect, and the false-alarm rate (null sessions in which some
-effect was reported as supported). Targets (issue 8): the withheld effect first in ≥ 90 % of
+effect was reported as supported). Targets: the withheld effect first in ≥ 90 % of
 the cases, held-out shrink ≥ 50 % where the effect is strong, false alarms ≤ 5 %.
 
 ``local_gravity`` is not a case: it only rescales gravity, which no self-calibration can tell

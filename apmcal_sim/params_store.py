@@ -140,7 +140,7 @@ class ParamStore:
 
         ArduPilot's AP_Param::send_parameter: a set of a Vector3f's first element is answered
         with all three elements, _X, _Y, _Z (its save cannot tell the vector from its first
-        element); a set of _Y or _Z with that element alone. Seen in issue 9 on
+        element); a set of _Y or _Z with that element alone. Seen on
         ArduCopter 4.7.0-dev SITL (INS_ACCOFFS_X set: PARAM_VALUE INS_ACCOFFS_X, _Y, _Z); not
         in ardupilot-facts.md. Every X/Y/Z triple of this table is a Vector3f in ArduPilot.
         """

@@ -29,7 +29,8 @@ MSG_IDS = {"RAW_IMU": 27, "SCALED_IMU2": 116, "HIGHRES_IMU": 105, "SCALED_PRESSU
            "HEARTBEAT": 0, "SYS_STATUS": 1}
 ACC_MG = 1000.0 / 9.80665     # RAW_IMU: get_accel()*1000/9.80665 (ardupilot-facts.md)
 # HIGHRES_IMU xmag/ymag/zmag per mGauss of field: MAVLink says gauss. ArduPilot firmware of about
-# May 2024 - Feb 2026 sent mGauss×1000 instead (issue 9), 1e6 times too much: --highres-mag-bug
+# May 2024 - Feb 2026 sent mGauss×1000 instead, 1e6 times too much: --highres-mag-bug
+# (docs/ardupilot-facts.md "What the telemetry really carries")
 HIGHRES_GAUSS_PER_MGAUSS = 1e-3
 FAULTY_HIGHRES_MAG_PER_MGAUSS = 1e3
 

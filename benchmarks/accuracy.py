@@ -1,9 +1,9 @@
 """Monte-Carlo accuracy of the ellipsoid estimators against the Cramér-Rao lower bound.
 
-Simulates sessions with known truth (seed 000 model S_p = W·S + V0, symmetric W; calibration
+Simulates sessions with known truth ([Niespodziany] model S_p = W·S + V0, symmetric W; calibration
 ``M = W⁻¹``, ``o = V0``): a fixed design of field directions, isotropic Gaussian noise σ on each
 measured vector, many noise realisations. For each parameter (offset 3, symmetric matrix 6) it
-prints the RMSE of seed 000's analytical and numerical fits, of the robust fit, and of the robust
+prints the RMSE of [Niespodziany]'s analytical and numerical fits, of the robust fit, and of the robust
 fit with its second-order bias removed (apmcal.solvers.ellipsoid.debias), next to the CRLB of the
 same design, and the efficiency CRLB/MSE (1 = as good as any unbiased estimator).
 

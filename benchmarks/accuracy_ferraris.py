@@ -1,12 +1,12 @@
-"""Monte-Carlo accuracy of the Ferraris benchmark (seed 002 §4) and of the one-position gyro bias
-(seed 002 §5.2) against the Cramér-Rao lower bound of the same design.
+"""Monte-Carlo accuracy of the Ferraris benchmark ([Oppong] §4) and of the one-position gyro bias
+([Oppong] §5.2) against the Cramér-Rao lower bound of the same design.
 
 Design (self-contained simulator, no sitl): six holds x_p, x_a, y_p, y_a, z_p, z_a of ``T`` s at
 ``fs`` Hz (axis exactly up / down), then one 360° turn about each sensor axis in 4 × 90° steps
 (axis j up, turning about the vertical, so the specific force stays g·e_j), with time gaps
 between the pieces. The sensor sits at the North pole, so the Earth rate Ω is vertical, Ω·up
 (ardupilot-facts.md: Earth rate in NED Ω(cos φ, 0, −sin φ)), and every estimator can model it.
-Truth (seed 002 eq. 1, 2, 5 + imucal's g-sensitivity), sensor frame, f = specific force [m/s²]::
+Truth ([Oppong] eq. 1, 2, 5 + imucal's g-sensitivity), sensor frame, f = specific force [m/s²]::
 
     a_k = F f_k + b_a + ε_k,                       ε_k ~ N(0, σ_a² I)
     ω_k = E ω_true,k + c + b1 (t_k − t_ref) + K f_k + η_k,   η_k ~ N(0, σ_g² I)
@@ -43,8 +43,8 @@ tests/test_accuracy_ferraris.py checks this bound against a finite-difference Fi
 the simulator's output.
 
 Estimators: Ferraris as in Ferraris 1995 / imucal (constant gyro bias, no Earth rate, Q scale of
-seed 002 eq. 4), the same with known g, apmcal's drift variant (seed 002 eq. 5, Earth rate
-removed), and the one-position gyro bias (seed 002 §5.2) on the level hold z_a.
+[Oppong] eq. 4), the same with known g, apmcal's drift variant ([Oppong] eq. 5, Earth rate
+removed), and the one-position gyro bias ([Oppong] §5.2) on the level hold z_a.
 
 Run: ``.venv/bin/python benchmarks/accuracy_ferraris.py [--runs 200] [--quant]`` (≈ 5 s).
 """
@@ -79,7 +79,7 @@ class Design:
     """The session: durations [s], rate [Hz], white-noise sigmas (m/s², rad/s), quantisation."""
 
     fs: float = 100.0
-    t_hold: float = 20.0          # seed 002 §3.1: about 20 s per hold
+    t_hold: float = 20.0          # [Oppong] §3.1: about 20 s per hold
     t_step: float = 2.0           # one 90° step
     t_pause: float = 5.0          # still between steps (inside the integrated turn)
     t_gap: float = 3.0            # time between pieces (no samples: pose changes are not used)
@@ -114,7 +114,7 @@ def pieces(d: Design) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
         out.append((p, t0 + np.arange(n_hold) / d.fs, up, np.zeros((n_hold, 3))))
         t0 += n_hold / d.fs + d.t_gap
     for j, a in enumerate("xyz"):
-        # 4 × 90° (seed 002 §3.1) about the axis pointing up; rate · n_step/fs = π/2 exactly
+        # 4 × 90° ([Oppong] §3.1) about the axis pointing up; rate · n_step/fs = π/2 exactly
         rate = np.zeros((0, 3))
         for s in range(4):
             step = np.zeros((n_step, 3))
@@ -230,7 +230,7 @@ def estimators(d: Design) -> dict:
         return out
 
     return {
-        # Ferraris 1995 / imucal: constant gyro bias, no Earth rate, Q scale (seed 002 eq. 4);
+        # Ferraris 1995 / imucal: constant gyro bias, no Earth rate, Q scale ([Oppong] eq. 4);
         # all three Ferraris variants keep imucal's g-sensitivity K_ga (g_sensitivity=True)
         "paper(Q)": ferraris(bias_drift=False, earth_rate=False),
         "known g": ferraris(bias_drift=False, earth_rate=False, gravity=G),

@@ -1,4 +1,4 @@
-"""Out-of-sample validation of the joint calibration (seed 001 §5) against the other methods.
+"""Out-of-sample validation of the joint calibration ([Chow] §5) against the other methods.
 
     python benchmarks/joint_validation.py [--quick]
 

@@ -1,4 +1,4 @@
-"""Ellipsoid fits (seed 000 + robust), relative MSE, verdict, uncertainty helpers."""
+"""Ellipsoid fits ([Niespodziany] + robust), relative MSE, verdict, uncertainty helpers."""
 from __future__ import annotations
 
 import re
@@ -21,7 +21,7 @@ from apmcal.solvers.result import Calibration
 from apmcal.solvers.uncertainty import bootstrap, covariance_from_jacobian
 
 G = 9.80665
-# Independent truth: seed 000 model S_p = W·S + V0 with symmetric W (eq. 1)
+# Independent truth: [Niespodziany] model S_p = W·S + V0 with symmetric W (eq. 1)
 W_TRUE = np.array([[1.06, 0.03, -0.02], [0.03, 0.94, 0.04], [-0.02, 0.04, 1.10]])
 V0_TRUE = np.array([120.0, -80.0, 40.0])
 R = 500.0
@@ -62,7 +62,7 @@ def test_fits_recover_known_distortion(fit, tol_o, tol_m):
 
 
 def test_upper_triangular_parameterisation_gives_the_same_metric():
-    # |M c|² = cᵀ MᵀM c: an upper-triangular M (seed 002's F form) must reproduce MᵀM = W⁻²
+    # |M c|² = cᵀ MᵀM c: an upper-triangular M ([Oppong]'s F form) must reproduce MᵀM = W⁻²
     info = {}
     cal = fit_ellipsoid_robust(simulate(seed=4), R, parameterisation="upper", info=info)
     assert info["parameterisation"] == "upper"
@@ -227,7 +227,7 @@ def test_real_magnetometer_relative_mse_improves_on_held_out_half(shared_data):
     # a yawing copter covers the sphere poorly: the verdict must say so
     lines = verdict(train, rob, radius, sensor="mag", info=rob_info)
     assert any("POORLY DETERMINED" in line or "uneven coverage" in line for line in lines)
-    # seed 000's numerical fit slides into the degenerate valley (M → 0, |V0| → ∞) on this data;
+    # [Niespodziany]'s numerical fit slides into the degenerate valley (M → 0, |V0| → ∞) on this data;
     # its relative MSE looks excellent, so the verdict has to catch the collapse
     num = fit_ellipsoid_numerical(train, radius)
     if np.linalg.norm(num.offset) > 10 * radius:
@@ -250,7 +250,7 @@ def test_real_accelerometer_residual_drops_and_matches_reference(shared_data):
     ref_offset = -ref[6:9] / 16384.0 * G
     ref_scale = ref[3:6] * 16384.0 / G
     for fit in (fit_ellipsoid_analytical, fit_ellipsoid_numerical):
-        cal = fit(means, G, diagonal_only=True)          # seed 000 §VII.A: few orientations
+        cal = fit(means, G, diagonal_only=True)          # [Niespodziany] §VII.A: few orientations
         err = np.abs(np.linalg.norm(cal.apply(means), axis=1) - G)
         assert err.max() < 0.05
     info = {}
@@ -338,7 +338,7 @@ def test_debiasing_leaves_a_noise_free_fit_alone():
 
 
 def test_magnetometer_reports_the_papers_figure_of_merit_on_held_out_blocks():
-    """calibrate_magnetometer scores seed 000's relative MSE on blocks the fit never saw: it must
+    """calibrate_magnetometer scores [Niespodziany]'s relative MSE on blocks the fit never saw: it must
     fall from the raw value to about (noise / field)² = (1/500)² = 4e-6 for this simulation."""
     from apmcal.report.lines import calibration_lines, score_line
     from apmcal.solvers.magnetometer import calibrate_magnetometer, held_out_score

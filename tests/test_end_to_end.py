@@ -128,7 +128,7 @@ def test_one_position_session_withholds_accelerometer_offsets(tmp_path):
     assert not any(name.startswith("INS_ACC") for name in est["params"])
     # One pose: the gyro offset is the hold's mean, so it holds the g-sensitivity response to
     # the level specific force (0, 0, -g) and the Earth rate as well as the bias
-    # (seed 002 §5.2; identifiability report). The misalignment terms neglected here are ~1e-2
+    # ([Oppong] §5.2; identifiability report). The misalignment terms neglected here are ~1e-2
     # of a ~3 mrad/s response, hence the 1e-4 rad/s allowance.
     effects = truth["effects"]
     specific_force = np.array([0.0, 0.0, -truth["gravity_ms2"]])

@@ -1,4 +1,4 @@
-"""Ferraris benchmark (seed 002 §4): hand-worked equations, injected-truth simulations, and a
+"""Ferraris benchmark ([Oppong] §4): hand-worked equations, injected-truth simulations, and a
 cross-check against imucal (the peer tool) run on its own example data."""
 from __future__ import annotations
 
@@ -78,7 +78,7 @@ def _plan():
     for ang in (180, 90, 180, 90):                 # z_p → z_a → y_? → y_? → z_p
         p += [("x", ang, 2), ("hold", 5)]
     p += [("y", 90, 2), ("hold", 5), ("y", 180, 2), ("hold", 5)]      # x vertical, both ways
-    p += [("x", -90, 1), ("hold", 3)] * 4                               # seed 002: 4 × 90°
+    p += [("x", -90, 1), ("hold", 3)] * 4                               # [Oppong]: 4 × 90°
     p += [("y", 90, 2), ("hold", 5), ("z", -360, 4), ("hold", 5)]
     p += [("x", 90, 2), ("hold", 5), ("y", -360, 4), ("hold", 5)]
     return p
@@ -93,7 +93,7 @@ def simulate(*, fs=100.0, f_mat=EYE, b_a=ZERO3, e_mat=EYE, b0=ZERO3, b1=ZERO3, k
              lat_deg=None, acc_noise=0.01, gyr_noise=1e-3, seed=0):
     """Sensor outputs of a hand-free Ferraris session (world z up, north = world x).
 
-    a_s = F f + b_a,  ω_s = E ω + b0 + b1 t + K_ga f  (seed 002 eq. 1, 2, 5), f = specific force.
+    a_s = F f + b_a,  ω_s = E ω + b0 + b1 t + K_ga f  ([Oppong] eq. 1, 2, 5), f = specific force.
     The rate of sample k acts over [t_k, t_k+1], so the rectangle rule integrates it exactly.
     """
     rng = np.random.default_rng(seed)

@@ -1,4 +1,4 @@
-"""The 0.5 Hz zero-phase high-pass of seed 002 §5, checked against Butterworth theory."""
+"""The 0.5 Hz zero-phase high-pass of [Oppong] §5, checked against Butterworth theory."""
 from __future__ import annotations
 
 import numpy as np

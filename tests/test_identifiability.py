@@ -41,7 +41,7 @@ def test_six_faces_determine_bias_and_full_matrix():
     assert (r.rank, r.n_params) == (12, 12)
     assert all(r.determinable.values())
     assert np.isfinite(r.condition) and r.condition < 10
-    ru = identifiability("acc", six_faces(G), matrix="upper")     # seed 002 F convention
+    ru = identifiability("acc", six_faces(G), matrix="upper")     # [Oppong] F convention
     assert (ru.rank, ru.n_params) == (9, 9)
 
 

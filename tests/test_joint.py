@@ -1,4 +1,4 @@
-"""`apmcal log --method joint` (seed 001) against sitl sessions with known injected errors.
+"""`apmcal log --method joint` ([Chow]) against sitl sessions with known injected errors.
 
 sitl's board frame and the joint method's frame (the accelerometer's: x along its x axis, y in
 its xy plane) differ by the rotation Q of the accelerometer triad, which no self-calibration
@@ -80,12 +80,12 @@ def test_cli_prints_the_joint_result(fitted):
     assert fitted["status"] == 0
     text = fitted["stdout"]
     assert "method: joint" in text
-    # the fit's internals (conditions per family, seed 001) go to --verbose and the JSON
-    assert "joint (seed 001)" not in text
+    # the fit's internals (conditions per family, [Chow]) go to --verbose and the JSON
+    assert "joint ([Chow])" not in text
     cal = Calibration.from_dict(fitted["est"])              # the JSON has the numbers ...
     assert sum(cal.report.joint.conditions.values()) > 0
     lines = calibration_lines(cal.report, cal.sensors)      # ... the report the words
-    assert any(line.startswith("joint (seed 001)") for line in lines)
+    assert any(line.startswith("joint ([Chow])") for line in lines)
     assert "INS_GYROFFS_X" in text and "COMPASS_OFS_X" in text
     assert "cannot be held by ArduPilot" in text        # what the gyro matrix costs
 

@@ -12,7 +12,7 @@ from apmcal.solvers.one_position import c_ecef_to_ned, one_position_calibration
 from apmcal.solvers.result import Calibration
 
 G = STANDARD_GRAVITY
-KUMASI_LAT = 6.6885      # seed 002's site (KNUST, Kumasi); Table 2's τ = 8.5258 ≈ cot(lat)
+KUMASI_LAT = 6.6885      # [Oppong]'s site (KNUST, Kumasi); Table 2's τ = 8.5258 ≈ cot(lat)
 FS = 50.0
 
 
@@ -70,7 +70,7 @@ def test_gyro_reproduces_table_2_tau_from_latitude_alone():
     t, acc, gyr = still(gyr_noise=0.0)
     cal = one_position_calibration(t, acc, gyr, lat_deg=KUMASI_LAT, lon_deg=-1.57)
     tau, xi, nu = cal.report.one_position.gyr.tau_xi_nu
-    assert tau == pytest.approx(8.5258, abs=0.01)             # seed 002 Table 2, "proposed"
+    assert tau == pytest.approx(8.5258, abs=0.01)             # [Oppong] Table 2, "proposed"
     assert abs(xi) < 1e-6 and abs(nu) < 1e-6                  # R_f = 0 for a constant signal
     # bias = mean = true bias + Earth rate (the method cannot tell them apart)
     np.testing.assert_allclose(cal.sensors["gyr"].offset,

@@ -77,7 +77,7 @@ def print_verbose(calibration, proposal, console):
 
 
 def one_position_fit(tilt_deg=1.7, g=9.8) -> OnePositionFit:
-    """A one-position stage with made-up numbers (what seed 002 §5 reports)."""
+    """A one-position stage with made-up numbers (what [Oppong] §5 reports)."""
     z = np.zeros(3)
     acc = OnePositionAcc(mean=np.array([0, 0, -g]), g=g, R=z, R_f=z, bias=z, F=np.eye(3),
                          beta_gamma_mu=np.array([0, 0, 1.0]), mu_literal=0.0,

@@ -1,4 +1,4 @@
-"""Which parameters upload and restore may write (issue 9): calibration ones unless told
+"""Which parameters upload and restore may write: calibration ones unless told
 otherwise, never the counters and identity the vehicle keeps itself.
 
 Kept free of heavy imports: the command line's help texts read it.

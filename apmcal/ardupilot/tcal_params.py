@@ -79,7 +79,7 @@ class TcalSet:
         """What the firmware subtracts [m/s² or rad/s] (n, 3) at temperatures ``temp_c`` (n,)
         [°C]: P(clamp(T) − 35) − P(clamp(T_cal) − 35) when enabled (=1), else zeros.
 
-        AP_InertialSensor_tempcal.cpp ``correct_sensor`` (issue 11): both temperatures clamped
+        AP_InertialSensor_tempcal.cpp ``correct_sensor``: both temperatures clamped
         to [TMIN, TMAX], the polynomial evaluated at their difference from TEMP_REFERENCE.
 
         Parameters

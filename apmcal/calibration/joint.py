@@ -1,4 +1,4 @@
-"""Joins the stages for ``--method joint`` (seed 001): the compass samples are brought onto the
+"""Joins the stages for ``--method joint`` ([Chow]): the compass samples are brought onto the
 IMU's time base, the still periods found, the field magnitude chosen, the solver run.
 
 Kept apart from :mod:`apmcal.calibration.log` because the joint method needs the compass together with
@@ -118,7 +118,7 @@ def joint_on_prepared(prepared, mag_prepared, opts) -> Calibration:
     """Seed 001's joint calibration of a prepared recording and its compass.
 
     Without a live compass the accelerometer and gyro are calibrated alone (their 30
-    parameters; the compass conditions are left out, seed 001 §3.2), with a warning. Raises
+    parameters; the compass conditions are left out, [Chow] §3.2), with a warning. Raises
     ApmcalError (one line) when there are too few still poses or no turns between them.
 
     Parameters

@@ -128,7 +128,7 @@ def choose_method(segments, gyro_and_compass: bool = False) -> str:
         # gyro keeps an identity matrix (with a warning) and only its offset is calibrated
         return "ferraris"
     if len(segments) >= MIN_ELLIPSOID_HOLDS and distinct_orientations(segments) >= MIN_ORIENTATIONS:
-        # hand-held poses with turns between them: seed 001's joint fit also calibrates the
+        # hand-held poses with turns between them: [Chow]'s joint fit also calibrates the
         # gyro's scale and misalignment from the turns (out of sample, 0.4° against the
         # ellipsoid's 10.7° on sitl's hand-held session: benchmarks/joint_validation.py)
         return "joint" if gyro_and_compass else "ellipsoid"

@@ -1,4 +1,4 @@
-"""Out-of-sample check of a calibration, as seed 001 §5 validates one: the orientation change
+"""Out-of-sample check of a calibration, as [Chow] §5 validates one: the orientation change
 integrated from the calibrated gyro between two still poses against the one the calibrated
 accelerometer (+ compass) gives at those poses.
 

@@ -1,4 +1,4 @@
-"""From a log to ArduPilot temperature-calibration parameters (issue 11, ``apmcal tcal``).
+"""From a log to ArduPilot temperature-calibration parameters (``apmcal tcal``).
 
 The one place joining the temperature-calibration stages, as :mod:`apmcal.calibration.log` does for
 the other calibrations: sources (IMU samples with temperature, or the learner's TCLR records)
@@ -134,7 +134,7 @@ def _temperature_recordings(contents, instance):
 
 
 def _check_range(tmin_c: float, tmax_c: float, instance: int, path: str) -> None:
-    # issue 11 / AP_InertialSensor_tempcal.cpp TEMP_RANGE_MIN: the learner does not save a
+    # AP_InertialSensor_tempcal.cpp TEMP_RANGE_MIN: the learner does not save a
     # calibration before the temperature has risen 10 °C
     span = tmax_c - tmin_c
     if not span >= TEMP_RANGE_MIN_C:
@@ -198,7 +198,7 @@ def _from_samples(recording, contents, min_still_s: float, block_s: float) -> Tc
     t, temp = raw.t, raw.data["temp"].to_numpy(dtype=float)
     acc, gyr = raw.xyz("acc"), raw.xyz("gyr")
     if old is not None and old.enable == 1:
-        # the logged samples are already corrected: add the old polynomial back (issue 11)
+        # the logged samples are already corrected: add the old polynomial back
         acc = acc + old.correction("acc", temp)
         gyr = gyr + old.correction("gyr", temp)
         notes.append(f"undid the temperature calibration in force (INS_TCAL{inst + 1}_ENABLE "

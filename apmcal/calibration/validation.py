@@ -1,4 +1,4 @@
-"""Out-of-sample check of calibration methods on recordings (seed 001 §5): read a session,
+"""Out-of-sample check of calibration methods on recordings ([Chow] §5): read a session,
 fit a method on (part of) it, score the gyro's orientation change between still poses of
 another session (:mod:`apmcal.calibration.orientation_check`).
 

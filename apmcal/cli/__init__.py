@@ -200,7 +200,7 @@ def add_upload_parsers(sub) -> None:
 
 
 def add_tcal_parser(sub) -> None:
-    """``apmcal tcal LOG``: ArduPilot's IMU temperature calibration (issue 11)."""
+    """``apmcal tcal LOG``: ArduPilot's IMU temperature calibration."""
     tcal = sub.add_parser("tcal", help="fit ArduPilot's IMU temperature calibration "
                                        "(INS_TCALn_*) from a still warm-up log")
     tcal.add_argument("file", help="dataflash .bin/.log (IMU with temperature, or TCLR) or "
@@ -235,7 +235,7 @@ def cmd_tcal(args) -> int:
 
     console = console_for(args)
     contents = read_log(args.file)
-    require_plausible_units(contents)       # a sensor in impossible units is not data (issue 9)
+    require_plausible_units(contents)       # a sensor in impossible units is not data
     results = calibrate_temperature(contents, args.records, args.instance, args.min_still)
     print_tcal(results, console)
     values = tcal_params(results)
@@ -517,7 +517,7 @@ def summarise_and_calibrate(contents, args):
     from apmcal.sources.units import require_plausible_units
 
     console = console_for(args)
-    require_plausible_units(contents)       # a sensor in impossible units is not data (issue 9)
+    require_plausible_units(contents)       # a sensor in impossible units is not data
     summary = report.summarize(contents)
     report.print_summary(summary, console)
     output = {"summary": summary}      # the JSON file's own fields besides the calibration's

@@ -157,7 +157,7 @@ class LogReading:
         warnings: list[str] = []
         try:
             contents = read_log(self.file)
-            require_plausible_units(contents)   # a sensor in impossible units is not data (issue 9)
+            require_plausible_units(contents)   # a sensor in impossible units is not data
             warnings = [line for line in contents.messages if line.startswith("warning: ")]
             return session_from_log(contents, self.options), warnings, None
         except ApmcalError as err:

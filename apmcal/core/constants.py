@@ -1,14 +1,14 @@
 """Physical constants, unit conversions and ArduPilot frame conventions.
 
 Frames: body = FRD (x forward, y right, z down); navigation = NED. Accelerometers measure specific
-force, so a level vehicle at rest reads (0, 0, -g) m/s² (../shared/ardupilot-facts.md, "Frames and signs").
+force, so a level vehicle at rest reads (0, 0, -g) m/s² (docs/ardupilot-facts.md, "Frames and signs").
 """
 from __future__ import annotations
 
 import math  # not numpy: `apmcal --help` reads DEFAULT_BAUD from here (numpy: ~0.15 s)
 
 STANDARD_GRAVITY = 9.80665          # m/s², the constant ArduPilot uses for mG <-> m/s² (RAW_IMU)
-EARTH_RATE = 7.292115e-5            # rad/s, seed 002 §5.2 (WGS-84 value)
+EARTH_RATE = 7.292115e-5            # rad/s, [Oppong] §5.2 (WGS-84 value)
 MG_TO_MS2 = STANDARD_GRAVITY / 1000.0   # RAW_IMU acc is in milli-g
 MRAD_TO_RAD = 1e-3                  # RAW_IMU gyro is in mrad/s
 GAUSS_TO_MGAUSS = 1000.0

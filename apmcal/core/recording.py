@@ -16,7 +16,7 @@ A :class:`Recording` is one sensor instance (IMU 0, IMU 1, ...) from one source.
 
 Columns that the source does not carry are absent, never filled with zeros. ``corrected`` says
 whether the firmware already applied its INS_*/COMPASS_* parameters (ArduPilot's RAW_IMU, IMU and
-MAG log messages are corrected: ../shared/ardupilot-facts.md, "What the telemetry really carries").
+MAG log messages are corrected: docs/ardupilot-facts.md, "What the telemetry really carries").
 ``frame`` is "body" when AHRS_ORIENTATION was applied (ArduPilot's outputs), "sensor" otherwise.
 """
 from __future__ import annotations

@@ -158,7 +158,7 @@ class ParamProtocol:
         the stored value, drops unknown names and NaN silently, and the ground station must
         compare the value itself. An answer is therefore matched by name AND value: a set of a
         vector's first element (_X) is answered with PARAM_VALUE for _X, _Y and _Z
-        (ArduPilot's AP_Param::send_parameter; seen in issue 9 on ArduCopter 4.7.0-dev SITL),
+        (ArduPilot's AP_Param::send_parameter; seen on an ArduCopter 4.7.0-dev SITL),
         so the echo of an earlier write can arrive first carrying this name's old value. A
         different value keeps us listening until ``timeout_s``; a doubtful write (no matching
         echo) is checked by PARAM_REQUEST_READ and sent again, ``attempts`` times in all.

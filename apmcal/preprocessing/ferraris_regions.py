@@ -1,4 +1,4 @@
-"""The regions of a Ferraris session (seed 002 §4): the six static faces and the full turn
+"""The regions of a Ferraris session ([Oppong] §4): the six static faces and the full turn
 about each axis, detected or taken from a hand-annotated section list (imucal's).
 
 Detection lives here, not in the solver: :func:`apmcal.solvers.ferraris.ferraris_calibration`

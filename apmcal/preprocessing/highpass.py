@@ -1,4 +1,4 @@
-"""Zero-phase Butterworth high-pass, the 0.5 Hz filter of seed 002 §5.1-5.2 (step 3).
+"""Zero-phase Butterworth high-pass, the 0.5 Hz filter of [Oppong] §5.1-5.2 (step 3).
 
 Seed 002 passes each axis of the one-minute static record through a high-pass with
 f_c = 0.5 Hz before solving for the bias. It does not give the filter type or order; we use a
@@ -23,7 +23,7 @@ from scipy import signal
 
 from apmcal.core.errors import ApmcalError
 
-DEFAULT_CUTOFF_HZ = 0.5     # seed 002 §5.1
+DEFAULT_CUTOFF_HZ = 0.5     # [Oppong] §5.1
 DEFAULT_ORDER = 2
 MAX_JITTER = 0.05           # largest |Δt − median Δt| / median Δt accepted as "regular"
 PAD_PERIODS = 3.0           # padding length in cut-off periods

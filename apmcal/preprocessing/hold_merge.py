@@ -22,7 +22,7 @@ def same_hold(t, acc, gyr, a, b, *, max_angle_deg, gyr_tol, gyr_unit_rad, max_st
 
     Same orientation before and after: mean specific force within ``max_angle_deg``, mean rates
     within ``gyr_tol`` (the gyro noise threshold), and the bias-corrected gyro integrated over
-    the gap turns less than ``max_angle_deg`` — a quarter turn about the vertical (seed 002 §3.1)
+    the gap turns less than ``max_angle_deg`` — a quarter turn about the vertical ([Oppong] §3.1)
     leaves the accelerometer unchanged and must still split the holds.
 
     Parameters

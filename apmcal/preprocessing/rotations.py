@@ -1,4 +1,4 @@
-"""Rotations about one sensor axis between still periods (Ferraris 1995; seed 002 §3.1, §4.4).
+"""Rotations about one sensor axis between still periods (Ferraris 1995; [Oppong] §3.1, §4.4).
 
 Between two consecutive static segments the bias-corrected gyroscope is integrated. When the
 sensor turns about a fixed axis the integral is the rotation vector, so a motion whose integral

@@ -48,7 +48,7 @@ def calibration_lines(report: CalibrationReport, sensors: dict) -> list[str]:
     if "acc" in report.ellipsoids:
         lines += ellipsoid_lines("acc", report.ellipsoids["acc"], _offset_sigma(sensors, "acc"))
     if report.gyro_offset_only:
-        lines.append("gyr: offset only (mean at rest, seed 000 §VIII); scale and cross-axis need "
+        lines.append("gyr: offset only (mean at rest, [Niespodziany] §VIII); scale and cross-axis need "
                      "known rotations")
     if report.magnetic_field is not None:
         lines.append(field_line(report.magnetic_field))
@@ -99,7 +99,7 @@ def ellipsoid_lines(sensor: str, fit: EllipsoidFit, offset_sigma=None) -> list[s
                          "direction) cannot be trusted: add orientations")
         elif eig[0] < UNEVEN_COVERAGE:
             lines.append(f"{sensor}: uneven coverage — the fit is weighted toward the densest "
-                         "directions (seed 000 §VII.C); more orientations would help")
+                         "directions ([Niespodziany] §VII); more orientations would help")
     if fit.residuals is not None:
         e = fit.residuals
         lines.append(f"{sensor}: residual |calibrated| − {r:.4g}: RMS {e.rms:.4g} "
@@ -165,7 +165,7 @@ def score_line(sensor: str, s: MseScore) -> str:
                 f"its own ({s.failed})")
     on = (f"held-out samples (odd blocks of {s.blocks}, fitted on the even ones)"
           if s.blocks else f"{s.scored_on} samples")
-    return (f"{sensor}: relative MSE of |calibrated| (seed 000) raw {s.raw:.3g} → "
+    return (f"{sensor}: relative MSE of |calibrated| ([Niespodziany]) raw {s.raw:.3g} → "
             f"{s.calibrated:.3g} on {on}")
 
 
@@ -182,14 +182,14 @@ def _e(v: float) -> str:
 
 
 def one_position_lines(fit: OnePositionFit) -> list[str]:
-    """Plain-words notes on what seed 002's one-position recipe did determine, then what the
+    """Plain-words notes on what [Oppong]'s one-position recipe did determine, then what the
     pose can identify (:mod:`apmcal.solvers.identifiability`)."""
     from apmcal.core.constants import MG_TO_MS2, MRAD_TO_RAD
     from apmcal.solvers.identifiability import identifiability
 
     a, w, lat = fit.acc, fit.gyr, fit.lat_deg
     lines = [
-        f"acc: g taken as ‖mean‖ = {a.g:.4f} m/s² (seed 002 §5.1 step 7), tilt from level "
+        f"acc: g taken as ‖mean‖ = {a.g:.4f} m/s² ([Oppong] §5.1 step 7), tilt from level "
         f"{a.tilt_deg:.2f}°",
         f"acc: high-pass mean R_f = {np.array2string(a.R_f, formatter={'float': _e})} m/s² "
         "≈ 0, so bias = "
@@ -226,7 +226,7 @@ def joint_lines(j: JointFit) -> list[str]:
     dropped = (f"; insignificant at 95 % (t-test, fixed to nominal and refitted): "
                f"{', '.join(j.dropped_t_test)}" if j.dropped_t_test else "")
     return [
-        "joint (seed 001): " + ", ".join(f"{k} {n}" + (f" ({j.rejected[k]} rejected)"
+        "joint ([Chow]): " + ", ".join(f"{k} {n}" + (f" ({j.rejected[k]} rejected)"
                                                        if j.rejected.get(k) else "")
                                          for k, n in j.conditions.items()) + " conditions",
         "joint: noise scale per family (1 = the still periods' white noise, never less) "

@@ -136,10 +136,10 @@ def print_summary(summary: dict, console) -> None:
 
 # Report lines for the specialist: shown with --verbose only (the JSON keeps them all). A line
 # is technical when it names a paper's equations, a statistics device or a fit's internals.
-TECHNICAL_MARKERS = ("seed 0", "antithetic", "Jacobian", "rank ", "second-order fit bias",
-                     "coverage eigenvalues", "condition number", "cannot be separated",
-                     "NOT determinable", "not determinable at", "relative MSE", "β, γ, μ",
-                     "τ, ξ, ν", "R_f", "(1σ)", "huber", "averaged in blocks")
+TECHNICAL_MARKERS = ("[Niespodziany]", "[Chow]", "[Oppong]", "antithetic", "Jacobian", "rank ",
+                     "second-order fit bias", "coverage eigenvalues", "condition number",
+                     "cannot be separated", "NOT determinable", "not determinable at",
+                     "relative MSE", "β, γ, μ", "τ, ξ, ν", "R_f", "(1σ)", "huber", "averaged in blocks")
 
 
 def is_technical(line: str) -> bool:

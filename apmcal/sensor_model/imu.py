@@ -171,7 +171,7 @@ class ImuErrorModel:
         if tr.on("gyro_bias"):
             w = w + np.asarray(tr.gyro_bias)
         if tr.on("gyro_bias_drift"):
-            w = w + np.outer(t, tr.gyro_bias_drift)          # seed 002 eq. 5: b0 + b1·t
+            w = w + np.outer(t, tr.gyro_bias_drift)          # [Oppong] eq. 5: b0 + b1·t
         if tr.on("gyro_bias_random_walk"):
             q = per_axis(tr.gyro_bias_random_walk, "gyro_bias_random_walk")
             steps = self.rng["rw"].standard_normal(w.shape) * q / np.sqrt(self.fs)

@@ -12,13 +12,13 @@ effect                 parameter                                  default (1 σ 
 =====================  =========================================  ==============================
 acc_bias               offset [m/s²]                              0.3 (MPU-6000 zero-g ±50..80 mg)
 acc_scale              diagonal factor − 1                        0.02 (sensitivity tolerance ±3 %)
-acc_cross_axis         α_yz, α_zy, α_zx [rad] (seed 002 §2.1)     0.005 (cross-axis ±2 %)
+acc_cross_axis         α_yz, α_zy, α_zx [rad] ([Oppong] §2.1)     0.005 (cross-axis ±2 %)
 acc_misalignment       rotation vector sensor vs board [rad]      0.01
 gyro_bias              offset at t=0 [rad/s]                      0.02 (≈1 °/s, spec ±20 °/s)
-gyro_bias_drift        linear drift [rad/s per s] (seed 002 eq.5) 2e-6
+gyro_bias_drift        linear drift [rad/s per s] ([Oppong] eq.5) 2e-6
 gyro_bias_random_walk  rate random walk [rad/s/√s] (or per axis)  fixed 2e-5
 gyro_scale             diagonal factor − 1                        0.01 (±3 %)
-gyro_misalignment      γ_yz, γ_zy, γ_zx, γ_xz, γ_xy, γ_yx [rad]   0.005 (seed 002 §2.2 T_g)
+gyro_misalignment      γ_yz, γ_zy, γ_zx, γ_xz, γ_xy, γ_yx [rad]   0.005 ([Oppong] §2.2 T_g)
 g_sensitivity          3×3 [rad/s per m/s²]                       1.8e-4 (0.1 °/s/g)
 acc_noise              density [m/s²/√Hz] (or per axis)           fixed 3.9e-3 (400 µg/√Hz)
 gyro_noise             density [rad/s/√Hz] (or per axis)          fixed 8.7e-5 (0.005 °/s/√Hz)
@@ -190,7 +190,7 @@ def per_axis(value, name: str = "parameter") -> np.ndarray:
     return np.broadcast_to(a, (3,)).copy()
 
 
-# default site: Accra (seed 002 was recorded in Ghana), 60 m; year None: the WMM epoch is the
+# default site: Accra ([Oppong] was recorded in Ghana), 60 m; year None: the WMM epoch is the
 # date of the vehicle's own clock (SimVehicle start_unix), as for a real vehicle
 DEFAULT_SITE = {"lat": 5.6037, "lon": -0.1870, "alt": 60.0, "year": None}
 
@@ -319,7 +319,7 @@ class Truth:
         return k @ np.linalg.inv(t_a) @ r
 
     def gyro_forward(self) -> np.ndarray:
-        """F with ω_s = F·ω + b (seed 002 eq. 2, full T_g with six γ terms)."""
+        """F with ω_s = F·ω + b ([Oppong] eq. 2, full T_g with six γ terms)."""
         k = np.diag(self.gyro_scale) if self.on("gyro_scale") else np.eye(3)
         t_g = np.eye(3)
         if self.on("gyro_misalignment"):

@@ -1,20 +1,20 @@
-"""Ferraris et al. (1995) six-position + three-rotation calibration, the benchmark of seed 002 §4.
+"""Ferraris et al. (1995) six-position + three-rotation calibration, the benchmark of [Oppong] §4.
 
-Sensor models (seed 002 eq. 1, 2), sensor frame::
+Sensor models ([Oppong] eq. 1, 2), sensor frame::
 
     a_s = K_a R_a a_p + b_a          ω_s = K_g R_g ω_p + b_g(t) + K_ga a_p
 
 so the calibration in apmcal's convention (apmcal/solvers/result.py) is
 ``matrix = (K R)⁻¹``, ``offset = b``: ``a_p = (K_a R_a)⁻¹ (a_s − b_a)``.
 
-Accelerometer (seed 002 §4.1-4.2): U+ holds the mean accelerometer vectors (as columns) of the
+Accelerometer ([Oppong] §4.1-4.2): U+ holds the mean accelerometer vectors (as columns) of the
 holds x_p, y_p, z_p (that axis UP, reading +g; imucal's naming), U− those of x_a, y_a, z_a.
 Bias ``b = diag((U+ + U−)/2)`` (eq. 3), ``K_a R_a = (U+ − U−)/(2G)`` with G = Q, the mean column
 norm of U+ (eq. 4), or a known local gravity.
 
 Gyroscope: bias b0 + b1·t (eq. 5) fitted by least squares on all static samples, optionally with
 g-sensitivity K_ga (imucal: (Ug+ − Ug−)/(2g)) and the Earth rate removed; ``K_g R_g`` from the
-bias-corrected integral of each 360° rotation divided by the turned angle (seed 002 §4.4).
+bias-corrected integral of each 360° rotation divided by the turned angle ([Oppong] §4.4).
 
 Where this differs from imucal (FerrarisCalibration, the peer tool; ardupilot-facts.md "Peer
 tool: imucal"): imucal's gyro bias is the plain mean of the six holds, with no drift and no Earth
@@ -43,7 +43,7 @@ drift sigmas come from the least-squares covariance; each rotation integral gets
 lower bounds when the noise is correlated (hand tremor, slow thermal drift).
 
 Default scale: without ``gravity`` or ``lat_deg`` the accelerometer is normalised to Q, the
-sensor's own mean reading (seed 002 eq. 4), so calibrated magnitudes come out ≈ Q, not g; a
+sensor's own mean reading ([Oppong] eq. 4), so calibrated magnitudes come out ≈ Q, not g; a
 warning says so.
 """
 from __future__ import annotations
@@ -70,7 +70,7 @@ ANGLE_WARN_DEG = 20.0        # rotation integral further than this from ±360° 
 
 # --------------------------------------------------------------------------- pure equations
 def u_matrices(means: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """U+ and U− (seed 002 §4.2): columns are the mean vectors of x_p,y_p,z_p and x_a,y_a,z_a.
+    """U+ and U− ([Oppong] §4.2): columns are the mean vectors of x_p,y_p,z_p and x_a,y_a,z_a.
 
     Parameters
     ----------
@@ -197,7 +197,7 @@ def earth_rate_up(up_axes: np.ndarray, lat_deg: float) -> np.ndarray:
 # --------------------------------------------------------------------------- accelerometer
 def _accel_part(poses: dict[str, StaticSegment], gravity: float | None, lat_deg: float | None,
                 segments=None):
-    """Accelerometer bias and matrix (seed 002 §4.1-4.2) with σ widened by the model misfit.
+    """Accelerometer bias and matrix ([Oppong] §4.1-4.2) with σ widened by the model misfit.
 
     The hold means' σ is their white noise (std/√n) plus τ, the scatter the redundant holds
     show beyond it on each axis (:mod:`apmcal.solvers.misfit`); the noise-only σ is kept in the
@@ -212,7 +212,7 @@ def _accel_part(poses: dict[str, StaticSegment], gravity: float | None, lat_deg:
     elif lat_deg is not None:
         g, source = normal_gravity(lat_deg), f"normal gravity at {lat_deg:.4f} deg"
     else:
-        g, source = q, "Q (seed 002 eq. 4)"
+        g, source = q, "Q ([Oppong] eq. 4)"
 
     def solve(x):
         u_p, u_m = x[:9].reshape(3, 3), x[9:].reshape(3, 3)
@@ -259,7 +259,7 @@ class GyroModel:
     Attributes
     ----------
     bias_drift : bool
-        Bias b0 + b1·(t − t_ref) (seed 002 eq. 5) instead of a constant.
+        Bias b0 + b1·(t − t_ref) ([Oppong] eq. 5) instead of a constant.
     earth_rate : bool
         Remove the vertical Earth rate from the static means (needs the latitude).
     g_sensitivity : bool
@@ -347,7 +347,7 @@ def _rotation_integral(t, gyr, acc_cal, r: Rotation, regions, bias: SensorCalibr
 
 def _gyro_matrix(t, gyr, acc_cal, regions, bias: SensorCalibration, lat_deg,
                  model: GyroModel, warnings: list[str]):
-    """Gyro coupling matrix and its σ from the three turns (seed 002 eq. 22), or None (with a
+    """Gyro coupling matrix and its σ from the three turns ([Oppong] §4.4; [Ferraris] eq. 22), or None (with a
     warning) when a turn is missing; and the integrals [rad] and angles [deg] of the turns."""
     missing = [a for a in AXES if a not in regions.rotations]
     if missing:
@@ -375,7 +375,7 @@ def _gyro_matrix(t, gyr, acc_cal, regions, bias: SensorCalibration, lat_deg,
 
 
 def _gyro_part(t, gyr, acc_cal, regions, g, lat_deg, model: GyroModel, warnings: list[str]):
-    """Gyro bias (seed 002 eq. 5) then coupling matrix (eq. 22): (SensorCalibration,
+    """Gyro bias ([Oppong] eq. 5) then coupling matrix ([Oppong] §4.4): (SensorCalibration,
     GyroTurns)."""
     cal, info = _gyro_bias(t, gyr, acc_cal, regions, g, lat_deg, model)
     matrix, sigma, turns = _gyro_matrix(t, gyr, acc_cal, regions, cal, lat_deg, model, warnings)
@@ -404,7 +404,7 @@ def ferraris_calibration(t, acc, gyr, regions: FerrarisRegions, *, lat_deg: floa
                          earth_rate: bool = True, g_sensitivity: bool = True,
                          expected_angle_deg: float | None = None,
                          gyro_step: float = 0.0) -> Calibration:
-    """Ferraris calibration of accelerometer (m/s²) and gyroscope (rad/s), seed 002 §4.
+    """Ferraris calibration of accelerometer (m/s²) and gyroscope (rad/s), [Oppong] §4.
 
     Parameters
     ----------
@@ -420,7 +420,7 @@ def ferraris_calibration(t, acc, gyr, regions: FerrarisRegions, *, lat_deg: floa
     gravity : float, optional
         Local gravity [m/s²]; default normal_gravity(lat) or Q (eq. 4) when lat is unknown.
     bias_drift, earth_rate, g_sensitivity, expected_angle_deg, gyro_step
-        The gyro model (:class:`GyroModel`): bias b0 + b1 (t − t_ref) (seed 002 eq. 5) or
+        The gyro model (:class:`GyroModel`): bias b0 + b1 (t − t_ref) ([Oppong] eq. 5) or
         constant; vertical Earth rate removed from the still means (needs ``lat_deg``); gyro
         g-sensitivity K_ga estimated and removed (the gyro's ``g_sensitivity``, applied with
         the calibrated specific force); turned angle of each rotation (imucal: −360;

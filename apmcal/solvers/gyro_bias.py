@@ -1,5 +1,5 @@
 """The gyro's bias during a Ferraris session: a line in time through the holds, and the
-motions integrated against the bias held just before and after each (seed 002 §4.3-4.4).
+motions integrated against the bias held just before and after each ([Oppong] §4.3-4.4).
 
 Integrating each turn against its neighbouring holds, rather than a global b0 + b1·t, removes
 what a global line cannot: the horizontal Earth rate, which changes with every pose, and a
@@ -14,7 +14,7 @@ from apmcal.preprocessing.rotations import Rotation, integrate_slice, sample_int
 
 
 def fit_gyro_bias(ts, ys, fs=None, *, drift: bool = True, t_ref: float = 0.0):
-    """Least squares per axis of ``y = b0 + b1 (t − t_ref) + K_ga f`` (seed 002 eq. 5 + g-sensitivity).
+    """Least squares per axis of ``y = b0 + b1 (t − t_ref) + K_ga f`` ([Oppong] eq. 5 + g-sensitivity).
 
     Returns b0 (3,), b1 (3,), K_ga (3, 3) or None, the one-sigma of b0 and b1 (residual-scaled
     covariance; white-noise assumption, optimistic for correlated noise) and that of K_ga

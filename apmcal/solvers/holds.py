@@ -1,5 +1,5 @@
 """Methods that work on static holds found beforehand: the one-position method on the longest
-level hold (seed 002 §5) and the accelerometer ellipsoid fit of the hold means (seed 000)."""
+level hold ([Oppong] §5) and the accelerometer ellipsoid fit of the hold means ([Niespodziany])."""
 from __future__ import annotations
 
 import numpy as np
@@ -9,8 +9,8 @@ from apmcal.core.errors import ApmcalError
 from apmcal.solvers.report_types import Hold, Holds
 from apmcal.solvers.result import Calibration, SensorCalibration
 
-LEVEL_TOLERANCE_DEG = 10.0  # seed 002 §3.2 levels the platform with a plumb line
-MIN_ELLIPSOID_HOLDS = 7     # 9 parameters; the robust fit's prior carries the rest (seed 000)
+LEVEL_TOLERANCE_DEG = 10.0  # [Oppong] §3.2 levels the platform with a plumb line
+MIN_ELLIPSOID_HOLDS = 7     # 9 parameters; the robust fit's prior carries the rest ([Niespodziany])
 MIN_ORIENTATIONS = 4        # holds ≥ 30° apart: fewer leave the ellipsoid undetermined
 
 
@@ -72,7 +72,7 @@ def one_position_on_holds(t, acc, gyr, segments, lat_deg, lon_deg,
                           board_rotation: np.ndarray | None = None) -> Calibration:
     """Seed 002's one-position method on the longest level hold.
 
-    The paper's platform is level with x north and z down (seed 002 §3.2): that is the vehicle's
+    The paper's platform is level with x north and z down ([Oppong] §3.2): that is the vehicle's
     body frame, so the sensor-frame samples are rotated into it by ``board_rotation``
     (AHRS_ORIENTATION), the recipe runs there, and the result is turned back to the sensor frame
     like every other method's. One pose cannot separate accelerometer bias from tilt (see the
@@ -189,7 +189,7 @@ def distinct_orientations(segments, min_chord: float = 0.5) -> int:
 
 
 def ellipsoid_on_holds(gyr, segments, gravity: float) -> Calibration:
-    """Robust ellipsoid fit (seed 000) of the hold means [m/s²]; gyro offset from held samples.
+    """Robust ellipsoid fit ([Niespodziany]) of the hold means [m/s²]; gyro offset from held samples.
 
     Parameters
     ----------

@@ -1,10 +1,10 @@
 """Which calibration parameters a set of poses can determine, told in plain words.
 
-Measurement model (seed 002 eqs. 1-2, the same for accelerometer, gyroscope, magnetometer)::
+Measurement model ([Oppong] eqs. 1-2, the same for accelerometer, gyroscope, magnetometer)::
 
     y = b + F·u        y: sensor output (3), u: true input (3) in the sensor frame
 
-with parameters b (3) and F (9 full, 6 upper-triangular as seed 002's F/E, 6 symmetric as seed
+with parameters b (3) and F (9 full, 6 upper-triangular as [Oppong]'s F/E, 6 symmetric as seed
 000's W, or 3 diagonal as ArduPilot's INS_ACCSCAL). ``design`` lists the inputs u of the poses
 (specific-force vectors, Earth-rate vectors, field vectors). The Jacobian ∂y/∂θ is linear in θ, so
 its rank, singular values and null space tell exactly what the poses can and cannot separate.
@@ -162,7 +162,7 @@ def identifiability(model: str, design, *, matrix: str = "full", resolution: flo
         True inputs u of the k poses in the sensor frame, in sensor units (a level ArduPilot
         accelerometer: (0, 0, −g) m/s²; a gyro at rest: the Earth rate in rad/s).
     matrix : {"full", "upper", "symmetric", "diagonal"}
-        Parameterisation of F (seed 002 uses "upper", seed 000 "symmetric").
+        Parameterisation of F ([Oppong] uses "upper", [Niespodziany] "symmetric").
     resolution : float, optional
         Smallest output change the data can show (RAW_IMU: 1 mG = 0.00981 m/s², 1 mrad/s).
     plausible : float

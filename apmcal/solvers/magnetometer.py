@@ -1,4 +1,4 @@
-"""Magnetometer calibration: coverage check, field magnitude, robust ellipsoid fit (seed 000)
+"""Magnetometer calibration: coverage check, field magnitude, robust ellipsoid fit ([Niespodziany])
 with its second-order bias removed (:mod:`apmcal.solvers.ellipsoid.debias`)."""
 from __future__ import annotations
 
@@ -77,7 +77,7 @@ def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: floa
         When the samples do not turn through space (:func:`check_coverage`) or the fit fails.
     """
     check_coverage(mag)
-    sphere = sphere_fit(mag)           # seed 000 step 1: the field check and the fit's box
+    sphere = sphere_fit(mag)           # [Niespodziany] step 1: the field check and the fit's box
     if lat_deg is not None and lon_deg is not None:
         date = f"recording date {when}" if when else f"today's date {datetime.date.today()}"
         radius, note = field_magnitude(lat_deg, lon_deg, when)

@@ -1,6 +1,6 @@
 """How far the six-face (Ferraris) accelerometer model misses its own redundant data.
 
-The Ferraris accelerometer model (seed 002 §4.1) says every still hold on face j with sign s
+The Ferraris accelerometer model ([Oppong] §4.1) says every still hold on face j with sign s
 (s = +1 for "x_p", −1 for "x_a", …) reads, on sensor axis i::
 
     m_i = b_i + s · g · (K R)_ij

@@ -1,11 +1,11 @@
-"""Oppong et al.'s one-minute, one-position static calibration (seed 002 §5), reproduced as written.
+"""Oppong et al.'s one-minute, one-position static calibration ([Oppong] §5), reproduced as written.
 
-The platform is level, x pointing north, z down (seed 002 §3.2), so body = NED.
+The platform is level, x pointing north, z down ([Oppong] §3.2), so body = NED.
 
 Sign convention (document of the mapping). The paper writes the accelerometer input as the
 gravity vector ``a_p = (0, 0, g)`` in a z-down frame and fixes the diagonal constants of F at −1
 ("the value 1 ... leads to inversion of the x- and y-inputs to the accelerometer, hence they are
-negated", seed 002 §6.2; its Table 4 shows F ≈ −I). ArduPilot's accelerometer measures specific
+negated", [Oppong] §6.2; its Table 4 shows F ≈ −I). ArduPilot's accelerometer measures specific
 force: level and still it reads (0, 0, −g) (ardupilot-facts.md, "Frames and signs"). We use
 ``a_p = (0, 0, −g)`` (specific force, FRD) with diagonal constants +1: the same equations with
 F_ours = −F_paper, and the calibrated output stays in ArduPilot's convention.
@@ -33,7 +33,7 @@ import numpy as np
 
 from apmcal.core.constants import EARTH_RATE
 from apmcal.core.errors import ApmcalError
-from apmcal.preprocessing.highpass import highpass  # zero-phase Butterworth (seed 002 §5)
+from apmcal.preprocessing.highpass import highpass  # zero-phase Butterworth ([Oppong] §5)
 from apmcal.solvers.report_types import (
     CalibrationReport,
     OnePositionAcc,
@@ -44,7 +44,7 @@ from apmcal.solvers.result import Calibration, SensorCalibration
 
 
 def c_ecef_to_ned(lat_deg: float, lon_deg: float) -> np.ndarray:
-    """Direction-cosine matrix ECEF → NED (seed 002 §5.2, 'C_ecef^ned').
+    """Direction-cosine matrix ECEF → NED ([Oppong] §5.2, 'C_ecef^ned').
 
     Parameters
     ----------
@@ -153,7 +153,7 @@ def gyroscope_one_position(gyr: np.ndarray, fs: float, cutoff_hz: float = 0.5,
         w_p = C @ np.array([0.0, 0.0, EARTH_RATE])         # = Ω(cos φ, 0, −sin φ), any longitude
         if abs(w_p[2]) < 1e-12:
             raise ApmcalError("one-position gyro: at the equator the Earth rate has no vertical "
-                              "component, τ, ξ, ν are undefined (seed 002 §5.2)")
+                              "component, τ, ξ, ν are undefined ([Oppong] §5.2)")
         # E = [[1, 0, τ], [0, 1, ξ], [0, 0, ν]] (σ = 0); ω_s − b = E·ω_p with ω_s = R
         d = R - b
         tau = (d[0] - w_p[0]) / w_p[2]
@@ -169,7 +169,7 @@ def gyroscope_one_position(gyr: np.ndarray, fs: float, cutoff_hz: float = 0.5,
 def one_position_calibration(t, acc, gyr, *, lat_deg: float | None = None,
                              lon_deg: float | None = None, cutoff_hz: float = 0.5,
                              fs: float | None = None) -> Calibration:
-    """The one-minute static calibration of seed 002 §5 → Calibration (method "static").
+    """The one-minute static calibration of [Oppong] §5 → Calibration (method "static").
 
     Parameters
     ----------
@@ -179,9 +179,9 @@ def one_position_calibration(t, acc, gyr, *, lat_deg: float | None = None,
     gyr : (n, 3) array [rad/s]
         Same samples, x pointing north.
     lat_deg, lon_deg : float, optional
-        Position (seed 002 uses GPS); only latitude matters for the Earth-rate vector.
+        Position ([Oppong] uses GPS); only latitude matters for the Earth-rate vector.
     cutoff_hz : float
-        High-pass cut-off (seed 002: 0.5 Hz, from Lötters et al.).
+        High-pass cut-off ([Oppong]: 0.5 Hz, from Lötters et al.).
     fs : float, optional
         Sample rate [Hz]; from ``t`` when omitted.
 
@@ -207,7 +207,7 @@ def one_position_calibration(t, acc, gyr, *, lat_deg: float | None = None,
     fs = _sample_rate(t) if fs is None else float(fs)
     if len(t) <= 3 * fs / cutoff_hz:      # highpass pads three cut-off periods
         raise ApmcalError(f"one-position method: {len(t)} samples at {fs:.3g} Hz is too short for "
-                          f"a {cutoff_hz} Hz high-pass (seed 002 records about a minute)")
+                          f"a {cutoff_hz} Hz high-pass ([Oppong] records about a minute)")
     acc_cal, a = accelerometer_one_position(acc, fs, cutoff_hz)
     gyr_cal, w = gyroscope_one_position(gyr, fs, cutoff_hz, lat_deg, lon_deg)
     fit = OnePositionFit(acc=a, gyr=w, fs_hz=fs, duration_s=float(t[-1] - t[0]),

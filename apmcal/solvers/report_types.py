@@ -46,14 +46,14 @@ class Turn:
 
 @dataclass
 class SixFaceFit:
-    """The Ferraris accelerometer stage (seed 002 §4.1-4.2).
+    """The Ferraris accelerometer stage ([Oppong] §4.1-4.2).
 
     Attributes
     ----------
     u_plus, u_minus : (3, 3) array, m/s²
         Hold means of x_p, y_p, z_p / x_a, y_a, z_a as columns.
     q : float
-        Mean column norm of U+ [m/s²] (seed 002 eq. 4).
+        Mean column norm of U+ [m/s²] ([Oppong] eq. 4).
     gravity : float
         The g the scale was fitted to [m/s²]; gravity_source says where it came from.
     gravity_source : str
@@ -75,7 +75,7 @@ class SixFaceFit:
 
 @dataclass
 class GyroTurns:
-    """The Ferraris gyro stage (seed 002 §4.3-4.4).
+    """The Ferraris gyro stage ([Oppong] §4.3-4.4).
 
     Attributes
     ----------
@@ -152,7 +152,7 @@ class Debias:
 
 @dataclass
 class EllipsoidFit:
-    """Quality of one sensor's ellipsoid fit (seed 000 and its robust successor).
+    """Quality of one sensor's ellipsoid fit ([Niespodziany] and its robust successor).
 
     Attributes
     ----------
@@ -279,7 +279,7 @@ class OnePositionGyr:
 
 @dataclass
 class OnePositionFit:
-    """The one-position method (seed 002 §5): its two parts, sample rate [Hz], duration [s],
+    """The one-position method ([Oppong] §5): its two parts, sample rate [Hz], duration [s],
     high-pass cut-off [Hz] and the latitude [deg] used (None: unknown)."""
 
     acc: OnePositionAcc

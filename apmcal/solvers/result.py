@@ -6,9 +6,9 @@ Convention (the same for every sensor, every solver, the CLI's JSON and sitl's -
 
 in SI units after conversion (accelerometer m/s², gyroscope rad/s, magnetometer mGauss), in the
 frame of the measured samples. ``drift`` is only non-zero for a gyroscope with a bias linear in
-time (seed 002 eq. 5); ``g_sensitivity`` [rad/s per m/s²] only for a gyroscope whose
+time ([Oppong] eq. 5); ``g_sensitivity`` [rad/s per m/s²] only for a gyroscope whose
 sensitivity to the specific force f (the CALIBRATED accelerometer, m/s²) was estimated
-(seed 002's K_ga, seed 001's G_ω).
+([Oppong]'s K_ga, [Chow]'s G_ω).
 
 The JSON file (:meth:`Calibration.save`) carries ``"schema": "apmcal.calibration/2"`` and a
 ``"units"`` block; :meth:`Calibration.load` also reads the schema-less files of version 1.

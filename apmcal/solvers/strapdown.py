@@ -1,4 +1,4 @@
-"""Strap-down integration of a gyro over many windows at once (seed 001 eq. 8 and 11).
+"""Strap-down integration of a gyro over many windows at once ([Chow] eq. 8 and 11).
 
 Rotations as 3×3 matrices: the rate over step k is the midpoint of samples k and k+1, the step
 rotation Exp(ω·Δt) (Rodrigues), and the rotation of a window the product of its steps,
@@ -88,7 +88,7 @@ def product(e: np.ndarray) -> np.ndarray:
 
 
 def integrate(step_rot: np.ndarray, idx: np.ndarray, force: np.ndarray | None = None):
-    """Strap-down integration (seed 001 eq. 8 and 11) over index rows ``idx`` (W, K+1).
+    """Strap-down integration ([Chow] eq. 8 and 11) over index rows ``idx`` (W, K+1).
 
     ``step_rot`` (n+1, 3, 3) holds Exp(ω_k·Δt_k) of every sample and the identity last;
     rows are padded with that last index (n). Returns dR (W, 3, 3) from the frame at

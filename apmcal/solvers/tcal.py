@@ -1,6 +1,6 @@
 """ArduPilot's temperature polynomial fitted by weighted least squares, with uncertainties.
 
-Model (issue 11; ArduPilot AP_InertialSensor_tempcal.cpp ``polynomial_eval``: a 3rd-order
+Model (ArduPilot AP_InertialSensor_tempcal.cpp ``polynomial_eval``: a 3rd-order
 polynomial without constant term in d = T − 35 °C, coefficients stored × 1e6; its learner fits
 the same cubic plus a constant, ``Learn::add_sample`` / ``save_calibration``), per axis::
 

@@ -26,7 +26,7 @@ from apmcal.core.constants import STANDARD_GRAVITY
 from apmcal.core.errors import ApmcalError
 from apmcal.core.recording import SENSOR_COLUMNS, LogContents, Recording
 
-# The Earth's field is 150..1000 mGauss at the surface (issue 9; ArduPilot's compass calibrator
+# The Earth's field is 150..1000 mGauss at the surface (ArduPilot's compass calibrator
 # accepts radii 150..950, ardupilot-facts.md "ArduPilot's own calibrators"). An uncalibrated
 # compass adds its hard iron: offsets up to COMPASS_OFFS_MAX (default 1800 mGauss on newer
 # firmware, ardupilot-facts.md) are still calibratable, so 1000 + 1800 ≈ 3000 mGauss is the top;
@@ -38,7 +38,7 @@ EARTH_FIELD_MGAUSS = (150.0, 1000.0)
 PLAUSIBLE_ACC_M_S2 = (0.5 * STANDARD_GRAVITY, 2.0 * STANDARD_GRAVITY)
 # Still, a gyro reads its bias plus the Earth rate: an MPU-6000's zero-rate offset is at most
 # ±20 °/s (0.35 rad/s, datasheet), yet a real PXF board logged 0.56 rad/s at rest
-# (../shared/data/ardupilot/pxf_copter_static_51.BIN). The stillest tenth of the samples must
+# (the real log pxf_copter_static_51.BIN of the test data). The stillest tenth of the samples must
 # stay below 5 rad/s: mrad/s read as rad/s gives 1000 times the bias, tens of rad/s and more.
 PLAUSIBLE_STILL_GYRO_RAD_S = 5.0
 STILLEST_FRACTION_PERCENT = 10.0

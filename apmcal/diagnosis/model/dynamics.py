@@ -1,13 +1,13 @@
 """The moves between holds: the accelerometer and compass predicted from the gyro.
 
 During a move the gyro is the only sensor that measures the turn, so the model predicts the
-other two from it (the consistency seed 001 builds its joint calibration on): starting from the
+other two from it (the consistency [Chow] builds its joint calibration on): starting from the
 hold before, the calibrated rate ω = F_g⁻¹(measured − bias) is integrated into the attitude
 change R(t), and the hold's own specific force f_k and field b_k are carried along::
 
     acc(t) = F_a·R(t − τ)ᵀ f_k + offset + …        mag(t) = S·R(t)ᵀ b_k + offset + …
 
-F_g is sitl's gyro forward matrix (diag(scale)·T_g⁻¹, seed 002 §2.2: ``gyro_scale``), τ the
+F_g is sitl's gyro forward matrix (diag(scale)·T_g⁻¹, [Oppong] §2.2: ``gyro_scale``), τ the
 accelerometer's delay behind the gyro (``time_offset``). Their residuals are scored like the
 holds', and the ``gyro_scale``, ``time_offset`` and ``cross_axis`` parameters are fitted to them.
 """
@@ -27,7 +27,7 @@ FIT_RATE_HZ = 50.0      # the dynamic fits integrate the moves in steps of about
 
 
 def gyro_forward(scale, gamma) -> np.ndarray:
-    """sitl's F_g = diag(scale)·T_g⁻¹ with seed 002's six misalignment angles γ (yz, zy, zx,
+    """sitl's F_g = diag(scale)·T_g⁻¹ with [Oppong]'s six misalignment angles γ (yz, zy, zx,
     xz, xy, yx) [rad] (:meth:`apmcal.sensor_model.truth.Truth.gyro_forward`).
 
     Parameters

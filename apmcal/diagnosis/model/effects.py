@@ -28,7 +28,7 @@ class Effect:
 CATALOGUE = (
     Effect("temperature_drift", ("acc", "gyr"),
            "bias changing linearly with the board temperature", ("temperature",)),
-    Effect("bias_drift", ("gyr",), "gyro bias drifting linearly in time (seed 002 eq. 5)",
+    Effect("bias_drift", ("gyr",), "gyro bias drifting linearly in time ([Oppong] eq. 5)",
            ("duration",)),
     Effect("triangle_drift", ("gyr",),
            "ArduPilot SITL's triangle-wave gyro drift (SIM_DRIFT_SPEED, SIM_DRIFT_TIME)",
@@ -39,7 +39,7 @@ CATALOGUE = (
            ("orientations",)),
     Effect("earth_rate", ("gyr",), "the Earth's rotation seen by the gyro in each pose",
            ("orientations",)),
-    Effect("cross_axis", ("acc",), "accelerometer axes not orthogonal (seed 002 §2.1)",
+    Effect("cross_axis", ("acc",), "accelerometer axes not orthogonal ([Oppong] §2.1)",
            ("geometry",)),
     Effect("scale_nonlinearity", ("acc",), "accelerometer scale changing with the reading",
            ("geometry",)),

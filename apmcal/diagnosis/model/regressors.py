@@ -7,7 +7,7 @@ coefficient per sensor axis (``X·θ``, θ of shape (k, 3)):
 effect              sensors  column                               coefficient unit
 =================== ======== ==================================== ============================
 temperature_drift   acc, gyr T − T_ref [K]                        sensor unit per K
-bias_drift          gyr      t − t_ref [s] (seed 002 eq. 5)       rad/s per s
+bias_drift          gyr      t − t_ref [s] ([Oppong] eq. 5)       rad/s per s
 mag_interference    mag      I − I_ref [A] (battery current)      mGauss per A
 =================== ======== ==================================== ============================
 

@@ -5,7 +5,7 @@ Accelerometer and magnetometer, block means ȳ_j of hold group k (one orientatio
     ȳ_j = F·(r·u_k) + k2 ⊙ (F·r·u_k)² + b + X_j·θ + e_j
 
 with ``r`` the field magnitude (gravity [m/s²] or the Earth field [mGauss]), ``F`` the forward
-matrix of sitl's model (:meth:`apmcal.sensor_model.truth.Truth.acc_forward`: diag(scale)·T_a⁻¹ with seed 002's
+matrix of sitl's model (:meth:`apmcal.sensor_model.truth.Truth.acc_forward`: diag(scale)·T_a⁻¹ with [Oppong]'s
 non-orthogonality T_a when ``cross_axis`` is fitted; a symmetric soft-iron matrix for the
 magnetometer), ``b`` the offset, ``k2`` the quadratic scale term and ``X_j`` the slow regressors
 (temperature, time, current) of :mod:`apmcal.diagnosis.model.regressors`. The orientation of each group
@@ -31,7 +31,7 @@ from apmcal.solvers.uncertainty import covariance_from_jacobian
 
 MIN_ORIENTATIONS = 6        # distinct group directions for an offset + scale geometry
 MIN_CHORD = 0.5             # two directions are distinct when their unit vectors are this apart
-# prior one-sigma of the effect terms (MAP fit): wide against real sensors (seed 002 reports
+# prior one-sigma of the effect terms (MAP fit): wide against real sensors ([Oppong] reports
 # non-orthogonality of a few mrad; k2 = 1e-3 /(m/s²) is 0.1 m/s² at 1 g, five times sitl's
 # default), so they only hold still the combinations six axis-aligned faces cannot see
 PRIOR_SIGMA = {"alpha": 0.05, "k2": 1e-3}

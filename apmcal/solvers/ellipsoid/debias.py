@@ -1,7 +1,7 @@
 """The geometric ellipsoid fit's second-order bias, estimated and removed.
 
 Why: every sample carries noise and its own unknown direction (a nuisance parameter per sample,
-the Neyman-Scott setting), so the geometric fit of seed 000 is biased by a term of order σ²/r
+the Neyman-Scott setting), so the geometric fit of [Niespodziany] is biased by a term of order σ²/r
 that does not shrink with more samples, while the spread does (~1/√n). On a full sphere the
 terms nearly cancel; on partial coverage they do not: on a half sphere the bias of the offset
 along the missing direction and of the diagonal is about half the Cramér-Rao bound at 200

@@ -1,4 +1,4 @@
-"""Ellipsoid calibration (seed 000, Niespodziany) and its robust successor: one entry point.
+"""Ellipsoid calibration ([Niespodziany], Niespodziany) and its robust successor: one entry point.
 
 The estimators live in :mod:`apmcal.solvers.ellipsoid.paper` (the paper's analytical and
 numerical fits, gyro offset, relative MSE) and :mod:`apmcal.solvers.ellipsoid.robust` (robust
@@ -39,16 +39,16 @@ def ellipsoid_calibration(samples: dict, radius: dict, *, method: str = "robust"
     ----------
     samples : dict
         sensor name ("acc", "mag") → (n, 3) samples; "gyr" → (n, 3) samples at rest (offset only,
-        seed 000 §VIII).
+        [Niespodziany] §VIII).
     radius : dict
         sensor name → field magnitude in the samples' units (acc: local g [m/s²]; mag: WMM total
         intensity [mGauss]). Not needed for "gyr".
     method : {"robust", "analytical", "numerical"}
     diagonal_only : dict, optional
-        sensor → bool, for the paper's fits (seed 000 §VII.A); the robust fit decides itself.
+        sensor → bool, for the paper's fits ([Niespodziany] §VII.A); the robust fit decides itself.
     holdout : float
         Fraction (0..0.5) of samples, taken at random, kept out of the fit to score the paper's
-        relative MSE raw vs calibrated (seed 000 §VI.B). 0 scores on the fitting samples.
+        relative MSE raw vs calibrated ([Niespodziany] §VI.B). 0 scores on the fitting samples.
     rng : int or numpy.random.Generator, optional
         Seed or generator of the hold-out draw.
 

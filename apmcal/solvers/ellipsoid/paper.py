@@ -1,6 +1,6 @@
-"""Niespodziany's static ellipsoid calibration (seed 000), exactly as the paper gives it.
+"""Niespodziany's static ellipsoid calibration ([Niespodziany]), exactly as the paper gives it.
 
-Model (seed 000 eq. 1): ``S_p = W·S + V0`` with symmetric ``W``; inverse (eq. 4)
+Model ([Niespodziany] eq. 1): ``S_p = W·S + V0`` with symmetric ``W``; inverse (eq. 4)
 ``S = W⁻¹·(S_p − V0)``. In apmcal's convention (apmcal/solvers/result.py)
 ``calibrated = matrix @ (measured − offset)``, so ``offset = V0`` and ``matrix = W⁻¹``.
 
@@ -8,8 +8,8 @@ Model (seed 000 eq. 1): ``S_p = W·S + V0`` with symmetric ``W``; inverse (eq. 4
   LS for the symmetric quadratic form on the centred samples, then a matrix square root.
 * :func:`fit_ellipsoid_numerical` — Fig. 3-4: quasi-Newton minimisation of the RMS of
   ``|W⁻¹(S_p − V0)| − S`` started from the analytical V0 and W⁻¹ = I.
-* ``diagonal_only`` — seed 000 §VII.A: with few accelerometer orientations w4, w5, w6 are nulled.
-* :func:`gyro_offset` — seed 000 §VIII: the gyroscope gets an offset only (mean at rest).
+* ``diagonal_only`` — [Niespodziany] §VII.A: with few accelerometer orientations w4, w5, w6 are nulled.
+* :func:`gyro_offset` — [Niespodziany] §VIII: the gyroscope gets an offset only (mean at rest).
 * :func:`relative_mse` — the paper's figure of merit on a held-out set.
 """
 from __future__ import annotations
@@ -19,7 +19,7 @@ import numpy as np
 from apmcal.core.errors import ApmcalError
 from apmcal.solvers.result import SensorCalibration
 
-# Parameter → matrix entries, paper order (seed 000 eq. 7 / Fig. 3): w1, w2, w3 on the diagonal,
+# Parameter → matrix entries, paper order ([Niespodziany] eq. 7 / Fig. 3): w1, w2, w3 on the diagonal,
 # w4 = (x,y), w5 = (x,z), w6 = (y,z), each mirrored (W⁻¹ symmetric).
 SYMMETRIC_ENTRIES = [((0, 0),), ((1, 1),), ((2, 2),),
                      ((0, 1), (1, 0)), ((0, 2), (2, 0)), ((1, 2), (2, 1))]
@@ -184,17 +184,17 @@ def sphere_fit(samples: np.ndarray) -> tuple[np.ndarray, float]:
     s = check_samples(samples, 4)
     X = np.column_stack([s, np.ones(len(s))])
     y = np.sum(s ** 2, axis=1)
-    beta = _lstsq_full_rank(X, y, "sphere fit (seed 000 Fig. 2 step 1)")
+    beta = _lstsq_full_rank(X, y, "sphere fit ([Niespodziany] Fig. 2 step 1)")
     V0 = beta[:3] / 2.0
     S2 = beta[3] + V0 @ V0
     if S2 <= 0:
-        raise ApmcalError("sphere fit (seed 000 Fig. 2 step 1): negative squared radius")
+        raise ApmcalError("sphere fit ([Niespodziany] Fig. 2 step 1): negative squared radius")
     return V0, float(np.sqrt(S2))
 
 
 def fit_ellipsoid_analytical(samples, radius: float | None = None, *, diagonal_only: bool = False,
                              info: dict | None = None) -> SensorCalibration:
-    """Two-step analytical LS ellipsoid fit (seed 000 §V.A, Fig. 2).
+    """Two-step analytical LS ellipsoid fit ([Niespodziany] §V.A, Fig. 2).
 
     Parameters
     ----------
@@ -204,7 +204,7 @@ def fit_ellipsoid_analytical(samples, radius: float | None = None, *, diagonal_o
         Known field magnitude in the same units (|g| or the WMM field). ``None`` uses the paper's
         own step-1 estimate S, as Fig. 2 does; a given radius replaces S² in step 2.
     diagonal_only : bool
-        Null w4, w5, w6 (seed 000 §VII.A: accelerometer with few orientations).
+        Null w4, w5, w6 ([Niespodziany] §VII.A: accelerometer with few orientations).
     info : dict, optional
         Filled with ``S`` (step-1 radius) and ``radius_used``.
 
@@ -218,7 +218,7 @@ def fit_ellipsoid_analytical(samples, radius: float | None = None, *, diagonal_o
     ApmcalError
         On too few samples, a rank-deficient design or a quadric that is not an ellipsoid.
     """
-    s = check_samples(samples, 6 if diagonal_only else 10)     # seed 000 §V: ≥ 10 for 10 unknowns
+    s = check_samples(samples, 6 if diagonal_only else 10)     # [Niespodziany] §V: ≥ 10 for 10 unknowns
     V0, S = sphere_fit(s)                       # step 1, W⁻¹ = I
     c = s - V0                                  # "hard-iron calibration application"
     R = S if radius is None else float(radius)
@@ -226,22 +226,22 @@ def fit_ellipsoid_analytical(samples, radius: float | None = None, *, diagonal_o
     cols = [c ** 2] if diagonal_only else [c ** 2, c[:, [0]] * c[:, [1]], c[:, [0]] * c[:, [2]],
                                            c[:, [1]] * c[:, [2]]]
     X = np.hstack(cols)
-    beta = _lstsq_full_rank(X, np.full(len(c), R ** 2), "seed 000 Fig. 2 step 2")
+    beta = _lstsq_full_rank(X, np.full(len(c), R ** 2), "[Niespodziany] Fig. 2 step 2")
     if diagonal_only:
         A = np.diag(beta)
     else:
         A = np.array([[beta[0], beta[3] / 2, beta[4] / 2],
                       [beta[3] / 2, beta[1], beta[5] / 2],
                       [beta[4] / 2, beta[5] / 2, beta[2]]])
-    W_inv = _sqrtm_spd(A, "seed 000 Fig. 2 step 2")   # W⁻² = A  →  W⁻¹ = A^(1/2)
+    W_inv = _sqrtm_spd(A, "[Niespodziany] Fig. 2 step 2")   # W⁻² = A  →  W⁻¹ = A^(1/2)
     if info is not None:
-        info.update({"S": S, "radius_used": R, "method": "analytical (seed 000 Fig. 2)"})
+        info.update({"S": S, "radius_used": R, "method": "analytical ([Niespodziany] Fig. 2)"})
     return SensorCalibration(offset=V0, matrix=W_inv)
 
 
 def fit_ellipsoid_numerical(samples, radius: float | None = None, *, diagonal_only: bool = False,
                             x0=None, info: dict | None = None) -> SensorCalibration:
-    """Quasi-Newton fit of V0 and symmetric W⁻¹ (seed 000 §V.B, Fig. 3-4).
+    """Quasi-Newton fit of V0 and symmetric W⁻¹ ([Niespodziany] §V.B, Fig. 3-4).
 
     Minimises the performance function of Fig. 4, ``sqrt(mean((|W⁻¹(S_p − V0)| − S)²))``, with
     BFGS (MATLAB fminunc 'quasi-newton'), from the paper's start ``[V0_analytical; 1;1;1; 0;0;0]``.
@@ -272,7 +272,7 @@ def fit_ellipsoid_numerical(samples, radius: float | None = None, *, diagonal_on
     """
     from scipy.optimize import minimize  # here: scipy.optimize costs ~0.2 s to import
 
-    s = check_samples(samples, 6 if diagonal_only else 10)     # seed 000 §V: ≥ 10 for 10 unknowns
+    s = check_samples(samples, 6 if diagonal_only else 10)     # [Niespodziany] §V: ≥ 10 for 10 unknowns
     V0a, S = sphere_fit(s)
     R = S if radius is None else float(radius)
     entries = DIAGONAL_ENTRIES if diagonal_only else SYMMETRIC_ENTRIES
@@ -283,7 +283,7 @@ def fit_ellipsoid_numerical(samples, radius: float | None = None, *, diagonal_on
     sn = s / R
 
     def perf(x):
-        """Square of seed 000 Fig. 4's RMS, in units of S: same minimiser, but smooth at an exact
+        """Square of [Niespodziany] Fig. 4's RMS, in units of S: same minimiser, but smooth at an exact
         fit (the RMS has a |·|-like kink at zero where BFGS's line search stalls)."""
         r, J = geometric_residual(x, sn, 1.0, entries, jac=True)
         return np.mean(r * r), 2.0 * (r @ J) / len(r)
@@ -295,12 +295,12 @@ def fit_ellipsoid_numerical(samples, radius: float | None = None, *, diagonal_on
     if info is not None:
         info.update({"S": S, "radius_used": R, "rms": float(np.sqrt(res.fun)) * R,
                      "success": res.success,
-                     "iterations": int(res.nit), "method": "numerical (seed 000 Fig. 3-4)"})
+                     "iterations": int(res.nit), "method": "numerical ([Niespodziany] Fig. 3-4)"})
     return SensorCalibration(offset=x[:3] * R, matrix=W_inv)
 
 
 def gyro_offset(samples, *, n_batches: int = 10) -> SensorCalibration:
-    """Gyroscope offset = mean of samples at rest (seed 000 §VIII), matrix = I.
+    """Gyroscope offset = mean of samples at rest ([Niespodziany] §VIII), matrix = I.
 
     sigma["offset"] uses batch means (``n_batches`` consecutive blocks) because low-pass filtered
     sensor noise is correlated: std(batch means)/sqrt(n_batches), not std/sqrt(n).
@@ -330,7 +330,7 @@ def gyro_offset(samples, *, n_batches: int = 10) -> SensorCalibration:
 
 
 def relative_mse(samples_test, cal: SensorCalibration | None, radius: float) -> float:
-    """Relative mean squared magnitude error on a (held-out) test set (seed 000 §VI.B, §VII.B).
+    """Relative mean squared magnitude error on a (held-out) test set ([Niespodziany] §VI.B, §VII.B).
 
     ``mean((|cal(s)| − S)²) / S²`` (dimensionless); ``cal=None`` scores the raw samples.
     The paper names the figure ("magnitude relative mean squared error") without a formula;

@@ -1,14 +1,14 @@
 """Robust geometric ellipsoid fit with uncertainty and the numbers it is judged by.
 
-Improves on seed 000's two estimators in three ways:
+Improves on [Niespodziany]'s two estimators in three ways:
 
 1. start: the general algebraic quadric LS fit (10 coefficients, as in Li & Griffiths 2004 but
-   without their ellipsoid constraint; rejected when not an ellipsoid), or seed 000's sphere fit
+   without their ellipsoid constraint; rejected when not an ellipsoid), or [Niespodziany]'s sphere fit
    when the directions cover the sphere poorly;
 2. fit: bounded least squares (``least_squares``' cost, minimised on 9×9 normal equations by
    :mod:`apmcal.solvers.ellipsoid.lm`) on the *geometric* residual ``|M(s − o)| − r`` with a
    Huber loss (outliers, motion during "static" holds), then plain LS on the samples within 4
-   robust sigmas (full Gaussian efficiency, no pull from gross outliers) — seed 000 minimises the
+   robust sigmas (full Gaussian efficiency, no pull from gross outliers) — [Niespodziany] minimises the
    same residual but on all samples unweighted (Fig. 4) or an algebraic one (Fig. 2); bounds
    and a weak prior toward the sphere keep it out of the degenerate valley (see :func:`_solve`);
 3. honesty: when the directions do not span the sphere (few poses, one plane) the off-diagonal
@@ -16,7 +16,7 @@ Improves on seed 000's two estimators in three ways:
    σ²(JᵀWJ)⁻¹ at the solution gives one-sigma figures (apmcal/solvers/uncertainty.py).
 
 Convention: ``calibrated = M @ (measured − o)`` (apmcal/solvers/result.py), ``offset = o``,
-``matrix = M`` (= seed 000's W⁻¹ for the symmetric parameterisation).
+``matrix = M`` (= [Niespodziany]'s W⁻¹ for the symmetric parameterisation).
 """
 from __future__ import annotations
 
@@ -83,7 +83,7 @@ def algebraic_ellipsoid(samples) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def _start(s: np.ndarray, radius: float, use_quadric: bool) -> tuple[np.ndarray, np.ndarray, str]:
-    """Start (offset, M) from the quadric fit, else seed 000's sphere fit (M = r/S · I)."""
+    """Start (offset, M) from the quadric fit, else [Niespodziany]'s sphere fit (M = r/S · I)."""
     if use_quadric:
         q = algebraic_ellipsoid(s)
         if q is not None:
@@ -91,7 +91,7 @@ def _start(s: np.ndarray, radius: float, use_quadric: bool) -> tuple[np.ndarray,
             lam, V = np.linalg.eigh(A)
             return o, radius * (V * np.sqrt(lam)) @ V.T, "algebraic quadric"
     o, S = sphere_fit(s)
-    return o, np.eye(3) * radius / S, "sphere (seed 000 step 1)"
+    return o, np.eye(3) * radius / S, "sphere ([Niespodziany] step 1)"
 
 
 def _solve(s, radius, o0, M0, entries, loss, f_scale, w, bounds, prior=None,
@@ -190,7 +190,7 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
     weights : (n,) array, optional
         Per-sample weights (e.g. to balance sample density over the sphere).
     parameterisation : {"symmetric", "upper", "diagonal"}
-        M symmetric (seed 000), upper-triangular (seed 002 F) or diagonal (ArduPilot INS_ACCSCAL).
+        M symmetric ([Niespodziany]), upper-triangular ([Oppong] F) or diagonal (ArduPilot INS_ACCSCAL).
         A full M is reduced to "diagonal" when the directions do not span the sphere or the
         Jacobian is ill-conditioned; ``info["notes"]`` says so.
     prior_sigma : float or None

@@ -1,4 +1,4 @@
-"""The misclosures' covariance B·C_l·Bᵀ (seed 001 eq. 14-15) and the whitening it gives.
+"""The misclosures' covariance B·C_l·Bᵀ ([Chow] eq. 14-15) and the whitening it gives.
 
 Sources of noise, each white with the per-sample σ measured on the still blocks:
 

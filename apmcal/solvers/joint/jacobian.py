@@ -1,4 +1,4 @@
-"""First design matrix A = ∂f/∂X of seed 001's conditions (eq. 15), by hand.
+"""First design matrix A = ∂f/∂X of [Chow]'s conditions (eq. 15), by hand.
 
 Why by hand: a finite-difference Jacobian re-integrates the gyro of every window once per
 parameter (42 times per iteration); here the integration is done once and differentiated.

@@ -1,4 +1,4 @@
-"""The 42-parameter sensor model of seed 001 §3.1: parameter vector ↔ matrices, corrections.
+"""The 42-parameter sensor model of [Chow] §3.1: parameter vector ↔ matrices, corrections.
 
 Seed 001 (Chow, Hol, Luinge), §3.1. Upper-case letters are 3×3 matrices, S diagonal scale, N
 lower-triangular non-orthogonality (unit diagonal), R a rotation:
@@ -9,7 +9,7 @@ lower-triangular non-orthogonality (unit diagonal), R a rotation:
 
 Frames: a, ω and m are in the ACCELEROMETER frame (x along the accelerometer's x axis, y in
 its xy plane: that is what a lower-triangular N_a means); R_ω is the gyro triad's misalignment
-to it, and D_m holds the magnetometer's misalignment as well as its soft iron (seed 001 note
+to it, and D_m holds the magnetometer's misalignment as well as its soft iron ([Chow] note
 under eq. 3). The g-sensitivity acts on the true specific force a.
 
 Parameter vector (:data:`NAMES`, 42 entries): b_a, s_a (S_a = diag(1 + s_a)), n_a (the three
@@ -33,7 +33,7 @@ NAMES = ([f"acc_bias_{a}" for a in _AX] + [f"acc_scale_{a}" for a in _AX]
          + [f"mag_soft_{r}{c}" for r in _AX for c in _AX] + [f"mag_hard_{a}" for a in _AX])
 UNITS = (["m/s²"] * 3 + ["1"] * 6 + ["rad/s"] * 3 + ["1"] * 6 + ["rad/s per m/s²"] * 9
          + ["rad"] * 3 + ["1"] * 9 + ["mGauss"] * 3)
-N_PARAMS = len(NAMES)                   # 42, seed 001 §3
+N_PARAMS = len(NAMES)                   # 42, [Chow] §3
 SLICES = {"b_a": slice(0, 3), "s_a": slice(3, 6), "n_a": slice(6, 9), "b_w": slice(9, 12),
           "s_w": slice(12, 15), "n_w": slice(15, 18), "G_w": slice(18, 27),
           "r_w": slice(27, 30), "D_m": slice(30, 39), "o_m": slice(39, 42)}

@@ -1,11 +1,11 @@
-"""The implicit conditions f(X, Y) = 0 of seed 001 §3.2, evaluated for a parameter vector.
+"""The implicit conditions f(X, Y) = 0 of [Chow] §3.2, evaluated for a parameter vector.
 
 Each family is one of the paper's updates, written (as the paper does) without navigation
 states: the states are marginalised by integrating the gyro between the samples a condition
-compares, so the unknowns are the 42 calibration parameters only (seed 001 §3.3).
+compares, so the unknowns are the 42 calibration parameters only ([Chow] §3.3).
 
 =========  ======================================================  ==============================
-family     condition (sensor frame, calibrated quantities)          seed 001
+family     condition (sensor frame, calibrated quantities)          [Chow]
 =========  ======================================================  ==============================
 acc_norm   |ā| − g = 0 on each still block                          eq. 5 (static norm = g)
 zaru       ω̄ = 0 on each still block                                eq. 6 (zero-rotation update)
@@ -19,7 +19,7 @@ mag_datum  mean |m| − F = 0                                          (datum, s
 perpendicular to pose j's: the levelling compares inclinations only (two angles [rad]); the
 length of ā is the static norm's business — with it too, one combination of the three
 conditions would carry no noise at all (rotation keeps lengths) and make B·C_l·Bᵀ singular.
-Equation numbers are those the text of seed 001 refers to (the equations themselves are
+Equation numbers are those the text of [Chow] refers to (the equations themselves are
 missing from the text we have): 1-3 sensor models, 4 mechanisation, 5 static norm, 6 ZARU,
 7-8 compass + gyro, 9 levelling, 10-11 ZUPT, 12-13 CUPT, 14-15 the adjustment. (§5.2 calls
 the compass + gyro pair "(6) and (7)"; its §3.2.3 text, "(7)" and "(8)", is followed here.)
@@ -34,7 +34,7 @@ the soft iron, so holding B·C_l·Bᵀ fixed within a Gauss-Newton pass does not
 towards a smaller D_m⁻¹ (over 0.1 s windows the misclosure is mostly noise, and in calibrated
 units shrinking D_m⁻¹ shrinks that noise: in sitl the hard iron came out 6σ off).
 The magnetometer updates only relate fields at different times, so they leave the overall
-scale of D_m free (seed 001 §2: "the magnitude can arbitrarily be constrained"): ``mag_datum``
+scale of D_m free ([Chow] §2: "the magnitude can arbitrarily be constrained"): ``mag_datum``
 fixes it to the field magnitude F given (World Magnetic Model, else the samples' sphere fit).
 
 Simplifications, and why: (1) the still-pose conditions use block means (~1 s) instead of
@@ -60,7 +60,7 @@ from apmcal.solvers.joint.model import correct_acc, correct_gyr, correct_mag, ma
 from apmcal.solvers.strapdown import integrate, midpoint, so3_exp
 
 BLOCK_S = 1.0                  # still conditions on means of blocks this long [s]
-MAG_WINDOWS_S = (0.1, 1.0, 5.0)   # magnetometer window lengths [s] (seed 001 §3.2.3)
+MAG_WINDOWS_S = (0.1, 1.0, 5.0)   # magnetometer window lengths [s] ([Chow] §3.2.3)
 GAP_FACTOR = 5.0               # a step > GAP_FACTOR × median interval is a logging gap
 DIM = {"acc_norm": 1, "zaru": 3, "level": 2, "zupt": 3, "mag": 3, "mag_datum": 1}
 

@@ -1,8 +1,8 @@
-"""Tightly-coupled joint self-calibration of accelerometer, gyroscope and magnetometer (seed 001).
+"""Tightly-coupled joint self-calibration of accelerometer, gyroscope and magnetometer ([Chow]).
 
-The 42 parameters of seed 001 §3.1 (:mod:`apmcal.solvers.joint.model`) from one session of
+The 42 parameters of [Chow] §3.1 (:mod:`apmcal.solvers.joint.model`) from one session of
 still poses with hand-held turns between them, by the implicit (Gauss-Helmert) least squares
-of seed 001 §3.3 on the conditions of §3.2 (:mod:`apmcal.solvers.joint.residuals`):
+of [Chow] §3.3 on the conditions of §3.2 (:mod:`apmcal.solvers.joint.residuals`):
 
 * eq. 14-15: minimise vᵀ·C_l⁻¹·v subject to f(X, Y + v) = 0. Linearised, A·δX + B·v + w = 0,
   whose solution is the weighted least squares of the misclosures w with weight (B·C_l·Bᵀ)⁻¹.
@@ -21,7 +21,7 @@ of seed 001 §3.3 on the conditions of §3.2 (:mod:`apmcal.solvers.joint.residua
 
 Simplified against the paper, and why: see :mod:`apmcal.solvers.joint.residuals` (block means,
 closed-form condition covariance, CUPT left out). The Earth rate is not modelled (the paper
-conditions the still gyro to zero, eq. 6): it stays in the gyro bias, as in seed 001.
+conditions the still gyro to zero, eq. 6): it stays in the gyro bias, as in [Chow].
 """
 from __future__ import annotations
 
@@ -39,7 +39,7 @@ from apmcal.solvers.result import Calibration
 
 HUBER_K = 1.345          # 95 % Gaussian efficiency
 TUKEY_C = 4.685          # 95 % Gaussian efficiency
-ACC_FAMILIES = ("acc_norm", "level", "zupt")      # Huber (seed 001 §3.3)
+ACC_FAMILIES = ("acc_norm", "level", "zupt")      # Huber ([Chow] §3.3)
 MAG_FAMILIES = ("mag",)                            # Tukey
 MAX_OUTER = 6
 MAX_INNER = 10
@@ -66,7 +66,7 @@ def joint_calibration(t, acc, gyr, mag, holds, *, gravity: float,
     field_mgauss : float, optional
         Field magnitude [mGauss] fixing the scale of D_m (default: the samples' sphere fit).
     t_test : bool
-        Drop insignificant parameters and refit (seed 001 §5.1).
+        Drop insignificant parameters and refit ([Chow] §5.1).
 
     Returns
     -------
@@ -252,7 +252,7 @@ def _diag_cov(j) -> np.ndarray:
 
 
 def _statistics(x, free, j, r, weights, factor, families) -> dict:
-    """Parameter covariance σ₀²·(AᵀWA)⁻¹ and t values (seed 001 §5.1)."""
+    """Parameter covariance σ₀²·(AᵀWA)⁻¹ and t values ([Chow] §5.1)."""
     n_eff = sum(float(weights[k].sum()) * DIM[k] for k in families if k != "mag_datum")
     dof = max(n_eff - int(free.sum()), 1.0)
     sigma0_sq = float(r @ r) / dof
