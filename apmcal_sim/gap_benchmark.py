@@ -1,4 +1,7 @@
-"""``apmcal gap --benchmark``: does the diagnosis find an effect the twin was not told about?
+"""Does ``apmcal gap`` find an effect the twin was not told about? A benchmark of the diagnosis on
+simulated sessions, beside the simulator because it needs one (the library never imports it)::
+
+    python -m apmcal_sim.gap_benchmark [--quick] [--rate HZ] [--json FILE]
 
 Each case simulates a session with sitl (the ``diagnosis`` script: six faces, three 360° turns
 and a motor run) in which the nominal errors plus one effect (or a pair) are switched on — the
@@ -167,6 +170,26 @@ def cases(quick: bool) -> list[tuple]:
     return singles + [(p, 1) for p in PAIRS] + [((), s) for s in range(1, 11)]
 
 
+def main(argv=None) -> int:
+    """``python -m apmcal_sim.gap_benchmark``: run the cases and print the tables."""
+    import argparse
+
+    from rich.console import Console
+
+    parser = argparse.ArgumentParser(prog="python -m apmcal_sim.gap_benchmark",
+                                     description="simulate sessions with one effect withheld "
+                                                 "from the twin and check the diagnosis finds it")
+    parser.add_argument("--quick", action="store_true", help="a small run")
+    parser.add_argument("--rate", type=float, default=None, metavar="HZ",
+                        help="the simulated sessions' sample rate [Hz] (default 100, 50 with "
+                             "--quick; above 200 the slow effects are scored on block means)")
+    parser.add_argument("--json", default=None, help="write the cases as JSON")
+    args = parser.parse_args(argv)
+    if args.rate is not None and not 10 <= args.rate <= 2000:
+        parser.error("--rate must be within 10 to 2000 Hz")
+    return run_benchmark(args, Console(highlight=False, markup=False, emoji=False))
+
+
 def run_benchmark(args, console) -> int:
     """Run the cases, print the tables (and write them as JSON with --json)."""
     rate = args.rate or (50.0 if args.quick else 100.0)
@@ -222,3 +245,7 @@ def print_tables(done: list[Case], console) -> None:
         f" of the cases")
     say(f"false alarms: {100 * alarms:.0f} % of {len(null_cases)} sessions without an "
         f"extra effect (target ≤ 5 %)")
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

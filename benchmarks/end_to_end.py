@@ -133,10 +133,18 @@ def make_session(path: Path) -> None:
                     str(path)], cwd=ROOT, check=True)
 
 
-def export_tree(ref: str, folders: tuple = ("apmcal",)) -> Path:
-    """``ref``'s ``folders`` (git archive) in the cache directory, once per commit."""
+PACKAGES = ("apmcal", "apmcal_sim", "sitl")     # the package and its simulator, old name too
+
+
+def export_tree(ref: str, folders: tuple | None = None) -> Path:
+    """``ref``'s ``folders`` (git archive; default: those of :data:`PACKAGES` it has) in the
+    cache directory, once per commit."""
     commit = subprocess.run(["git", "rev-parse", ref], cwd=ROOT, check=True, capture_output=True,
                             text=True).stdout.strip()
+    if folders is None:
+        listed = subprocess.run(["git", "ls-tree", "--name-only", commit], cwd=ROOT, check=True,
+                                capture_output=True, text=True).stdout.split()
+        folders = tuple(f for f in PACKAGES if f in listed)
     tree = DATA / f"tree-{commit[:12]}"
     if not all((tree / folder).is_dir() for folder in folders):
         tree.mkdir(parents=True, exist_ok=True)

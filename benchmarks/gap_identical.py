@@ -3,7 +3,7 @@
     python benchmarks/gap_identical.py [--before REV] [--no-real]
 
 A speed change to the diagnosis must not change a single number it reports. This runs
-``apmcal gap FILE --json OUT`` with this tree and with revision ``--before`` (its apmcal and sitl
+``apmcal gap FILE --json OUT`` with this tree and with revision ``--before`` (its apmcal and simulator
 exported with ``git archive``; default: main before the speed work that began at 05:44 UTC on
 2026-11-24) on:
 
@@ -79,7 +79,7 @@ def main(argv=None) -> int:
     ap.add_argument("--before", default=BEFORE, help=f"revision to compare with (default {BEFORE})")
     ap.add_argument("--no-real", action="store_true", help="leave out the real recordings")
     args = ap.parse_args(argv)
-    before = export_tree(args.before, ("apmcal", "sitl"))
+    before = export_tree(args.before)
     differ = 0
     for log, extra in sessions(not args.no_real):
         now, was = DATA / "gap_identical_now.json", DATA / "gap_identical_before.json"

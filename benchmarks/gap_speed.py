@@ -109,7 +109,7 @@ def main(argv=None) -> None:
     progress("")
     total = time.perf_counter() - start
     peer = pymavlink_read(path)
-    before = None if args.before == "none" else export_tree(args.before, ("apmcal", "sitl"))
+    before = None if args.before == "none" else export_tree(args.before)
     commands, commands_before = [], []
     for _ in range(args.runs):      # alternating: both see the same load
         commands.append(whole_command(path))

@@ -178,7 +178,7 @@ def test_output_in_read_only_directory(tmp_path, capsys):
 
 def test_json_write_failure_at_the_write_point_is_one_line(tmp_path, capsys, monkeypatch):
     """Past the early check (a directory appearing meanwhile, a full disk): still one line."""
-    monkeypatch.setattr(cli, "check_writable", lambda path, what: None)
+    monkeypatch.setattr(cli.common, "check_writable", lambda path, what: None)
     assert main(["log", str(SAMPLE), *SITE, "--json", str(tmp_path), "--quiet"]) == 2
     line = one_line_err(capsys)
     assert str(tmp_path) in line and "cannot write JSON file" in line
@@ -201,7 +201,7 @@ def test_unwritable_live_outputs_are_refused_before_connecting(tmp_path, capsys,
 
 
 def test_numpy_runtime_warnings_do_not_reach_the_user(tmp_path, capsys, monkeypatch):
-    from apmcal.report import text as report
+    from apmcal.report import session as report
 
     summarize = report.summarize
 
@@ -295,7 +295,7 @@ def test_recording_open_failure_at_the_write_point_is_one_line(tmp_path, capsys,
     def link_opening(connection, record_to=None, **kwargs):
         open(record_to, "wb")          # what VehicleLink does once the vehicle answered
 
-    monkeypatch.setattr(cli, "check_writable", lambda path, what: None)
+    monkeypatch.setattr(cli.common, "check_writable", lambda path, what: None)
     monkeypatch.setattr(apmcal.sources.live, "VehicleLink", link_opening)
     target = tmp_path / "missing" / "live.tlog"
     assert main(["live", "udp:127.0.0.1:9", "--save-log", str(target)]) == 2

@@ -1,8 +1,8 @@
-"""A small ``apmcal gap --benchmark``: sessions simulated with one effect withheld from the twin.
+"""A small ``python -m apmcal_sim.gap_benchmark``: sessions simulated with one effect withheld from the twin.
 
 Each case is diagnosed blind (the diagnosis is not told which effect is on) and must rank the
 withheld effect first; the session without an extra effect must report nothing supported.
-The full benchmark (30 single cases, 3 pairs, 10 null sessions) is ``apmcal gap --benchmark``.
+The full benchmark (30 single cases, 3 pairs, 10 null sessions) is ``python -m apmcal_sim.gap_benchmark``.
 """
 from __future__ import annotations
 

@@ -199,11 +199,11 @@ def test_only_the_rejected_sensor_is_withheld_from_an_upload(capsys):
 
     proposal = ParamProposal(values={"INS_GYROFFS_X": 0.01, "INS_GYROFFS_Y": -0.02},
                              rejected={"COMPASS_OFS_X": "offset vector length 2500 > 1800"})
-    console = cli.console_for(type("Args", (), {"quiet": False})())
-    assert cli.values_to_upload(proposal, "udp:x", console) == proposal.values
+    console = cli.common.console_for(type("Args", (), {"quiet": False})())
+    assert cli.live.values_to_upload(proposal, "udp:x", console) == proposal.values
     assert "COMPASS_OFS_X" in capsys.readouterr().out
     with pytest.raises(cli.ApmcalError, match="COMPASS_OFS_X"):
-        cli.values_to_upload(ParamProposal(rejected=proposal.rejected), "udp:x", console)
+        cli.live.values_to_upload(ParamProposal(rejected=proposal.rejected), "udp:x", console)
 
 
 def test_a_missing_pyserial_is_named_in_one_line(monkeypatch, tmp_path, capsys):

@@ -78,6 +78,45 @@ class ParamProposal:
     generation: str = "3.3+"
     costs: dict[str, float] = field(default_factory=dict)
 
+    def write(self, path, header_comment: str = "") -> None:
+        """The proposed values as a .param file (:func:`apmcal.ardupilot.paramfile.write_param_file`).
+
+        Raises
+        ------
+        ApmcalError
+            When the file cannot be written.
+        """
+        from apmcal.ardupilot.paramfile import write_param_file
+
+        try:
+            write_param_file(path, self.values, header_comment)
+        except OSError as exc:     # write_param_file wraps its own; this is belt and braces
+            raise ApmcalError(f"cannot write parameter file ({exc.strerror or exc})",
+                              str(path)) from None
+
+    def uploadable(self, where: str) -> dict[str, float]:
+        """The proposed values that passed the firmware's limits, to upload.
+
+        A sensor out of limits is withheld whole (:attr:`rejected`); the others are uploaded all
+        the same, since a rejected compass (say) says nothing against the accelerometer and gyro
+        values.
+
+        Parameters
+        ----------
+        where : str
+            The vehicle's connection, for the message.
+
+        Raises
+        ------
+        ApmcalError
+            When no value is within the firmware's limits.
+        """
+        if not self.values:
+            why = ", ".join(self.rejected) if self.rejected else "none proposed"
+            raise ApmcalError(f"not uploading: no parameter within the firmware's limits ({why})",
+                              where)
+        return dict(self.values)
+
 
 def cost_of_approximation(matrix: np.ndarray, used: np.ndarray, magnitude: float) -> float:
     """Worst-case error over all directions when ``used`` replaces the true ``matrix``.

@@ -5,7 +5,7 @@ Kept free of heavy imports: the command line's help texts read it.
 """
 from __future__ import annotations
 
-from apmcal.ardupilot.names import CALIBRATION_PARAM_PREFIXES
+from apmcal.ardupilot.names import CORRECTION_PARAM_PREFIXES
 from apmcal.core.errors import ApmcalError
 
 #: What upload and restore write unless told otherwise: the parameters of the sensor
@@ -13,7 +13,7 @@ from apmcal.core.errors import ApmcalError
 #: ORIENT/EXTERN of each compass, AHRS_ORIENTATION: apmcal.ardupilot.names' list, ardupilot-facts.md
 #: "How the firmware applies the parameters") and the other results of a calibration:
 #: temperature calibration (INS_TCAL*), compass scale (COMPASS_SCALE*), level trim (AHRS_TRIM_*).
-CALIBRATION_PREFIXES = CALIBRATION_PARAM_PREFIXES + ("INS_TCAL", "COMPASS_SCALE", "AHRS_TRIM")
+CALIBRATION_PREFIXES = CORRECTION_PARAM_PREFIXES + ("INS_TCAL", "COMPASS_SCALE", "AHRS_TRIM")
 #: The same, in words, for messages and help texts
 CALIBRATION_IN_WORDS = ("INS_ACC*/INS_GYR* offsets and scales, INS_TCAL*, COMPASS_OFS/DIA/ODI/"
                         "MOT/SCALE/ORIENT/EXTERN*, AHRS_ORIENTATION, AHRS_TRIM_*")

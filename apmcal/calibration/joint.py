@@ -11,6 +11,7 @@ import datetime
 import numpy as np
 
 from apmcal.core.errors import ApmcalError
+from apmcal.preprocessing.prepare import compass_on_imu_times
 from apmcal.solvers.report_types import CalibrationReport, MagneticField
 from apmcal.solvers.result import Calibration
 
@@ -21,39 +22,6 @@ MIN_HOLDS = 3      # still poses; fewer leave most of the 42 parameters undeterm
 # (python benchmarks/joint_auto.py). Faster recordings are averaged down to this rate first;
 # 50 Hz rather than 20 keeps a fast hand turn (360°/s) under 8° per sample.
 JOINT_RATE_HZ = 50.0
-
-
-def compass_on_imu_times(t: np.ndarray, prepared, mag_prepared) -> np.ndarray | None:
-    """Raw compass samples [mGauss] at the IMU times ``t`` (n, 3), NaN outside the compass's
-    own time span; None when neither recording has a live compass.
-
-    A compass in the IMU's own message (RAW_IMU, HIGHRES_IMU) is used as it is; a separate
-    one (dataflash MAG) is interpolated linearly onto the IMU times.
-
-    Parameters
-    ----------
-    t : (n,) array
-        IMU sample times [s].
-    prepared : Prepared
-        The IMU recording.
-    mag_prepared : Prepared or None
-        A separate compass recording.
-
-    Returns
-    -------
-    (n, 3) array or None
-        Compass samples [mGauss].
-    """
-    from apmcal.calibration.log import has_live_magnetometer
-
-    if has_live_magnetometer(prepared.raw):
-        return prepared.raw.xyz("mag")
-    if mag_prepared is None or not has_live_magnetometer(mag_prepared.raw):
-        return None
-    tm, m = mag_prepared.raw.t, mag_prepared.raw.xyz("mag")
-    out = np.column_stack([np.interp(t, tm, m[:, i]) for i in range(3)])
-    out[(t < tm[0]) | (t > tm[-1])] = np.nan
-    return out
 
 
 def field_magnitude(mag: np.ndarray, opts, report: CalibrationReport) -> float:
@@ -124,7 +92,7 @@ def joint_on_prepared(prepared, mag_prepared, opts) -> Calibration:
     Parameters
     ----------
     prepared : Prepared
-        The IMU recording (:func:`apmcal.calibration.log.prepare`).
+        The IMU recording (:func:`apmcal.preprocessing.prepare.prepare`).
     mag_prepared : Prepared or None
         A separate compass recording.
     opts : Options

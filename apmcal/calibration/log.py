@@ -7,21 +7,20 @@ sees raw sensor-frame samples. Static holds are found once and shared by the met
 """
 from __future__ import annotations
 
-import datetime
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
 
 from apmcal.core.errors import ApmcalError
 from apmcal.core.options import Options
-from apmcal.core.recording import SENSOR_COLUMNS, Recording
-from apmcal.preprocessing.resolution import (
-    INT16_TELEMETRY,
-    resolution_limited,
-    telemetry_steps,
-    undo_truncation,
+from apmcal.core.recording import Recording
+from apmcal.preprocessing.prepare import (
+    Prepared,
+    has_live_magnetometer,
+    pick_recording,
+    prepare,
+    recording_date,
 )
-from apmcal.preprocessing.timebase import monotonic
 from apmcal.solvers.holds import MIN_ELLIPSOID_HOLDS, MIN_ORIENTATIONS, distinct_orientations
 from apmcal.solvers.resolution_floor import add_resolution_floor
 from apmcal.solvers.result import Calibration
@@ -29,80 +28,6 @@ from apmcal.solvers.result import Calibration
 METHODS = ("auto", "ferraris", "static", "ellipsoid", "joint")
 FERRARIS_FACES = {"x_p", "x_a", "y_p", "y_a", "z_p", "z_a"}
 FERRARIS_MAX_TILT_DEG = 10.0    # Ferraris assumes each hold has one axis along gravity
-
-
-@dataclass
-class Prepared:
-    """A recording made ready for the solvers (:func:`prepare`).
-
-    Attributes
-    ----------
-    raw : Recording
-        Raw sensor-frame samples.
-    steps : dict
-        Telemetry resolution per sensor [m/s², rad/s, mGauss].
-    floor_steps : dict
-        Of those, the sensors whose noise is below a step.
-    warnings : list of str
-    """
-
-    raw: Recording                                           # raw sensor-frame samples
-    steps: dict[str, float] = field(default_factory=dict)    # telemetry resolution per sensor
-    floor_steps: dict[str, float] = field(default_factory=dict)  # of those, noise below a step
-    warnings: list[str] = field(default_factory=list)
-
-
-def prepare(recording: Recording, generation: str | None = None) -> Prepared:
-    """Finite samples, monotonic time, truncation undone, firmware correction undone.
-
-    ardupilot-facts.md "What the telemetry really carries": RAW_IMU and dataflash IMU/MAG are
-    corrected with the parameters in force, so a fit on them must first undo that correction,
-    the way ``generation`` ("3.2" / "3.3+"; None: from the log) applied it.
-
-    Parameters
-    ----------
-    recording : Recording
-    generation : str, optional
-
-    Returns
-    -------
-    Prepared
-    """
-    recording, warnings = drop_non_finite(recording)
-    recording, time_warnings = monotonic(recording)
-    warnings += time_warnings
-    steps = telemetry_steps(recording)
-    floor_steps = resolution_limited(recording, steps)
-    recording = undo_truncation(recording)
-    if recording.corrected or recording.frame == "body":
-        from apmcal.ardupilot.firmware import uncorrect
-
-        recording = uncorrect(recording, generation=generation)
-    return Prepared(recording, steps, floor_steps, warnings)
-
-
-def drop_non_finite(recording: Recording) -> tuple[Recording, list[str]]:
-    """Rows whose time or sensor values are NaN/inf removed, with a counted warning.
-
-    Parameters
-    ----------
-    recording : Recording
-
-    Returns
-    -------
-    Recording
-        The same object when every row is finite, else a copy without the others.
-    list of str
-        The warning (empty when nothing was dropped).
-    """
-    cols = ["t"] + [c for s in recording.sensors for c in SENSOR_COLUMNS[s]]
-    finite = np.isfinite(recording.data[cols].to_numpy(dtype=float)).all(axis=1)
-    bad = int(np.count_nonzero(~finite))
-    if bad == 0:
-        return recording, []
-    kept = recording.data.loc[finite].reset_index(drop=True)
-    return (replace(recording, data=kept),
-            [f"{bad} of {len(finite)} samples with NaN/inf values dropped"])
 
 
 def choose_method(segments, gyro_and_compass: bool = False) -> str:
@@ -435,55 +360,6 @@ def calibrate_log(contents, opts: Options | None = None):
     return cal, proposal
 
 
-def recording_date(contents) -> datetime.date | None:
-    """UTC date the source was recorded, when the source carries a wall-clock time.
-
-    Parameters
-    ----------
-    contents : LogContents
-
-    Returns
-    -------
-    datetime.date or None
-    """
-    if contents.start_unix_s is None:
-        return None
-    return datetime.datetime.fromtimestamp(contents.start_unix_s, tz=datetime.timezone.utc).date()
-
-
-def pick_recording(contents, instance: int | None):
-    """(IMU recording, separate magnetometer recording of the same instance or None).
-
-    Parameters
-    ----------
-    contents : LogContents
-    instance : int or None
-        IMU instance (None: the lowest).
-
-    Returns
-    -------
-    Recording
-    Recording or None
-
-    Raises
-    ------
-    ApmcalError
-        When no accelerometer recording (of that instance) exists.
-    """
-    candidates = [r for r in contents.recordings if r.has("acc")]
-    if instance is not None:
-        candidates = [r for r in candidates if r.instance == instance]
-    if not candidates:
-        which = "" if instance is None else f" for instance {instance}"
-        raise ApmcalError(f"no accelerometer recording{which}", contents.path)
-    # accelerometer with gyro (IMU) before accelerometer alone (dataflash ACC1), then
-    # floating-point samples (HIGHRES_IMU, dataflash) before int16 telemetry of the same IMU
-    recording = min(candidates, key=lambda r: (r.instance, not r.has("gyr"),
-                                               r.message in INT16_TELEMETRY))
-    mags = [r for r in contents.recordings if r.has("mag") and r.instance == recording.instance]
-    return recording, (mags[0] if mags and mags[0] is not recording else None)
-
-
 def add_magnetometer(cal: Calibration, prepared: Prepared, opts: Options) -> None:
     """Add the magnetometer fit to ``cal``, or a warning saying why it was not possible.
 
@@ -534,8 +410,3 @@ def mag_coverage(mag: np.ndarray, cal) -> dict:
     # samples per grid point: on a 10-minute 400 Hz session the whole set cost 0.5 s)
     cov = direction_coverage(mag, cal.offset, fraction_samples=40_000)
     return {"fraction": cov["fraction"], "min_eig": float(np.min(cov["scatter_eig"]))}
-
-
-def has_live_magnetometer(recording: Recording) -> bool:
-    """True when mag columns exist and are not all zero (an absent compass logs zeros)."""
-    return recording.has("mag") and bool(np.any(recording.xyz("mag")))

@@ -3,7 +3,7 @@
 The one place joining the temperature-calibration stages, as :mod:`apmcal.calibration.log` does for
 the other calibrations: sources (IMU samples with temperature, or the learner's TCLR records)
 → preprocessing (the firmware's offsets, scales and AHRS_ORIENTATION undone by
-:func:`apmcal.calibration.log.prepare`; a temperature calibration in force added back; still periods;
+:func:`apmcal.preprocessing.prepare.prepare`; a temperature calibration in force added back; still periods;
 block means) → solver (:func:`apmcal.solvers.tcal.fit_tcal`) → parameters
 (:mod:`apmcal.ardupilot.tcal_params`).
 """
@@ -15,6 +15,7 @@ import numpy as np
 
 from apmcal.ardupilot.tcal_params import TEMP_RANGE_MIN_C, tcal_from_params, tcal_param_values
 from apmcal.core.errors import ApmcalError
+from apmcal.core.json_file import write_json
 from apmcal.preprocessing.resolution import INT16_TELEMETRY
 from apmcal.solvers.tcal import TcalFit, fit_tcal
 
@@ -165,8 +166,8 @@ def _from_tclr(instance: int, data: dict, path: str) -> TcalResult:
 def _from_samples(recording, contents, min_still_s: float, block_s: float) -> TcalResult:
     """Fit the still IMU samples, after undoing the firmware's corrections."""
     from apmcal.ardupilot.firmware import firmware_generation
-    from apmcal.calibration.log import prepare
     from apmcal.preprocessing.param_changes import split_at_param_changes
+    from apmcal.preprocessing.prepare import prepare
     from apmcal.preprocessing.static import find_static_segments
     from apmcal.preprocessing.tcal_blocks import still_blocks
 
@@ -238,3 +239,29 @@ def tcal_params(results: list[TcalResult]) -> dict[str, float]:
     for r in results:
         values.update(r.params())
     return values
+
+
+@dataclass
+class TemperatureCalibration:
+    """The temperature calibration of every IMU instance of one log (``apmcal tcal``): its
+    parameters, and its JSON file ({"tcal": per instance, "params": INS_TCALn_* values}).
+
+    Attributes
+    ----------
+    results : list of TcalResult
+        One per IMU instance (:func:`calibrate_temperature`).
+    """
+
+    results: list[TcalResult]
+
+    def params(self) -> dict[str, float]:
+        """Every instance's INS_TCALn_* values (:func:`tcal_params`)."""
+        return tcal_params(self.results)
+
+    def to_dict(self) -> dict:
+        """The fits and parameters as plain data."""
+        return {"tcal": [r.to_dict() for r in self.results], "params": self.params()}
+
+    def save(self, path) -> None:
+        """Write :meth:`to_dict` as JSON; one-line ApmcalError when it cannot be written."""
+        write_json(path, self.to_dict())

@@ -12,14 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from apmcal.calibration.log import (
-    Options,
-    add_magnetometer,
-    calibrate,
-    pick_recording,
-    prepare,
-)
+from apmcal.calibration.log import add_magnetometer, calibrate
 from apmcal.calibration.orientation_check import orientation_errors
+from apmcal.core.options import Options
+from apmcal.preprocessing.prepare import pick_recording, prepare
 from apmcal.preprocessing.static import find_static_segments
 from apmcal.solvers.joint.solve import joint_calibration
 from apmcal.solvers.result import Calibration
@@ -43,7 +39,7 @@ def session(path: Path, layout: str | None = None):
     mag_rec : Recording or None
         A separate compass recording of the same IMU (dataflash MAG), or None.
     raw : Recording
-        ``rec`` prepared (:func:`apmcal.calibration.log.prepare`): raw sensor-frame samples, n rows.
+        ``rec`` prepared (:func:`apmcal.preprocessing.prepare.prepare`): raw sensor-frame samples, n rows.
     mag : numpy.ndarray, shape (n, 3), or None
         Raw compass samples [mGauss] on ``raw``'s times, NaN outside the compass's span;
         None without a live compass.
@@ -55,7 +51,7 @@ def session(path: Path, layout: str | None = None):
     ApmcalError
         From the readers: an unreadable file or no usable IMU data.
     """
-    from apmcal.calibration.joint import compass_on_imu_times
+    from apmcal.preprocessing.prepare import compass_on_imu_times
     from apmcal.sources import read_log
     from apmcal.sources.csv import read_csv
 

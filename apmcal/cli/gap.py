@@ -1,14 +1,45 @@
-"""The ``apmcal gap`` command: arguments in, summary and files out (see ``apmcal gap --help``)."""
+"""``apmcal gap FILE``: the gap between a real log and its simulated twin — where it lies, which
+unmodelled effect causes it (:mod:`apmcal.diagnosis`); summary and files out."""
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from apmcal.cli.common import add_session_options, check_writable, console_for, number_type
 from apmcal.core.errors import ApmcalError
 
 if TYPE_CHECKING:
     from apmcal.core.options import Options
+
+
+def add_parser(sub) -> None:
+    """The ``gap`` sub-command and its options."""
+    gap = sub.add_parser("gap", help="diagnose the gap between a real log and its simulated "
+                                     "twin: where it lies, which unmodelled effect causes it")
+    gap.add_argument("file", nargs="?", help=".tlog, .bin, .log or .csv file")
+    gap.add_argument("--lat", type=number_type(float, -90, 90, what="latitude [deg]"),
+                     default=None, help="latitude [deg]: local gravity, Earth rate, WMM field")
+    gap.add_argument("--lon", type=number_type(float, -180, 180, what="longitude [deg]"),
+                     default=None, help="longitude [deg] (needs --lat): WMM field and "
+                                        "declination for the compass")
+    add_session_options(gap)
+    gap.add_argument("--effects", default=None, metavar="A,B,...",
+                     help="candidate effects to test (default: all; see apmcal.diagnosis."
+                          "model.effects)")
+    gap.add_argument("--seed", type=int, default=0, help="seed of the twin's noise (default 0)")
+    gap.add_argument("--json", default=None, help="write the result as JSON")
+    gap.add_argument("--report", default=None, metavar="DIR",
+                     help="write a Markdown report with PNG plots into DIR")
+    gap.add_argument("--write-twin", default=None, metavar="TWIN.json",
+                     help="write the selected effects as a simulator configuration "
+                          "(python -m apmcal_sim --twin TWIN.json)")
+    gap.add_argument("--quiet", action="store_true")
+
+
+def run(args) -> int:
+    """``apmcal gap``: :func:`run_gap` with the command's console; exit status."""
+    return run_gap(args, console_for(args))
 
 
 def parse_effects(text: str | None) -> list[str] | None:
@@ -50,8 +81,6 @@ def check_outputs(args) -> None:
         When the JSON or twin file cannot be written, or the report path is not a directory
         or its parent does not exist.
     """
-    from apmcal.cli import check_writable
-
     check_writable(args.json, "JSON file")
     check_writable(args.write_twin, "twin file")
     if args.report is not None:
@@ -64,23 +93,17 @@ def check_outputs(args) -> None:
 
 
 def run_gap(args, console) -> int:
-    """Run the diagnosis (or its benchmark) and write what was asked for.
+    """Run the diagnosis and write what was asked for.
 
     Raises
     ------
     ApmcalError
-        When --lon comes without --lat, no log file is given (and no --benchmark), or an
-        effect name or output path is not usable.
+        When --lon comes without --lat, or an effect name or output path is not usable.
     """
     if args.lon is not None and args.lat is None:
         raise ApmcalError("--lon needs --lat")
-    if args.benchmark:
-        from apmcal_sim.gap_benchmark import run_benchmark
-
-        check_outputs(args)
-        return run_benchmark(args, console)
     if args.file is None:
-        raise ApmcalError("give a log file (or --benchmark)")
+        raise ApmcalError("give a log file")
     names = parse_effects(args.effects)
     check_outputs(args)
     diagnosis = diagnose_file(args, names, console)

@@ -26,16 +26,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from apmcal.ardupilot.names import CALIBRATION_PARAM_PREFIXES  # noqa: F401 (re-exported)
-
 ACC = ["acc_x", "acc_y", "acc_z"]
 GYR = ["gyr_x", "gyr_y", "gyr_z"]
 MAG = ["mag_x", "mag_y", "mag_z"]
 SENSOR_COLUMNS = {"acc": ACC, "gyr": GYR, "mag": MAG}
-
-def is_calibration_param(name: str) -> bool:
-    """True if ``name`` starts with one of :data:`CALIBRATION_PARAM_PREFIXES`."""
-    return name.startswith(CALIBRATION_PARAM_PREFIXES)
 
 
 @dataclass
@@ -153,8 +147,8 @@ class LogContents:
     messages: list[str] = field(default_factory=list)        # STATUSTEXT / MSG texts
     bytes_skipped: int = 0                         # garbage or damaged bytes passed over
     damaged_at: list[int] = field(default_factory=list)      # byte offsets where damage began
-    # calibration parameters (CALIBRATION_PARAM_PREFIXES) that changed value after the first
-    # IMU/MAG sample, in file order; ``params`` keeps the last value of each
+    # correction parameters (apmcal.ardupilot.names.CORRECTION_PARAM_PREFIXES) that changed value
+    # after the first IMU/MAG sample, in file order; ``params`` keeps the last value of each
     param_changes: list[ParamChange] = field(default_factory=list)
     # wall-clock time of the first sample [s since 1970, UTC] when the file carries one (a
     # .tlog's per-frame timestamps, a dataflash GPS fix); None otherwise. Dates the WMM field.

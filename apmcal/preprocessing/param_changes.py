@@ -13,8 +13,9 @@ from dataclasses import replace
 
 import numpy as np
 
+from apmcal.ardupilot.names import is_correction_param
 from apmcal.core.errors import ApmcalError
-from apmcal.core.recording import MAG, ParamChange, Recording, is_calibration_param
+from apmcal.core.recording import MAG, ParamChange, Recording
 
 
 def split_at_param_changes(imu: Recording, mag: Recording | None, changes: list[ParamChange],
@@ -123,7 +124,7 @@ def enters_correction_of(sensors, instance: int):
     try:
         names = set().union(*(correction_param_names(s, instance) for s in sensors))
     except ApmcalError:          # an instance ArduPilot has no parameters for: be conservative
-        return is_calibration_param
+        return is_correction_param
     return names.__contains__
 
 

@@ -6,7 +6,8 @@ import datetime
 import numpy as np
 from rich.text import Text
 
-from apmcal.core.recording import LogContents, is_calibration_param
+from apmcal.ardupilot.names import is_correction_param
+from apmcal.core.recording import LogContents
 
 
 def reader_notes(contents: LogContents) -> list[str]:
@@ -57,7 +58,7 @@ def summarize(contents: LogContents) -> dict:
             "duration_s": round(rec.duration, 3), "corrected": rec.corrected, "frame": rec.frame,
             "has_temperature": "temp" in rec.data.columns,
         })
-    in_force = {k: v for k, v in sorted(contents.params.items()) if is_calibration_param(k)}
+    in_force = {k: v for k, v in sorted(contents.params.items()) if is_correction_param(k)}
     return {"file": contents.path, "format": contents.format, "vehicle": contents.vehicle,
             "firmware": contents.firmware, "recordings": recordings,
             "calibration_params_in_force": in_force, "param_count": len(contents.params),

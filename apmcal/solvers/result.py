@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from apmcal.core.errors import ApmcalError
+from apmcal.core.json_file import jsonable  # noqa: F401 (the JSON values of a result)
 from apmcal.solvers.misfit import HoldMisfit
 from apmcal.solvers.report_types import (
     CalibrationReport,
@@ -187,7 +188,7 @@ class Calibration:
         ``apply(recording)`` / ``apply(dataframe)``: a copy of the same type with every sensor
         this result calibrates replaced by its calibrated values (columns of
         :data:`apmcal.core.recording.SENSOR_COLUMNS`, times from "t"). The samples must be raw and in
-        the sensor frame (:func:`apmcal.calibration.log.prepare` undoes a firmware correction).
+        the sensor frame (:func:`apmcal.preprocessing.prepare.prepare` undoes a firmware correction).
 
         Parameters
         ----------
@@ -403,31 +404,3 @@ def _six_face_from_v1(old: dict) -> SixFaceFit:
                       u_minus=np.asarray(old["U_minus"], float), q=old["Q"],
                       gravity=old["gravity"], gravity_source=old["gravity_source"],
                       misfit=misfit, sigma_noise_only=noise)
-
-
-def jsonable(obj, nan_as_null: bool = False):
-    """numpy arrays and scalars → plain lists and numbers, recursively; with ``nan_as_null``
-    NaN and infinity → None (strict JSON has neither).
-
-    Parameters
-    ----------
-    obj : object
-        Dicts, lists, tuples, numpy arrays and scalars, nested.
-    nan_as_null : bool
-
-    Returns
-    -------
-    object
-        The same with plain lists, numbers and str keys.
-    """
-    if isinstance(obj, dict):
-        return {str(k): jsonable(v, nan_as_null) for k, v in obj.items()}
-    if isinstance(obj, np.ndarray):
-        return jsonable(obj.tolist(), nan_as_null)
-    if isinstance(obj, (list, tuple)):
-        return [jsonable(v, nan_as_null) for v in obj]
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if nan_as_null and isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    return obj

@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from apmcal.ardupilot.names import CORRECTION_PARAM_PREFIXES
 from apmcal.core.errors import ApmcalError
 from apmcal.core.recording import (
     ACC,
-    CALIBRATION_PARAM_PREFIXES,
     GYR,
     MAG,
     LogContents,
@@ -145,7 +145,7 @@ def _last_per_name(names: np.ndarray) -> np.ndarray:
     return np.sort(len(names) - 1 - rev_first)
 
 
-_PREFIXES_BYTES = tuple(p.encode() for p in CALIBRATION_PARAM_PREFIXES)
+_PREFIXES_BYTES = tuple(p.encode() for p in CORRECTION_PARAM_PREFIXES)
 
 
 def _is_calibration_name(names: np.ndarray) -> np.ndarray:
@@ -156,7 +156,7 @@ def _is_calibration_name(names: np.ndarray) -> np.ndarray:
     name instead of a Python ``str.startswith`` call (which dominated reading a big .tlog).
     """
     if names.dtype.kind != "S":          # text logs: Python strings
-        return np.fromiter((str(n).startswith(CALIBRATION_PARAM_PREFIXES) for n in names),
+        return np.fromiter((str(n).startswith(CORRECTION_PARAM_PREFIXES) for n in names),
                            dtype=np.bool_, count=len(names))
     width = -(-max(names.dtype.itemsize, 16) // 8) * 8          # whole 64-bit words
     words = np.ascontiguousarray(names.astype(f"S{width}")).view("<u8").reshape(len(names), -1)
@@ -181,7 +181,7 @@ def param_changes(names: np.ndarray, values: np.ndarray, positions: np.ndarray,
     (ardupilot-facts.md, "What the telemetry really carries"), so a log in which, say,
     INS_ACCOFFS_X changes once the samples have begun cannot be un-corrected with one parameter
     set. A change is a parameter record (PARM, PARAM_VALUE) of a calibration parameter
-    (:data:`~apmcal.core.recording.CALIBRATION_PARAM_PREFIXES`) that comes after the first sensor
+    (:data:`~apmcal.ardupilot.names.CORRECTION_PARAM_PREFIXES`) that comes after the first sensor
     sample and whose value differs, at float32 precision (the firmware's storage), from the
     previous record of that name. Identical repeats (logs write the whole list again, ground
     stations re-request it) are not changes; non-finite values are ignored (``_params`` warns).

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from apmcal.core.errors import ApmcalError
-from apmcal.solvers.result import jsonable
+from apmcal.core.json_file import jsonable
 
 SCHEMA = 1
 UNITS = {"gap": "nats per residual sample (Kullback-Leibler divergence, real vs twin)",

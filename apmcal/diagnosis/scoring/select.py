@@ -10,8 +10,8 @@ effect is *supported* when its evidence reaches ``MIN_EVIDENCE_NATS`` — odds o
 three million to one. On simulated sessions without any extra effect the evidence of a useless
 candidate stays within a few nats (its parameters fit noise in the real data and in the twin
 alike); among 12 such sessions at 100 Hz (seeds 201-212, none of the benchmark's) the largest
-was 12.2 nats (a gyro random walk), which is what the threshold is set against (``apmcal gap
---benchmark`` measures the false alarms on other seeds). Held-out evidence alone let a model
+was 12.2 nats (a gyro random walk), which is what the threshold is set against (``python -m
+apmcal_sim.gap_benchmark`` measures the false alarms on other seeds). Held-out evidence alone let a model
 with many parameters through by chance (gyro scale and misalignment, 18 nats with every value
 within 2σ of "off" on one benchmark seed), hence the Wald test as well. No share of the gap is
 asked for, because a real effect can sit under a much larger one and remove only a sliver of

@@ -1,6 +1,6 @@
 """A recording cut into what the diagnosis fits and scores: holds, motions, pieces and folds.
 
-The samples come out of :func:`apmcal.calibration.log.prepare` (firmware correction and board rotation
+The samples come out of :func:`apmcal.preprocessing.prepare.prepare` (firmware correction and board rotation
 undone: raw sensor frame, SI units). Still periods are the calibration's own static holds
 (:func:`apmcal.preprocessing.static.find_static_segments`); a *motion* is the short move between
 two consecutive holds. Each hold is cut into an even number of equal *pieces* of at most
@@ -397,8 +397,8 @@ def session_from_log(contents, opts) -> Session:
     """
     # here, not at the top: they load pandas, which the diagnosis itself never needs (a session
     # is read in a worker while the main process imports the diagnosis, apmcal.cli.gap)
-    from apmcal.calibration.log import has_live_magnetometer, pick_recording, prepare, recording_date
     from apmcal.preprocessing.param_changes import split_at_param_changes
+    from apmcal.preprocessing.prepare import has_live_magnetometer, pick_recording, prepare, recording_date
     from apmcal.preprocessing.resolution import INT16_TELEMETRY
     from apmcal.preprocessing.static import find_static_segments
 

@@ -1,0 +1,241 @@
+"""What every command shares: the one-line parser, number options, the console, output checks
+before any work, and the upload step that log-free commands and ``live`` end with."""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+from apmcal.core.errors import ApmcalError
+
+EXIT_USER_ERROR = 2
+EXIT_INTERNAL_ERROR = 3
+EXIT_INTERRUPTED = 130          # 128 + SIGINT, what a shell reports for a Ctrl-C'd program
+
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line on stderr (the project rule), exit status 2."""
+
+    def error(self, message):
+        """Print ``message`` as one line on stderr and exit with status 2."""
+        self.exit(EXIT_USER_ERROR, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def number_type(kind, low=None, high=None, low_open=False, what="a number"):
+    """An argparse ``type=`` accepting a finite ``kind`` (int/float) in [low, high] (or (low,
+    high] with ``low_open``); anything else is argparse's one-line usage error.
+
+    Parameters
+    ----------
+    kind : type
+        int or float.
+    low, high : float, optional
+        Bounds, in the option's own unit (s, Hz, deg, baud).
+    low_open : bool
+        Exclude ``low`` itself.
+    what : str
+        What the number is, for the message ("seconds", "latitude [deg]").
+
+    Returns
+    -------
+    callable
+        str → ``kind``, raising argparse.ArgumentTypeError for anything else.
+    """
+    lo = "" if low is None else (f"> {low:g}" if low_open else f">= {low:g}")
+    hi = "" if high is None else f"<= {high:g}"
+    wanted = f"{what} " + (f"in {'(' if low_open else '['}{low:g}, {high:g}]"
+                           if lo and hi else lo or hi)
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {wanted.strip()}, got {text!r}") from None
+        if (not math.isfinite(value) or (low is not None and (value <= low if low_open
+                                                                 else value < low))
+                or (high is not None and value > high)):
+            raise argparse.ArgumentTypeError(f"expected {wanted.strip()}, got {text!r}")
+        return value
+
+    parse.__name__ = kind.__name__
+    return parse
+
+
+POSITIVE_SECONDS = number_type(float, 0, low_open=True, what="seconds")
+
+
+SAMPLE_RATE_HZ = number_type(float, 10, 2000, what="Hz")
+
+
+class VersionAction(argparse.Action):
+    """``--version``: the version looked up only when asked for (importlib.metadata and the
+    distribution lookup cost ~0.08 s, a quarter of ``apmcal --help``)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, **kwargs):
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS,
+                         help="show program's version number and exit", **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        """Print ``apmcal <version>`` on stdout and exit."""
+        print(f"{parser.prog} {package_version()}")      # stdout, as argparse's own action
+        parser.exit()
+
+
+def package_version() -> str:
+    """The installed distribution's version (pyproject.toml), "unknown" when not installed."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("apmcal")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
+def add_baud_option(p: argparse.ArgumentParser) -> None:
+    """--baud for serial connections (/dev/ttyACM0, /dev/ttyUSB0, COM3), as MAVProxy has."""
+    from apmcal.core.constants import DEFAULT_BAUD
+
+    p.add_argument("--baud", type=number_type(int, 1, 12_000_000, what="a baud rate"),
+                   default=DEFAULT_BAUD,
+                   help=f"serial baud rate (default {DEFAULT_BAUD}: USB; 57600 for 3DR/SiK "
+                        "telemetry radios); ignored by udp:/tcp: connections")
+
+
+def add_session_options(p: argparse.ArgumentParser) -> None:
+    """Which samples of a log make the session: IMU instance, holds, parameter generation."""
+    p.add_argument("--instance", type=int, default=None, help="IMU instance (default: first)")
+    p.add_argument("--min-still", type=POSITIVE_SECONDS, default=2.0, metavar="S",
+                   help="shortest still period counted as a hold [s] (default 2)")
+    p.add_argument("--firmware", choices=["3.2", "3.3+"], default=None,
+                   help="parameter generation (default: from the log; Copter 3.2 is APM 2.x)")
+
+
+def add_calibration_options(p: argparse.ArgumentParser) -> None:
+    """Method, site (--lat/--lon [deg]), session and output options of log and live."""
+    p.add_argument("--method", default="auto",
+                   choices=["auto", "ferraris", "static", "ellipsoid", "joint"],
+                   help="calibration method (default auto: ferraris for the six faces, "
+                        "joint for hand-held poses with a compass, ellipsoid without one, "
+                        "static for one level hold)")
+    p.add_argument("--lat", type=number_type(float, -90, 90, what="latitude [deg]"), default=None,
+                   help="latitude [deg], -90 to 90: normal gravity and Earth rate; with --lon "
+                        "also the magnetometer's field magnitude (WMM). --lat alone is fine")
+    p.add_argument("--lon", type=number_type(float, -180, 180, what="longitude [deg]"),
+                   default=None, help="longitude [deg], -180 to 180 (needs --lat): only for the "
+                                      "magnetometer's field magnitude (WMM)")
+    add_session_options(p)
+    p.add_argument("--param-file", default=None, help="write proposed parameters (.param)")
+    p.add_argument("--json", default=None,
+                   help="write summary and calibration as JSON (also when --param-file fails)")
+    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--verbose", action="store_true",
+                   help="also print the specialist's lines (fit internals, paper references, "
+                        "the model's misfit); the --json output always has them")
+
+
+def console_for(args):
+    """A rich Console that prints text literally (no markup), quiet with ``--quiet``."""
+    from rich.console import Console
+
+    # markup and emoji codes off: file names, units "[m/s²]" and notes are printed literally;
+    # report.py styles with Text objects
+    # piped or redirected: no line breaks of rich's own (at 80 columns they fell inside numbers
+    # and vectors); the reader's pager or terminal wraps
+    return Console(stderr=False, quiet=getattr(args, "quiet", False), highlight=False,
+                   markup=False, emoji=False, soft_wrap=not sys.stdout.isatty())
+
+
+def check_writable(path, what: str) -> None:
+    """Refuse, before any work, an output path that cannot be written (without creating it).
+
+    Parameters
+    ----------
+    path : str, Path or None
+        None: nothing to check.
+    what : str
+        What the file is, for the message.
+
+    Raises
+    ------
+    ApmcalError
+        When the path is a directory, its directory is missing or not writable.
+    """
+    if path is None:
+        return
+    p = Path(path)
+    parent = p.parent
+    if p.is_dir():
+        why = "is a directory"
+    elif not parent.exists():
+        why = f"directory {parent} does not exist"
+    elif not parent.is_dir():
+        why = f"{parent} is not a directory"
+    elif not os.access(p if p.exists() else parent, os.W_OK):
+        why = "permission denied"
+    else:
+        return
+    # refused before reading or recording anything: no other output (--json included) is
+    # written either, so the user fixes the path and loses nothing
+    raise ApmcalError(f"cannot write {what}: {why}; stopped before any work, nothing written",
+                      str(path))
+
+
+def check_outputs(args) -> None:
+    """Every output path of a calibration command checked before reading or recording."""
+    if not getattr(args, "summary_only", False):
+        check_writable(args.param_file, "parameter file")
+    check_writable(args.json, "JSON file")
+
+
+def default_backup_name() -> str:
+    """``apmcal-backup-<local time>.param`` in the current directory."""
+    return f"apmcal-backup-{time.strftime('%Y%m%d-%H%M%S')}.param"
+
+
+def upload_values(connection, values, backup, vehicle_params, console, baud,
+                  all_params=False):
+    """Write ``values`` to the vehicle (backed up to ``backup``, verified) and say so.
+
+    Parameters
+    ----------
+    connection : str
+        pymavlink connection string.
+    values : dict
+        Parameter name → value.
+    backup : str or None
+        Backup file (None: :func:`default_backup_name`).
+    vehicle_params : dict or None
+        The vehicle's parameters when already fetched.
+    console : rich.console.Console
+    baud : int
+        Serial baud rate.
+    all_params : bool
+        Allow parameters other than calibration ones.
+
+    Raises
+    ------
+    ApmcalError
+        When the backup cannot be written or the upload fails.
+    """
+    from apmcal.link.upload import upload_params
+    from apmcal.sources.live import VehicleLink
+
+    backup = backup or default_backup_name()
+    check_writable(backup, "backup file")
+    with VehicleLink(connection, baud=baud) as link:
+        result = upload_params(link, values, backup, vehicle_params, all_params)
+    console.print(f"wrote and verified {len(result.written)} parameters; backup in {backup} "
+                  f"(undo: apmcal restore {connection} {backup})")
+    print_skipped(result, console)
+
+
+def print_skipped(result, console) -> None:
+    """Names the vehicle does not have (UploadReport.skipped, when the report carries it)."""
+    skipped = list(getattr(result, "skipped", None) or [])
+    if skipped:
+        console.print(f"skipped {len(skipped)} names the vehicle does not have: "
+                      + ", ".join(skipped))

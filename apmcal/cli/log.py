@@ -1,0 +1,91 @@
+"""``apmcal log FILE``: summarise and calibrate a .tlog, .bin, .log or .csv file."""
+from __future__ import annotations
+
+from apmcal.cli.common import add_calibration_options, check_outputs, console_for
+from apmcal.core.blas_threads import single_threaded_blas
+from apmcal.core.errors import ApmcalError
+
+
+def add_parser(sub) -> None:
+    """The ``log`` sub-command and its options."""
+    log = sub.add_parser("log", help="summarise and calibrate from a .tlog, .bin, .log or .csv file")
+    log.add_argument("file")
+    add_calibration_options(log)
+    log.add_argument("--summary-only", action="store_true", help="only print what the file holds")
+    log.add_argument("--layout", default="auto",
+                     help="CSV layout: auto, si, imucal, imucal_annotated, mpu6050, imu_tk (default auto)")
+
+
+@single_threaded_blas      # small BLAS products on long arrays: threads only contend (see there)
+def run(args) -> int:
+    """``apmcal log``: read a file, summarise and calibrate it; exit status."""
+    from apmcal.sources import read_log
+
+    check_outputs(args)
+    if args.layout == "auto":
+        contents = read_log(args.file)
+    else:
+        from apmcal.sources.csv import read_csv
+
+        contents = read_csv(args.file, layout=args.layout)
+    return summarise_and_calibrate(contents, args).status
+
+
+def summarise_and_calibrate(contents, args):
+    """Print the summary and (unless --summary-only) the calibration; write the outputs.
+
+    The JSON file is written last but also when the parameter file could not be (it then says
+    why under "param_file_error"), before that error is raised.
+
+    Parameters
+    ----------
+    contents : LogContents
+    args : argparse.Namespace
+        The log or live command's options.
+
+    Returns
+    -------
+    SessionReport
+        Its ``status`` is the exit status: 1 when the firmware would reject some proposed value.
+
+    Raises
+    ------
+    ApmcalError
+        When the units are implausible, nothing could be calibrated or an output cannot be
+        written.
+    """
+    from apmcal.report.session import SessionReport
+    from apmcal.sources.units import require_plausible_units
+
+    console = console_for(args)
+    require_plausible_units(contents)       # a sensor in impossible units is not data
+    report = SessionReport.build(contents)
+    report.print_summary(console)           # before the work: what the file holds
+    param_error = None
+    if not getattr(args, "summary_only", False):
+        from apmcal.calibration.log import calibrate_log
+        from apmcal.core.options import Options
+
+        report = report.with_calibration(*calibrate_log(contents, Options(
+            args.method, args.lat, args.lon, args.min_still, args.instance, args.firmware)))
+        report.print_calibration(console, args.verbose)
+        param_error = write_params(report, args.param_file, console)
+    if args.json:
+        report.save(args.json)
+        console.print(f"wrote {args.json}")
+    if param_error is not None:
+        raise param_error
+    return report
+
+
+def write_params(report, path, console) -> ApmcalError | None:
+    """``--param-file``: the proposal written (and said), or the error that stopped it, to be
+    raised once the JSON file is written too."""
+    if not path:
+        return None
+    try:
+        report.write_params(path)
+    except ApmcalError as err:
+        return err
+    console.print(f"wrote {path}")
+    return None

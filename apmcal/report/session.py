@@ -1,0 +1,104 @@
+"""What ``apmcal log`` and ``apmcal live`` give for one file: its summary, the calibration, the
+ArduPilot parameters proposed for it and the verdict, built once and printed, saved (JSON) and
+written (.param) by itself.
+
+The JSON file is :meth:`apmcal.solvers.result.Calibration.save`'s (schema, units, sensors,
+params, report) with this report's own top-level fields: ``summary``, ``verdict``,
+``rejected_params`` (when there is a proposal) and ``param_file`` or ``param_file_error`` (when a
+parameter file was asked for); a summary without a calibration is saved alone.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+from apmcal.core.errors import ApmcalError
+from apmcal.core.json_file import write_json
+from apmcal.report.text import print_calibration, print_summary, summarize, verdict_dict
+
+
+@dataclass
+class SessionReport:
+    """One file's summary, calibration, proposal and verdict (:meth:`build`).
+
+    Attributes
+    ----------
+    path : str
+        The file read.
+    summary : dict
+        :func:`apmcal.report.text.summarize` of the file.
+    calibration : Calibration or None
+        None with a summary only.
+    proposal : ParamProposal or None
+        The ArduPilot parameters proposed (None: no calibration, or a CSV file without a
+        firmware generation).
+    outputs : dict
+        The files written so far: "param_file" (its path) or "param_file_error" (why not).
+    """
+
+    path: str
+    summary: dict
+    calibration: object = None
+    proposal: object = None
+    outputs: dict = field(default_factory=dict)
+
+    @classmethod
+    def build(cls, contents, calibration=None, proposal=None) -> "SessionReport":
+        """The report of ``contents`` (LogContents) with its calibration and proposal."""
+        return cls(contents.path, summarize(contents), calibration, proposal)
+
+    def with_calibration(self, calibration, proposal) -> "SessionReport":
+        """The same report with the file's calibration and proposal."""
+        return replace(self, calibration=calibration, proposal=proposal)
+
+    @property
+    def status(self) -> int:
+        """Exit status: 1 when the firmware would reject some proposed value, else 0."""
+        return 0 if self.proposal is None or not self.proposal.rejected else 1
+
+    def print_summary(self, console) -> None:
+        """What the file holds (:func:`apmcal.report.text.print_summary`)."""
+        print_summary(self.summary, console)
+
+    def print_calibration(self, console, verbose: bool = False) -> None:
+        """The verdict, the numbers and the proposal (:func:`apmcal.report.text.print_calibration`)."""
+        if self.calibration is not None:
+            print_calibration(self.calibration, self.proposal, console, verbose)
+
+    def to_dict(self) -> dict:
+        """This report's own top-level JSON fields (the calibration's are added by :meth:`save`)."""
+        out = {"summary": self.summary}
+        if self.calibration is not None:
+            out["verdict"] = verdict_dict(self.calibration, self.proposal)
+            if self.proposal is not None:       # its values are the calibration's own "params"
+                out["rejected_params"] = dict(self.proposal.rejected)
+        out.update(self.outputs)
+        return out
+
+    def save(self, path) -> None:
+        """Write the JSON file (see the module docstring); one-line ApmcalError on OSError."""
+        if self.calibration is None:
+            write_json(path, self.to_dict())
+        else:
+            self.calibration.save(path, extra=self.to_dict())     # schema, units, report + ours
+
+    def write_params(self, path) -> None:
+        """The proposed parameters as a .param file; the outcome is kept for the JSON file
+        ("param_file", or "param_file_error" with the reason) and an error raised again.
+
+        Raises
+        ------
+        ApmcalError
+            Without a proposal (no firmware generation) or when the file cannot be written.
+        """
+        try:
+            if self.proposal is None:
+                raise ApmcalError("not an ArduPilot log, so no firmware generation to write "
+                                  "parameters for: add --firmware 3.2 or --firmware 3.3+",
+                                  self.path)
+            self.proposal.write(path, f"apmcal {self.calibration.method} calibration of "
+                                      f"{self.path}")
+        except ApmcalError as err:
+            self.outputs["param_file_error"] = str(err)
+            raise
+        self.outputs["param_file"] = str(path)
+
