@@ -7,12 +7,13 @@ the IMU (the other methods calibrate the compass on its own, afterwards).
 from __future__ import annotations
 
 import datetime
+from dataclasses import replace
 
 import numpy as np
 
 from apmcal.core.errors import ApmcalError
 from apmcal.preprocessing.prepare import compass_on_imu_times
-from apmcal.solvers.report_types import CalibrationReport, MagneticField
+from apmcal.solvers.report_types import MagneticField
 from apmcal.solvers.result import Calibration
 
 MIN_HOLDS = 3      # still poses; fewer leave most of the 42 parameters undetermined
@@ -24,10 +25,10 @@ MIN_HOLDS = 3      # still poses; fewer leave most of the 42 parameters undeterm
 JOINT_RATE_HZ = 50.0
 
 
-def field_magnitude(mag: np.ndarray, opts, report: CalibrationReport) -> float:
+def field_magnitude(mag: np.ndarray, opts) -> tuple[MagneticField, list[str]]:
     """Field magnitude [mGauss] that fixes the scale of the soft-iron matrix: the World
-    Magnetic Model's at --lat/--lon when given, else the samples' sphere fit (into
-    ``report.magnetic_field``, with a warning when the model has one).
+    Magnetic Model's at --lat/--lon when given, else the samples' sphere fit; with the model's
+    warning when it has one.
 
     Parameters
     ----------
@@ -35,27 +36,27 @@ def field_magnitude(mag: np.ndarray, opts, report: CalibrationReport) -> float:
         Raw compass samples [mGauss].
     opts : Options
         Its ``lat_deg``, ``lon_deg`` [deg] and ``date``.
-    report : CalibrationReport
-        Changed in place.
 
     Returns
     -------
-    float
-        The magnitude [mGauss].
+    MagneticField
+        The magnitude [mGauss] and where it came from.
+    list of str
+        Warnings.
     """
     from apmcal.core.geomag import field_magnitude
     from apmcal.solvers.ellipsoid.fit import sphere_fit
 
+    warnings = []
     if opts.lat_deg is not None and opts.lon_deg is not None:
         when = opts.date or datetime.date.today()
         radius, note = field_magnitude(opts.lat_deg, opts.lon_deg, when)
         if note:
-            report.warnings.append(f"mag: {note}")
+            warnings.append(f"mag: {note}")
         origin = f"WMM at {when}"
     else:
         radius, origin = float(sphere_fit(mag)[1]), "sphere fit (no --lat/--lon)"
-    report.magnetic_field = MagneticField(float(radius), origin)
-    return radius
+    return MagneticField(float(radius), origin), warnings
 
 
 def at_joint_rate(t, acc, gyr, mag):
@@ -116,10 +117,10 @@ def joint_on_prepared(prepared, mag_prepared, opts) -> Calibration:
         raise ApmcalError("joint calibration needs gyro samples; this recording has none")
     t = raw.t
     mag = compass_on_imu_times(t, prepared, mag_prepared)
-    report = CalibrationReport()
+    warnings = []
     if mag is None:
-        report.warnings.append("no compass in this session (or it logged only zeros): the "
-                               "accelerometer and gyro are calibrated without it")
+        warnings.append("no compass in this session (or it logged only zeros): the "
+                        "accelerometer and gyro are calibrated without it")
         span = np.ones(len(t), bool)
     else:
         span = np.all(np.isfinite(mag), axis=1)
@@ -135,16 +136,20 @@ def joint_on_prepared(prepared, mag_prepared, opts) -> Calibration:
         raise ApmcalError(f"joint calibration needs at least {MIN_HOLDS} still poses with turns "
                           f"between them; found {len(holds)} still period(s) of "
                           f"{opts.min_still_s:g} s or more")
-    field = field_magnitude(mag, opts, report) if mag is not None else None
+    magnetic_field = None
+    if mag is not None:
+        magnetic_field, notes = field_magnitude(mag, opts)
+        warnings += notes
     try:
         cal = joint_calibration(t, acc, gyr, mag, holds, gravity=opts.gravity,
-                                field_mgauss=field)
+                                field_mgauss=None if magnetic_field is None
+                                else magnetic_field.mgauss)
     except np.linalg.LinAlgError as err:      # a degenerate session (e.g. all poses alike)
         raise ApmcalError(f"joint calibration: the session does not determine the parameters "
                           f"({err}); add still poses in other orientations") from None
-    cal.report.warnings = report.warnings + cal.report.warnings
-    if report.magnetic_field is not None:
-        cal.report.magnetic_field = report.magnetic_field
-    cal.report.holds.count = len(holds)
-    cal.report.joint.block_samples, cal.report.joint.recorded_rate_hz = block, recorded_hz
-    return cal
+    report = cal.report
+    return replace(cal, report=replace(
+        report, warnings=warnings + report.warnings,
+        magnetic_field=magnetic_field or report.magnetic_field,
+        holds=replace(report.holds, count=len(holds)),
+        joint=replace(report.joint, block_samples=block, recorded_rate_hz=recorded_hz)))

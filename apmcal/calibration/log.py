@@ -7,7 +7,7 @@ sees raw sensor-frame samples. Static holds are found once and shared by the met
 """
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -22,7 +22,8 @@ from apmcal.preprocessing.prepare import (
     recording_date,
 )
 from apmcal.solvers.holds import MIN_ELLIPSOID_HOLDS, MIN_ORIENTATIONS, distinct_orientations
-from apmcal.solvers.resolution_floor import add_resolution_floor
+from apmcal.solvers.report_types import CalibrationReport
+from apmcal.solvers.resolution_floor import with_resolution_floor
 from apmcal.solvers.result import Calibration
 
 METHODS = ("auto", "ferraris", "static", "ellipsoid", "joint")
@@ -124,12 +125,13 @@ def calibrate(recording: Recording, opts: Options | None = None,
     except ApmcalError as err:
         if opts.method != "auto":
             raise
-        cal = Calibration(method="none")
-        cal.report.warnings.append(f"accelerometer and gyro not calibrated: {err.why}")
-    cal.report.warnings.extend(fallback + prepared.warnings)
-    add_resolution_floor(cal, prepared.floor_steps, {"acc": opts.gravity})
+        cal = Calibration(method="none", report=CalibrationReport(
+            warnings=[f"accelerometer and gyro not calibrated: {err.why}"]))
+    cal = with_parts(cal, warnings=fallback + prepared.warnings,
+                     sensors=with_resolution_floor(cal.sensors, prepared.floor_steps,
+                                                   {"acc": opts.gravity}))
     if has_live_magnetometer(prepared.raw):
-        add_magnetometer(cal, prepared, opts)
+        cal = with_compass(cal, compass_part(prepared, opts))
     return cal
 
 
@@ -178,16 +180,15 @@ def joint_calibration_of(prepared: Prepared, mag_prepared: Prepared | None,
     from apmcal.calibration.joint import joint_on_prepared
 
     cal = joint_on_prepared(prepared, mag_prepared, opts)
-    cal.report.warnings.extend(prepared.warnings)
+    warnings = list(prepared.warnings)
     if mag_prepared is not None:
-        cal.report.warnings.extend(f"mag: {w}" for w in mag_prepared.warnings)
-    # one call for all sensors: the compass is already in the result, so a second call would
-    # add its floor to the offset twice
-    field = {"acc": opts.gravity}
+        warnings += [f"mag: {w}" for w in mag_prepared.warnings]
+    # one floor for all sensors: the compass is already in the result
+    magnitudes = {"acc": opts.gravity}
     if "mag" in cal.sensors:
-        field["mag"] = cal.report.magnetic_field.mgauss
-    add_resolution_floor(cal, prepared.floor_steps, field)
-    return cal
+        magnitudes["mag"] = cal.report.magnetic_field.mgauss
+    return with_parts(cal, warnings=warnings,
+                      sensors=with_resolution_floor(cal.sensors, prepared.floor_steps, magnitudes))
 
 
 def find_holds(prepared: Prepared, opts: Options) -> list:
@@ -223,7 +224,7 @@ def with_own_compass_fit(cal: Calibration, prepared: Prepared, mag_prepared: Pre
     Parameters
     ----------
     cal : Calibration
-        The joint result, changed in place.
+        The joint result.
     prepared : Prepared
     mag_prepared : Prepared or None
         A separate compass record, prepared (:func:`separate_compass`).
@@ -232,17 +233,16 @@ def with_own_compass_fit(cal: Calibration, prepared: Prepared, mag_prepared: Pre
     Returns
     -------
     Calibration
-        ``cal``.
+        A new result: ``cal`` with the compass's own fit, or with its own compass and the
+        warning why the compass's own fit failed.
     """
-    joint_mag = cal.sensors.pop("mag", None)
     source = prepared if has_live_magnetometer(prepared.raw) else mag_prepared
-    add_magnetometer(cal, source, opts)
-    if "mag" in cal.sensors:
-        cal.report.joint.compass_own_fit = True
-    elif joint_mag is not None:
-        cal.sensors["mag"] = joint_mag
-        cal.report.not_calibrated.pop("mag", None)
-    return cal
+    part = compass_part(source, opts)
+    if part.sensor is not None:
+        return with_compass(cal, part, joint=replace(cal.report.joint, compass_own_fit=True))
+    if "mag" in cal.sensors:        # the joint's compass kept: the failed fit leaves its warning
+        return with_parts(cal, warnings=part.warnings)
+    return with_compass(cal, part)
 
 
 def inertial_calibration(prepared: Prepared, opts: Options, segments: list) -> Calibration:
@@ -339,14 +339,14 @@ def calibrate_log(contents, opts: Options | None = None):
         recording, mag_recording, contents.param_changes, contents.path)
     if opts.date is None:
         opts = replace(opts, date=recording_date(contents))
-    cal = calibrate(recording, opts, mag_recording)
-    cal.report.warnings.extend(change_warnings)
-    cal.report.recording = f"{recording.message} (IMU instance {recording.instance})"
+    cal = with_parts(calibrate(recording, opts, mag_recording), warnings=change_warnings,
+                     recording=f"{recording.message} (IMU instance {recording.instance})")
     if mag_recording is not None and "mag" not in cal.sensors:
         if has_live_magnetometer(mag_recording):
             mag_prepared = prepare(mag_recording, opts.generation)
-            cal.report.warnings.extend(f"mag: {w}" for w in mag_prepared.warnings)
-            add_magnetometer(cal, mag_prepared, opts)
+            cal = with_compass(with_parts(cal, warnings=[f"mag: {w}" for w in
+                                                          mag_prepared.warnings]),
+                               compass_part(mag_prepared, opts))
     if not cal.sensors:
         raise ApmcalError("nothing could be calibrated: "
                           + "; ".join(cal.report.warnings), contents.path)
@@ -356,35 +356,108 @@ def calibrate_log(contents, opts: Options | None = None):
     proposal = to_ardupilot_params(cal, generation, instance=recording.instance,
                                    current_params=contents.params)
     withhold_undetermined(proposal, cal.report.undetermined)
-    cal.params = dict(proposal.values)
-    return cal, proposal
+    return replace(cal, params=dict(proposal.values)), proposal
 
 
-def add_magnetometer(cal: Calibration, prepared: Prepared, opts: Options) -> None:
-    """Add the magnetometer fit to ``cal``, or a warning saying why it was not possible.
+@dataclass
+class CompassPart:
+    """The compass's own fit as the calibration takes it in (:func:`compass_part`).
+
+    Attributes
+    ----------
+    sensor : SensorCalibration or None
+        Sigmas widened by the resolution; None when the fit was not possible.
+    ellipsoid : EllipsoidFit or None
+    magnetic_field : MagneticField or None
+        With the samples' coverage of the directions.
+    warnings : list of str
+        The fit's warnings, or why it was not possible.
+    not_calibrated : str or None
+        Why not, for the verdict.
+    """
+
+    sensor: object = None
+    ellipsoid: object = None
+    magnetic_field: object = None
+    warnings: list[str] = field(default_factory=list)
+    not_calibrated: str | None = None
+
+
+def compass_part(prepared: Prepared, opts: Options) -> CompassPart:
+    """The magnetometer fit of ``prepared``'s compass samples [mGauss], or why it was not
+    possible (:func:`apmcal.solvers.magnetometer.calibrate_magnetometer`).
+
+    Parameters
+    ----------
+    prepared : Prepared
+        With magnetometer samples [mGauss].
+    opts : Options
+
+    Returns
+    -------
+    CompassPart
+    """
+    from apmcal.solvers.magnetometer import calibrate_magnetometer
+
+    mag = prepared.raw.xyz("mag")
+    try:
+        fit = calibrate_magnetometer(mag, opts.lat_deg, opts.lon_deg, opts.date)
+    except ApmcalError as err:
+        return CompassPart(warnings=[err.why], not_calibrated=err.why)
+    cover = mag_coverage(mag, fit.sensor)
+    magnetic_field = replace(fit.magnetic_field, coverage_fraction=cover["fraction"],
+                             coverage_min_eig=cover["min_eig"])
+    steps = {"mag": prepared.floor_steps["mag"]} if "mag" in prepared.floor_steps else {}
+    sensor = with_resolution_floor({"mag": fit.sensor}, steps, {"mag": magnetic_field.mgauss})
+    return CompassPart(sensor["mag"], fit.ellipsoid, magnetic_field, fit.warnings)
+
+
+def with_compass(cal: Calibration, part: CompassPart, **report_fields) -> Calibration:
+    """A new result: ``cal`` with the compass of ``part`` (replacing any it had), its ellipsoid
+    fit, field and warnings; or, when ``part`` has no fit, ``cal``'s sensors and why not.
 
     Parameters
     ----------
     cal : Calibration
-        Changed in place.
-    prepared : Prepared
-        With magnetometer samples [mGauss].
-    opts : Options
-    """
-    from apmcal.solvers.magnetometer import calibrate_magnetometer
+    part : CompassPart
+    **report_fields
+        Further fields of the report to set.
 
-    try:
-        cal.sensors["mag"] = calibrate_magnetometer(prepared.raw.xyz("mag"), opts.lat_deg,
-                                                    opts.lon_deg, cal.report, opts.date)
-    except ApmcalError as err:
-        cal.report.warnings.append(err.why)
-        cal.report.not_calibrated["mag"] = err.why      # for the verdict
-        return
-    cover = mag_coverage(prepared.raw.xyz("mag"), cal.sensors["mag"])
-    field = cal.report.magnetic_field
-    field.coverage_fraction, field.coverage_min_eig = cover["fraction"], cover["min_eig"]
-    steps = {"mag": prepared.floor_steps["mag"]} if "mag" in prepared.floor_steps else {}
-    add_resolution_floor(cal, steps, {"mag": field.mgauss})
+    Returns
+    -------
+    Calibration
+    """
+    if part.sensor is None:
+        not_calibrated = {**cal.report.not_calibrated, "mag": part.not_calibrated}
+        return with_parts(cal, warnings=part.warnings, not_calibrated=not_calibrated,
+                          **report_fields)
+    sensors = {name: sc for name, sc in cal.sensors.items() if name != "mag"}
+    sensors["mag"] = part.sensor
+    return with_parts(cal, warnings=part.warnings, sensors=sensors,
+                      ellipsoids={**cal.report.ellipsoids, "mag": part.ellipsoid},
+                      magnetic_field=part.magnetic_field, **report_fields)
+
+
+def with_parts(cal: Calibration, warnings=(), sensors=None, **report_fields) -> Calibration:
+    """A new result: ``cal`` with further ``warnings`` (after its own), other ``sensors`` and
+    report fields; ``cal`` itself is left as it is.
+
+    Parameters
+    ----------
+    cal : Calibration
+    warnings : sequence of str
+    sensors : dict, optional
+        name → SensorCalibration (default: ``cal``'s).
+    **report_fields
+        Fields of :class:`~apmcal.solvers.report_types.CalibrationReport` to set.
+
+    Returns
+    -------
+    Calibration
+    """
+    report = replace(cal.report, warnings=[*cal.report.warnings, *warnings], **report_fields)
+    return replace(cal, sensors=dict(cal.sensors if sensors is None else sensors),
+                   report=report)
 
 
 def mag_coverage(mag: np.ndarray, cal) -> dict:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from apmcal.calibration.log import add_magnetometer, calibrate
+from apmcal.calibration.log import calibrate, compass_part, with_compass
 from apmcal.calibration.orientation_check import orientation_errors
 from apmcal.core.options import Options
 from apmcal.preprocessing.prepare import pick_recording, prepare
@@ -104,7 +104,7 @@ def fit(method: str, rec, mag_rec, raw, mag, holds, opts: Options, part=None) ->
     o = Options(method, opts.lat_deg, opts.lon_deg, 1.0, date=opts.date)
     cal = calibrate(rec, o, mag_rec)
     if mag_rec is not None and "mag" not in cal.sensors:     # as calibrate_log does
-        add_magnetometer(cal, prepare(mag_rec), o)
+        cal = with_compass(cal, compass_part(prepare(mag_rec), o))
     return cal
 
 

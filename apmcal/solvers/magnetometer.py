@@ -3,6 +3,7 @@ with its second-order bias removed (:mod:`apmcal.solvers.ellipsoid.debias`)."""
 from __future__ import annotations
 
 import datetime
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -11,7 +12,7 @@ from apmcal.core.errors import ApmcalError
 from apmcal.core.geomag import field_magnitude
 from apmcal.solvers.ellipsoid.debias import debiased, warm_refit
 from apmcal.solvers.ellipsoid.fit import fit_ellipsoid_robust, fit_report, relative_mse, sphere_fit
-from apmcal.solvers.report_types import CalibrationReport, MagneticField, MseScore
+from apmcal.solvers.report_types import EllipsoidFit, MagneticField, MseScore
 from apmcal.solvers.result import SensorCalibration
 
 
@@ -43,12 +44,33 @@ def check_coverage(mag: np.ndarray, min_spread: float = 0.25) -> None:
                           f"orientations")
 
 
+@dataclass
+class CompassFit:
+    """What :func:`calibrate_magnetometer` found.
+
+    Attributes
+    ----------
+    sensor : SensorCalibration
+        Offset (3,) [mGauss], matrix (3, 3), with their sigmas.
+    ellipsoid : EllipsoidFit
+        The fit's quality (residuals, coverage, held-out score, debiasing).
+    magnetic_field : MagneticField
+        The field magnitude the matrix was fitted to [mGauss] and where it came from.
+    warnings : list of str
+        About the field model (a date outside its years, a field unlike the model's).
+    """
+
+    sensor: SensorCalibration
+    ellipsoid: EllipsoidFit
+    magnetic_field: MagneticField
+    warnings: list[str] = field(default_factory=list)
+
+
 @single_threaded_blas
 def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: float | None,
-                           report: CalibrationReport, when: datetime.date | None = None
-                           ) -> SensorCalibration:
-    """Robust ellipsoid fit of raw sensor-frame samples [mGauss]; the field used and the fit's
-    quality go into ``report`` (``magnetic_field``, ``ellipsoids["mag"]``, warnings).
+                           when: datetime.date | None = None) -> CompassFit:
+    """Robust ellipsoid fit of raw sensor-frame samples [mGauss], with the field used and the
+    fit's quality.
 
     The field magnitude comes from the World Magnetic Model when the site is known; otherwise
     from a sphere fit, which ties the overall scale to the data's own mean radius (offsets and
@@ -61,15 +83,14 @@ def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: floa
         Raw sensor-frame samples [mGauss].
     lat_deg, lon_deg : float or None
         Site [deg], for the World Magnetic Model.
-    report : CalibrationReport
-        Filled in place.
     when : datetime.date, optional
         Recording date.
 
     Returns
     -------
-    SensorCalibration
-        Offset (3,) [mGauss], matrix (3, 3) with their sigmas, second-order bias removed.
+    CompassFit
+        Its sensor: offset (3,) [mGauss], matrix (3, 3) with their sigmas, second-order bias
+        removed.
 
     Raises
     ------
@@ -77,16 +98,17 @@ def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: floa
         When the samples do not turn through space (:func:`check_coverage`) or the fit fails.
     """
     check_coverage(mag)
+    warnings: list[str] = []
     sphere = sphere_fit(mag)           # [Niespodziany] step 1: the field check and the fit's box
     if lat_deg is not None and lon_deg is not None:
         date = f"recording date {when}" if when else f"today's date {datetime.date.today()}"
         radius, note = field_magnitude(lat_deg, lon_deg, when)
         origin = f"WMM at {date}"
         if note:
-            report.warnings.append(f"mag: {note}")
+            warnings.append(f"mag: {note}")
         mismatch = field_mismatch(sphere[1], radius, lat_deg, lon_deg)
         if mismatch:
-            report.warnings.append(mismatch)
+            warnings.append(mismatch)
     else:
         radius, origin = sphere[1], "sphere fit (no --lat/--lon)"
     info: dict = {}
@@ -96,9 +118,7 @@ def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: floa
     fit.debias = bias
     fit.held_out = held_out_score(mag, radius, info["parameterisation"], start=fitted,
                                   f_scale=info["f_scale"])
-    report.ellipsoids["mag"] = fit
-    report.magnetic_field = MagneticField(float(radius), origin)
-    return cal
+    return CompassFit(cal, fit, MagneticField(float(radius), origin), warnings)
 
 
 HELD_OUT_FIT_SAMPLES = 20_000    # the held-out score's fit uses at most about this many

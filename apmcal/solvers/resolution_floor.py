@@ -9,15 +9,18 @@ the rounding is dithered away and its variance is already in the residual-based 
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from apmcal.preprocessing.resolution import ONE_SIGMA_OF_UNIFORM_STEP
-from apmcal.solvers.result import Calibration
+from apmcal.solvers.result import SensorCalibration
 
 
-def add_resolution_floor(calibration: Calibration, steps: dict[str, float],
-                         field: dict[str, float]) -> None:
-    """Widen offset (and accelerometer/magnetometer matrix) sigmas by the step's own spread.
+def with_resolution_floor(sensors: dict[str, SensorCalibration], steps: dict[str, float],
+                          field: dict[str, float]) -> dict[str, SensorCalibration]:
+    """The sensors with offset (and accelerometer/magnetometer matrix) sigmas widened by the
+    step's own spread.
 
     ``field`` gives the magnitude the matrix was fitted to (|g| m/s², |B| mGauss): a step error in
     a mean is a relative error step/|field| in the matrix terms it feeds. Only sigmas the method
@@ -25,15 +28,22 @@ def add_resolution_floor(calibration: Calibration, steps: dict[str, float],
 
     Parameters
     ----------
-    calibration : Calibration
-        Changed in place (each widened sensor gets a new ``sigma`` dict).
+    sensors : dict
+        sensor → SensorCalibration; not changed.
     steps : dict
         sensor → resolution step of its samples [sensor units: m/s², rad/s, mGauss].
     field : dict
         sensor → field magnitude the matrix was fitted to [sensor units].
+
+    Returns
+    -------
+    dict
+        sensor → SensorCalibration: a widened copy for each sensor of ``steps``, the others as
+        they were.
     """
+    out = dict(sensors)
     for sensor, step in steps.items():
-        cal = calibration.sensors.get(sensor)
+        cal = sensors.get(sensor)
         if cal is None:
             continue
         floor = step * ONE_SIGMA_OF_UNIFORM_STEP
@@ -42,4 +52,5 @@ def add_resolution_floor(calibration: Calibration, steps: dict[str, float],
             sigma["offset"] = np.hypot(sigma["offset"], floor)
         if "matrix" in sigma and field.get(sensor, 0) > 0:
             sigma["matrix"] = np.hypot(sigma["matrix"], floor / field[sensor])
-        cal.sigma = sigma
+        out[sensor] = replace(cal, sigma=sigma)
+    return out

@@ -1,4 +1,4 @@
-"""Ellipsoid calibration ([Niespodziany], Niespodziany) and its robust successor: one entry point.
+"""Ellipsoid calibration ([Niespodziany]) and its robust successor: one entry point.
 
 The estimators live in :mod:`apmcal.solvers.ellipsoid.paper` (the paper's analytical and
 numerical fits, gyro offset, relative MSE) and :mod:`apmcal.solvers.ellipsoid.robust` (robust
