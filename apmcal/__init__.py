@@ -1,23 +1,52 @@
 """apmcal: IMU calibration for ArduPilot flight controllers from a ground station.
 
-Data flow (one sub-package per stage):
-    sources/        read logs, CSV files or a live vehicle into :class:`Recording` objects
-    preprocessing/  undo the firmware's correction, find static periods, high-pass filter
-    solvers/        Ferraris benchmark, one-position static method, ellipsoid fits
-    vehicle/        turn a calibration into ArduPilot parameters, write .param files, upload
-    diagnosis/      compare simulation with real data
+The front door for Python users (each name imported when first used, so that ``import apmcal``
+and the command line start light)::
+
+    import apmcal
+    result = apmcal.calibrate("logs/ferraris.tlog", lat_deg=5.6037, lon_deg=-0.187)
+    result.verdict["overall"].grade         # "good" / "usable" / "redo"
+    result.calibration.apply("acc", raw)    # calibrated samples; .save(path), Calibration.load
+    result.proposal.values                  # the ArduPilot parameters proposed
+
+- :func:`calibrate` — a log file (or a :class:`Recording`) to a :class:`SessionReport`: the
+  calibration with its report, the parameters proposed and the verdict;
+- :func:`read_log` — what a .tlog, .bin, .log or .csv file holds (:class:`LogContents`);
+- :class:`Options`, :class:`Calibration`, :class:`Recording`, :class:`ApmcalError`.
+
+The package, in the order the data flows (each subpackage's docstring maps its modules):
+
+    core/           the shared vocabulary: Recording, Options, constants, errors, WMM field
+    ardupilot/      ArduPilot's parameters and their meaning (correction formulas, limits, files)
+    sources/        read logs, CSV files or a live vehicle into LogContents
+    preprocessing/  undo the firmware's correction, find still periods, high-pass filter
+    solvers/        Ferraris, one-position, ellipsoid, joint, compass, temperature fits
+    calibration/    joins the stages: a log (or live session) to one Calibration
+    report/         verdicts and the report a person reads
+    link/           MAVLink to a vehicle: parameters, verified upload and restore
+    sensor_model/   the IMU error model the gap diagnosis twins a board with
+    diagnosis/      the gap between a real board and its simulation (apmcal gap)
+    cli/            the command line, one module per command
 """
+from __future__ import annotations
+
 from apmcal.core.errors import ApmcalError
 
-__all__ = ["ApmcalError", "Recording", "LogContents"]
+__all__ = ["calibrate", "read_log", "Options", "Calibration", "SessionReport", "Recording",
+           "LogContents", "ApmcalError"]
 __version__ = "0.1.0"
+
+# name → module it lives in; imported when first asked for (pandas, numpy and scipy are not
+# needed by `apmcal --help`, and a Ctrl-C during their import falls inside the CLI's handler)
+_LAZY = {"read_log": "apmcal.sources", "Options": "apmcal.core.options",
+         "Calibration": "apmcal.solvers.result", "SessionReport": "apmcal.report.session",
+         "Recording": "apmcal.core.recording", "LogContents": "apmcal.core.recording",
+         "calibrate": "apmcal.report.session"}
 
 
 def __getattr__(name: str):
-    # Recording and LogContents import pandas: loaded when first asked for, so that the command
-    # line starts light and a Ctrl-C during its imports falls inside its own handler (exit 130)
-    if name in ("Recording", "LogContents"):
-        from apmcal.core import recording
+    if name in _LAZY:
+        from importlib import import_module
 
-        return getattr(recording, name)
+        return getattr(import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'apmcal' has no attribute {name!r}")

@@ -69,7 +69,7 @@ def temperature_correction(temp_c, params: dict, kind: str) -> np.ndarray | floa
     """The temperature correction [m/s² or rad/s] (n, 3) the firmware subtracts from the raw
     sensor-frame samples of IMU 1 (``kind`` "ACC" or "GYR"); 0 unless INS_TCAL1_ENABLE = 1.
 
-    Issue 11, as ArduPilot 4.1+ does it (AP_InertialSensor_tempcal.cpp ``correct_sensor`` and
+    As ArduPilot 4.1+ does it (AP_InertialSensor_tempcal.cpp ``correct_sensor`` and
     ``polynomial_eval``; AP_InertialSensor_Backend.cpp ``_rotate_and_correct_accel/gyro`` apply
     it in the sensor frame before the offsets and scales): with T and the calibration
     temperature INS_ACC1_CALTEMP / INS_GYR1_CALTEMP each clamped to [TMIN, TMAX],
@@ -173,7 +173,7 @@ def compass_motor_offset(params: dict, throttle: np.ndarray | float = 0.0,
     """COMPASS_MOT·d [mGauss, body frame] (n, 3), the firmware's ``motor_offset`` (MAG MOX..Z).
 
     COMPASS_MOTCT selects d: 0 none, 1 throttle (0..1), 2 battery current [A]. ADDED to the
-    field (ardupilot-facts.md "+ COMPASS_MOT·(throttle or current)"; Copter 3.2/3.3
+    field (ardupilot-facts.md "How the firmware applies the parameters"; Copter 3.2/3.3
     ``mag += motor_offset`` only when the type is not disabled and d ≠ 0), never subtracted:
     compassmot stores MOT as minus the interference per unit d, so adding it cancels it.
     """

@@ -232,7 +232,7 @@ def contaminate(rot, rate, t, tremor: Tremor | None):
 # ---- the scripts -----------------------------------------------------------------------------
 def ferraris(hold: float = 20.0, pause: float = 20.0, step_s: float = 2.0,
              move_s: float = 3.0) -> Motion:
-    """Seed 002 §3.1: six faces ~20 s each, then for x, y, z: that axis antiparallel to gravity
+    """[Oppong] §3.1: six faces ~20 s each, then for x, y, z: that axis antiparallel to gravity
     ("_a" face), four −90° steps about it with ~20 s idle after each (imucal expects −360°)."""
     m = Motion(start_pose=pose_matrix("x_p"))
     for face in ("x_p", "x_a", "y_p", "y_a", "z_p", "z_a"):
@@ -261,7 +261,7 @@ def ardupilot6(hold: float = 10.0, move_s: float = 3.0) -> Motion:
 
 
 def onepos(seconds: float = 60.0) -> Motion:
-    """Seed 002 one-position method: one minute static, x north, z down."""
+    """[Oppong] one-position method: one minute static, x north, z down."""
     return Motion().hold(seconds, "onepos")
 
 
@@ -283,7 +283,7 @@ def tumble(seconds: float = 90.0, seed: int = 0, step_s: float = 1.5) -> Motion:
 
 def handheld(seconds: float = 60.0, seed: int = 0, hold_s: float = 3.0,
              turn_s: float = 2.0) -> Motion:
-    """Seed 001 §4.2's on-site session: still poses ``hold_s`` long with turns of 60-180° about
+    """[Chow] §4.2's on-site session: still poses ``hold_s`` long with turns of 60-180° about
     random body axes between them (``turn_s`` each), starting level; ``seconds`` in all."""
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x4A4D]))
     m = Motion().hold(hold_s, "hold")

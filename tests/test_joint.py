@@ -116,7 +116,7 @@ def test_the_check_above_sees_an_ignored_gyro_scale(fitted):
 
 
 def test_joint_beats_the_other_methods_out_of_sample(fitted):
-    """Seed 001 §5's check on another session of the same board: gyro-integrated orientation
+    """[Chow] §5's check on another session of the same board: gyro-integrated orientation
     change between still poses against accelerometer + compass at those poses."""
     from apmcal.calibration.log import Options, calibrate_log
     from apmcal.calibration.validation import check, session

@@ -1,4 +1,4 @@
-"""Seed 002 §5 one-position static method (apmcal/solvers/one_position.py)."""
+"""[Oppong] §5 one-position static method (apmcal/solvers/one_position.py)."""
 from __future__ import annotations
 
 import numpy as np

@@ -99,7 +99,7 @@ def test_bad_input_raises():
 
 
 def test_four_quarter_turns_grouped_into_one_full_turn():
-    """Seed 002 §3.1: 360° about z in 4 × 90° steps, a hold after each; then one 90° about x."""
+    """[Oppong] §3.1: 360° about z in 4 × 90° steps, a hold after each; then one 90° about x."""
     fs, rate = 100.0, np.radians(90.0)          # 1 s per quarter turn
     plan = [("hold", 4)] + [("z", 1), ("hold", 3)] * 4 + [("x", 1), ("hold", 4)]
     gyr_parts = []

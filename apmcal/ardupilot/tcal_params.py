@@ -1,6 +1,6 @@
 """ArduPilot's IMU temperature calibration parameters (INS_TCALn_*) and the correction they make.
 
-Issue 11, and ArduPilot 4.1+ libraries/AP_InertialSensor/AP_InertialSensor_tempcal.cpp
+ArduPilot 4.1+ libraries/AP_InertialSensor/AP_InertialSensor_tempcal.cpp
 (``polynomial_eval``, ``correct_sensor``, ``Learn::save_calibration``; parameter table
 ``AP_InertialSensor::TCal::var_info``), AP_InertialSensor.cpp (groups ``_TCAL1_`` .. ``_TCAL3_``,
 ``_ACC1_CALTEMP`` .. ``_GYR3_CALTEMP``) and AP_InertialSensor_Backend.cpp

@@ -84,7 +84,7 @@ def at_joint_rate(t, acc, gyr, mag):
 
 
 def joint_on_prepared(prepared, mag_prepared, opts) -> Calibration:
-    """Seed 001's joint calibration of a prepared recording and its compass.
+    """[Chow]'s joint calibration of a prepared recording and its compass.
 
     Without a live compass the accelerometer and gyro are calibrated alone (their 30
     parameters; the compass conditions are left out, [Chow] §3.2), with a warning. Raises

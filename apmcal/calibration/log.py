@@ -158,7 +158,7 @@ def separate_compass(prepared: Prepared, mag_recording: Recording | None,
 
 def joint_calibration_of(prepared: Prepared, mag_prepared: Prepared | None,
                          opts: Options) -> Calibration:
-    """Seed 001's joint calibration of IMU and compass (:mod:`apmcal.calibration.joint`).
+    """[Chow]'s joint calibration of IMU and compass (:mod:`apmcal.calibration.joint`).
 
     Parameters
     ----------

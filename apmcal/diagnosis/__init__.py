@@ -1,28 +1,22 @@
 """Diagnosis of the gap between a real board and its simulation (``apmcal gap``).
 
 Where the gap lies, which unmodelled effect causes it, and how far modelling it shrinks the gap
-on data the fit did not see. The flow, one module per step:
+on data the fit did not see. The flow, one subpackage per concern:
 
-- :mod:`~apmcal.diagnosis.session.log` — a log's prepared samples cut into still holds, the moves
+- :mod:`~apmcal.diagnosis.session` — a log's prepared samples cut into still holds, the moves
   between them, and pieces alternating between two folds;
-- :mod:`~apmcal.diagnosis.model.nominal` (with :mod:`~apmcal.diagnosis.model.blocks`,
-  :mod:`~apmcal.diagnosis.model.regressors`, :mod:`~apmcal.diagnosis.model.static_fit`,
-  :mod:`~apmcal.diagnosis.model.dynamics`, :mod:`~apmcal.diagnosis.noise.fit`) — the nominal model
-  plus chosen effects fitted on one fold, and its residuals;
-- :mod:`~apmcal.diagnosis.twin.simulate` (with :mod:`~apmcal.diagnosis.session.trajectory`) — the session
-  simulated by sitl's error model with the fitted parameters;
-- :mod:`~apmcal.diagnosis.scoring.gap` (with :mod:`~apmcal.diagnosis.scoring.haar`) — the gap between real and
-  twin residuals, and :mod:`~apmcal.diagnosis.scoring.breakdown` — where it lies;
-- :mod:`~apmcal.diagnosis.scoring.evaluate` — a model scored in-sample and held-out, both ways round;
-- :mod:`~apmcal.diagnosis.model.effects` and :mod:`~apmcal.diagnosis.scoring.select` — the candidate effects,
-  ranked by held-out evidence, with :mod:`~apmcal.diagnosis.model.wald` (are the parameters away
-  from "off"?) and :mod:`~apmcal.diagnosis.model.plausible` (within physical limits?), and a
-  stepwise combination;
-- :mod:`~apmcal.diagnosis.run` — all of it for one session; :mod:`~apmcal.diagnosis.output.result`,
-  :mod:`~apmcal.diagnosis.output.summary`, :mod:`~apmcal.diagnosis.output.report`,
-  :mod:`~apmcal.diagnosis.output.plots`, :mod:`~apmcal.diagnosis.twin.file` — what the user gets;
-- :mod:`~apmcal.diagnosis.noise.allan`, :mod:`~apmcal.diagnosis.noise.terms`,
-  :mod:`~apmcal.diagnosis.noise.bias_track` — Allan deviation, noise terms and the random-walk bias
-  track of the residuals (real against twin);
-- :mod:`~apmcal_sim.gap_benchmark` — simulated sessions with one effect withheld from the twin.
+- :mod:`~apmcal.diagnosis.model` — the nominal model plus chosen effects fitted on one fold,
+  and its residuals; the candidate effects and the tests of their parameters;
+- :mod:`~apmcal.diagnosis.twin` — the session simulated by apmcal's sensor error model
+  (:mod:`apmcal.sensor_model`) with the fitted parameters;
+- :mod:`~apmcal.diagnosis.scoring` — the gap between real and twin residuals, where it lies,
+  each model scored held-out, and the effects that explain it;
+- :mod:`~apmcal.diagnosis.noise` — Allan deviation, noise terms and the random-walk bias track
+  of the residuals (real against twin);
+- :mod:`~apmcal.diagnosis.output` — the result, the summary, the report and its figures;
+- :mod:`~apmcal.diagnosis.compute` — worker processes and the caches that keep it fast;
+- :mod:`~apmcal.diagnosis.run` — all of it for one session.
+
+The benchmark of simulated sessions with one effect withheld from the twin needs the simulator,
+so it lives beside it: ``python -m apmcal_sim.gap_benchmark``.
 """

@@ -1,6 +1,6 @@
 """Zero-phase Butterworth high-pass, the 0.5 Hz filter of [Oppong] §5.1-5.2 (step 3).
 
-Seed 002 passes each axis of the one-minute static record through a high-pass with
+[Oppong] passes each axis of the one-minute static record through a high-pass with
 f_c = 0.5 Hz before solving for the bias. It does not give the filter type or order; we use a
 Butterworth (maximally flat pass band, so signal above f_c passes with unit gain) run forwards and
 backwards (``scipy.signal.sosfiltfilt``) so it adds no phase shift or delay.

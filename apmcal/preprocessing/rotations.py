@@ -2,7 +2,7 @@
 
 Between two consecutive static segments the bias-corrected gyroscope is integrated. When the
 sensor turns about a fixed axis the integral is the rotation vector, so a motion whose integral
-points along one sensor axis (within ``max_off_axis_deg``) is a "step" about that axis. Seed 002
+points along one sensor axis (within ``max_off_axis_deg``) is a "step" about that axis. [Oppong]
 turns each axis through 360° in four 90° steps with a pause after each; consecutive steps about
 the same axis with the same sign are grouped until they add up to a full turn. A continuous
 360° turn (imucal's example session) is a single step.

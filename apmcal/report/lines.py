@@ -159,7 +159,7 @@ def few_residuals_lines(sensor: str, n_samples: int, n_params: int | None) -> li
 
 
 def score_line(sensor: str, s: MseScore) -> str:
-    """Seed 000's relative MSE, raw → calibrated, and what it was scored on."""
+    """[Niespodziany]'s relative MSE, raw → calibrated, and what it was scored on."""
     if s.failed:
         return (f"{sensor}: no held-out score: half of the samples is not enough for a fit of "
                 f"its own ({s.failed})")
@@ -221,7 +221,7 @@ def one_position_lines(fit: OnePositionFit) -> list[str]:
 
 # --------------------------------------------------------------------------- joint
 def joint_lines(j: JointFit) -> list[str]:
-    """Seed 001's joint fit: conditions, noise scales, parameters estimated, what ArduPilot
+    """[Chow]'s joint fit: conditions, noise scales, parameters estimated, what ArduPilot
     cannot hold."""
     dropped = (f"; insignificant at 95 % (t-test, fixed to nominal and refitted): "
                f"{', '.join(j.dropped_t_test)}" if j.dropped_t_test else "")

@@ -51,6 +51,16 @@ class SessionReport:
         return replace(self, calibration=calibration, proposal=proposal)
 
     @property
+    def verdict(self) -> dict:
+        """Sensor name (and "overall") → :class:`apmcal.report.verdict.Verdict` (empty without a
+        calibration)."""
+        if self.calibration is None:
+            return {}
+        from apmcal.report.verdict import judge
+
+        return judge(self.calibration, self.proposal)
+
+    @property
     def status(self) -> int:
         """Exit status: 1 when the firmware would reject some proposed value, else 0."""
         return 0 if self.proposal is None or not self.proposal.rejected else 1
@@ -102,3 +112,51 @@ class SessionReport:
             raise
         self.outputs["param_file"] = str(path)
 
+
+
+def calibrate(source, *, method: str = "auto", lat_deg: float | None = None,
+              lon_deg: float | None = None, min_still_s: float = 2.0,
+              instance: int | None = None, generation: str | None = None) -> SessionReport:
+    """Calibrate a log file or a recording: what ``apmcal log`` does, for Python users.
+
+    Parameters
+    ----------
+    source : str, Path, LogContents or Recording
+        A .tlog, .bin, .log or .csv file (read with :func:`apmcal.sources.read_log`), what a
+        reader returned, or one recording.
+    method : {"auto", "ferraris", "static", "ellipsoid", "joint"}
+    lat_deg, lon_deg : float, optional
+        The site [deg]: normal gravity and Earth rate (latitude), the WMM field (both).
+    min_still_s : float
+        Shortest still period counted as a hold [s].
+    instance : int, optional
+        IMU instance (default: the first).
+    generation : {"3.2", "3.3+"}, optional
+        Firmware parameter generation (default: from the log; needed for a CSV file's parameters).
+
+    Returns
+    -------
+    SessionReport
+        ``calibration`` (:class:`~apmcal.solvers.result.Calibration`, with its report),
+        ``proposal`` (the ArduPilot parameters, or None for a CSV file without ``generation``),
+        ``verdict``; ``print_calibration(console)``, ``save(path)``, ``write_params(path)``.
+
+    Raises
+    ------
+    ApmcalError
+        For a file that cannot be read, implausible units, or nothing to calibrate.
+    """
+    from apmcal.calibration.log import calibrate_log
+    from apmcal.core.options import Options
+    from apmcal.core.recording import LogContents, Recording
+    from apmcal.sources import read_log
+    from apmcal.sources.units import require_plausible_units
+
+    if isinstance(source, Recording):
+        source = LogContents(path=source.source, format=source.message or "recording",
+                             recordings=[source], params=dict(source.params),
+                             vehicle=source.vehicle, firmware=source.firmware)
+    contents = source if isinstance(source, LogContents) else read_log(source)
+    require_plausible_units(contents)
+    opts = Options(method, lat_deg, lon_deg, min_still_s, instance, generation)
+    return SessionReport.build(contents).with_calibration(*calibrate_log(contents, opts))

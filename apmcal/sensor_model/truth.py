@@ -307,7 +307,7 @@ class Truth:
     def acc_forward(self) -> np.ndarray:
         """F with s = F·f + b: sensor output from board-frame specific force.
 
-        Seed 002 eq. 1: a_s = K_a·R_a·a_p + b with R_a = T_a⁻¹ (non-orthogonality), times the
+        [Oppong] eq. 1: a_s = K_a·R_a·a_p + b with R_a = T_a⁻¹ (non-orthogonality), times the
         rotation of the triad relative to the board (misalignment).
         """
         k = np.diag(self.acc_scale) if self.on("acc_scale") else np.eye(3)

@@ -88,7 +88,7 @@ def u_matrices(means: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
 
 
 def accel_bias(u_plus: np.ndarray, u_minus: np.ndarray) -> np.ndarray:
-    """Seed 002 eq. 3: b_i = (a_{i,p_i} + a_{i,ap_i}) / 2, the diagonal of (U+ + U−)/2.
+    """[Oppong] eq. 3: b_i = (a_{i,p_i} + a_{i,ap_i}) / 2, the diagonal of (U+ + U−)/2.
 
     Parameters
     ----------
@@ -104,7 +104,7 @@ def accel_bias(u_plus: np.ndarray, u_minus: np.ndarray) -> np.ndarray:
 
 
 def gravity_q(u_plus: np.ndarray) -> float:
-    """Seed 002 eq. 4: Q = mean of the column norms of U+.
+    """[Oppong] eq. 4: Q = mean of the column norms of U+.
 
     Parameters
     ----------
@@ -120,7 +120,7 @@ def gravity_q(u_plus: np.ndarray) -> float:
 
 
 def accel_coupling(u_plus: np.ndarray, u_minus: np.ndarray, g: float) -> np.ndarray:
-    """Seed 002 §4.2: K_a R_a = (U+ − U−) / (2 g) (g = Q or the known local gravity).
+    """[Oppong] §4.2: K_a R_a = (U+ − U−) / (2 g) (g = Q or the known local gravity).
 
     Parameters
     ----------
@@ -156,7 +156,7 @@ def gyro_g_sensitivity(ug_plus: np.ndarray, ug_minus: np.ndarray, g: float) -> n
 
 
 def gyro_coupling(integrals: np.ndarray, angles: np.ndarray) -> np.ndarray:
-    """Seed 002 §4.4: K_g R_g = W · diag(angles)⁻¹, column j = integral of rotation j / its angle.
+    """[Oppong] §4.4: K_g R_g = W · diag(angles)⁻¹, column j = integral of rotation j / its angle.
 
     Parameters
     ----------

@@ -70,7 +70,7 @@ def longest_level_hold(segments, board_rotation: np.ndarray | None = None):
 
 def one_position_on_holds(t, acc, gyr, segments, lat_deg, lon_deg,
                           board_rotation: np.ndarray | None = None) -> Calibration:
-    """Seed 002's one-position method on the longest level hold.
+    """[Oppong]'s one-position method on the longest level hold.
 
     The paper's platform is level with x north and z down ([Oppong] §3.2): that is the vehicle's
     body frame, so the sensor-frame samples are rotated into it by ``board_rotation``

@@ -165,7 +165,7 @@ def field_mismatch(measured_mgauss: float, wmm_mgauss: float, lat_deg: float,
 def held_out_score(mag: np.ndarray, radius: float, parameterisation: str,
                    n_blocks: int = 20, *, start: SensorCalibration | None = None,
                    f_scale: float | None = None) -> MseScore:
-    """Seed 000's figure of merit (§VI.B) on samples the fit never saw.
+    """[Niespodziany]'s figure of merit (§VI.B) on samples the fit never saw.
 
     The record is cut into ``n_blocks`` consecutive blocks; the even ones are fitted and the odd
     ones scored, so neighbouring (correlated) samples do not sit on both sides. The relative MSE

@@ -71,7 +71,7 @@ def _sample_rate(t: np.ndarray) -> float:
 
 def accelerometer_one_position(acc: np.ndarray, fs: float, cutoff_hz: float = 0.5
                                ) -> tuple[SensorCalibration, OnePositionAcc]:
-    """Seed 002 §5.1 steps 1-9 on level, still specific-force samples (n, 3) [m/s², body FRD].
+    """[Oppong] §5.1 steps 1-9 on level, still specific-force samples (n, 3) [m/s², body FRD].
 
     Returns the SensorCalibration (offset = b, matrix = F⁻¹) and the intermediate quantities.
 
@@ -115,7 +115,7 @@ def accelerometer_one_position(acc: np.ndarray, fs: float, cutoff_hz: float = 0.
 def gyroscope_one_position(gyr: np.ndarray, fs: float, cutoff_hz: float = 0.5,
                            lat_deg: float | None = None, lon_deg: float | None = None
                            ) -> tuple[SensorCalibration, OnePositionGyr]:
-    """Seed 002 §5.2 on still gyro samples (n, 3) [rad/s], x north, z down.
+    """[Oppong] §5.2 on still gyro samples (n, 3) [rad/s], x north, z down.
 
     Returns SensorCalibration (offset = b, matrix = I) and the intermediate quantities. The
     paper's E is computed and reported but never applied: its terms are set by the Earth rate

@@ -118,7 +118,7 @@ class Residuals:
 
 @dataclass
 class MseScore:
-    """Seed 000's figure of merit (§VI.B): relative MSE of |calibrated| raw and calibrated.
+    """[Niespodziany]'s figure of merit (§VI.B): relative MSE of |calibrated| raw and calibrated.
 
     Attributes
     ----------
@@ -217,7 +217,7 @@ class MagneticField:
 
 @dataclass
 class OnePositionAcc:
-    """Seed 002 §5.1 on the level hold (body FRD, m/s²): step-1 ``mean`` (3,), g := ‖mean‖,
+    """[Oppong] §5.1 on the level hold (body FRD, m/s²): step-1 ``mean`` (3,), g := ‖mean‖,
     step-3 mean ``R`` and high-pass mean ``R_f`` (3,), ``bias`` (3,), F (3, 3) and its β, γ, μ,
     μ read literally (a_s = R), F in the paper's sign convention, tilt from level [deg].
 
@@ -255,7 +255,7 @@ class OnePositionAcc:
 
 @dataclass
 class OnePositionGyr:
-    """Seed 002 §5.2 (rad/s): mean ``R``, high-pass mean ``R_f``, ``bias``; with a latitude the
+    """[Oppong] §5.2 (rad/s): mean ``R``, high-pass mean ``R_f``, ``bias``; with a latitude the
     Earth-rate input ``omega_p`` (3,), E (3, 3) and its τ, ξ, ν (reported, never applied).
 
     Attributes
@@ -292,7 +292,7 @@ class OnePositionFit:
 
 @dataclass
 class JointFit:
-    """Seed 001's joint fit: conditions and robust rejections per family, each family's noise
+    """[Chow]'s joint fit: conditions and robust rejections per family, each family's noise
     scale (1 = the still periods' white noise), the parameters (name → [value, σ] in the units
     of :data:`apmcal.solvers.joint.model.UNITS`), those held fixed and those the t-test dropped,
     and what ArduPilot cannot hold: the gyro matrix's cost [deg per 360° turn] and the

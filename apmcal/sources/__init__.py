@@ -5,6 +5,14 @@
 (dataflash .bin), :func:`apmcal.sources.dataflash_text.read_dataflash_text` (dataflash text
 .log) or ``apmcal.sources.csv.read_csv`` (CSV and other text tables). Whatever the bytes, only
 :class:`~apmcal.core.errors.ApmcalError` escapes.
+
+Modules: :mod:`~apmcal.sources.tlog`, :mod:`~apmcal.sources.dataflash`,
+:mod:`~apmcal.sources.dataflash_text`, :mod:`~apmcal.sources.csv` (the readers, over the private
+framing and record helpers ``_framing``, ``_fastscan`` and ``_common``);
+:mod:`~apmcal.sources.tclr` (the firmware temperature learner's TCLR records);
+:mod:`~apmcal.sources.gps_time` (a dataflash log's wall-clock time from its GPS records);
+:mod:`~apmcal.sources.units` (is each sensor's magnitude one the Earth allows?);
+:mod:`~apmcal.sources.live` (a live vehicle's IMU streamed and recorded over MAVLink).
 """
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """Physical sanity check of a log's units: is each sensor's magnitude one the Earth allows?
 
 A message that carries a sensor in the wrong units is not noise to be fitted: fitted, it gives
-offsets millions of times too large. Issue 9: ArduPilot firmware of about May 2024 - Feb 2026
+offsets millions of times too large. ArduPilot firmware of about May 2024 - Feb 2026
 sent HIGHRES_IMU xmag/ymag/zmag in mGauss×1000 instead of gauss (1e6 times too much), and apmcal,
 which prefers HIGHRES_IMU, proposed a compass offset of 1e8 mGauss. So every sensor of every
 recording of an ArduPilot log (tlog, dataflash; live links are read back as tlogs) is checked

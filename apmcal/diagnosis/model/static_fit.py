@@ -42,7 +42,7 @@ _GEOMETRY_FITS = ContentMemo("geometry_fits", 512)
 
 
 def non_orthogonality(alpha) -> np.ndarray:
-    """Seed 002 §2.1 T_a for (α_yz, α_zy, α_zx) [rad], as sitl's acc_forward builds it.
+    """[Oppong] §2.1 T_a for (α_yz, α_zy, α_zx) [rad], as sitl's acc_forward builds it.
 
     Parameters
     ----------

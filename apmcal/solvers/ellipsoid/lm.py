@@ -154,7 +154,7 @@ def residual(x: np.ndarray, sT: np.ndarray, entries) -> np.ndarray:
 def residual_jacobian(x: np.ndarray, sT: np.ndarray, entries) -> tuple[np.ndarray, np.ndarray]:
     """(r (n,), J (p, n)): the residual of :func:`residual` and its transposed Jacobian.
 
-    Seed 000's geometric residual; ``∂r/∂o = −Mᵀn``, ``∂r/∂M_ab = n_a·c_b`` with
+    [Niespodziany]'s geometric residual; ``∂r/∂o = −Mᵀn``, ``∂r/∂M_ab = n_a·c_b`` with
     ``c = s − o``, ``n = Mc/|Mc|`` (as :func:`apmcal.solvers.ellipsoid.paper.geometric_residual`,
     which returns the (n, p) layout).
 

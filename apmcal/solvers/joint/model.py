@@ -1,6 +1,6 @@
 """The 42-parameter sensor model of [Chow] §3.1: parameter vector ↔ matrices, corrections.
 
-Seed 001 (Chow, Hol, Luinge), §3.1. Upper-case letters are 3×3 matrices, S diagonal scale, N
+[Chow] (Chow, Hol, Luinge), §3.1. Upper-case letters are 3×3 matrices, S diagonal scale, N
 lower-triangular non-orthogonality (unit diagonal), R a rotation:
 
 * eq. 1, accelerometer:  y_a = S_a·N_a·a + b_a + ε_a                          [m/s²]

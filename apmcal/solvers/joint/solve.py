@@ -49,7 +49,7 @@ T_TEST_LEVEL = 0.95
 
 def joint_calibration(t, acc, gyr, mag, holds, *, gravity: float,
                       field_mgauss: float | None = None, t_test: bool = True) -> Calibration:
-    """Seed 001's joint calibration of raw sensor-frame samples.
+    """[Chow]'s joint calibration of raw sensor-frame samples.
 
     Parameters
     ----------
