@@ -1,14 +1,19 @@
-"""sitl — a simulated APM 2.8 vehicle (ArduCopter 3.2 / 3.3) speaking MAVLink, with a truthful,
-switchable IMU error model.
+"""apmcal_sim — apmcal's simulator: a simulated APM 2.8 vehicle (ArduCopter 3.2 / 3.3) speaking
+MAVLink, with a truthful, switchable IMU error model (apmcal's own, :mod:`apmcal.sensor_model`).
 
-- ``python -m apmcal_sim [CONNECTION]`` serves a vehicle (``--help``); ``python -m apmcal_sim.makelog`` writes
-  .tlog / .bin logs without real time (see logs/README.md). Both take ``--truth FILE`` or
-  ``--twin TWIN.json`` (a twin written by ``apmcal gap --write-twin``) instead of a seeded draw.
+It imports apmcal and apmcal never imports it. Its name carries the distribution's: installed at
+the top level of site-packages beside apmcal, a generic name such as ``sitl`` could clash with
+another package; ``apmcal_sim`` cannot.
+
+- ``python -m apmcal_sim [CONNECTION]`` serves a vehicle (``--help``); ``python -m
+  apmcal_sim.makelog`` writes .tlog / .bin logs without real time (see logs/README.md). Both
+  take ``--truth FILE`` or ``--twin TWIN.json`` (a twin written by ``apmcal gap --write-twin``)
+  instead of a seeded draw.
 - In process: ``SimVehicle(truth, script, generation).run_for(seconds)``; ``record=True`` keeps the
   true attitude / rates and every raw and reported sample (``history()``); messages come from
   ``pop_messages()`` and MAVLink input goes to ``handle(msg)``. A twin of a real session drives
-  ``apmcal.sensor_model.imu.ImuErrorModel`` directly at the log's rate, with its timestamps, attitudes
-  and (``temperature=``) board temperatures.
+  ``apmcal.sensor_model.imu.ImuErrorModel`` directly at the log's rate, with its timestamps,
+  attitudes and (``temperature=``) board temperatures.
 - ``EFFECTS``: the sitl effect switches; ``Truth``: the injected errors (JSON load/save).
   ``uniform_noise`` and ``triangle_drift`` (``SIMULATOR_QUIRKS``) reproduce ArduPilot's own SITL
   sensors (uniform noise, triangle-wave gyro drift) and are off by default.
@@ -22,10 +27,12 @@ switchable IMU error model.
 - ``FULL_THROTTLE_CURRENT_A``: the simulated battery current is 20 A × throttle, so
   ``mag_interference`` [mGauss per unit throttle] = 20 × [mGauss per A].
 
-Modules: truth (errors + defaults + name mapping), errors_model (sensor pipeline), motion
-(scripts, ``diagnosis`` = Ferraris + motors), firmware (INS_*/COMPASS_*/AHRS_ORIENTATION per
-generation), params_store, vehicle, mavlink_vehicle (network endpoint), logwriter, makelog,
-geomag (WMM field).
+Modules: motion (scripts, ``diagnosis`` = Ferraris + motors), firmware (INS_*/COMPASS_*/
+AHRS_ORIENTATION per generation), params_store, vehicle, mavlink_vehicle (network endpoint),
+logwriter, makelog, geomag (WMM field), cli_common (the options of both commands), errors, and
+gap_benchmark (``python -m apmcal_sim.gap_benchmark``: does ``apmcal gap`` find an effect the twin
+was not told about?). The error model itself — ``Truth`` (errors, defaults, name mapping) and
+``ImuErrorModel`` (the sensor pipeline) — is :mod:`apmcal.sensor_model`'s.
 """
 from apmcal.sensor_model.truth import (
     DIAGNOSIS_EFFECTS,
