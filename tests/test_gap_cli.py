@@ -155,8 +155,8 @@ def test_the_log_read_in_a_worker_is_the_log_read_here():
     from dataclasses import fields
 
     from apmcal.calibration.log import Options
-    from apmcal.cli.gap import LogReading
     from apmcal.diagnosis.compute import workers
+    from apmcal.diagnosis.reading import LogReading
     from apmcal.diagnosis.session.log import session_from_log
     from apmcal.sources import read_log
 

@@ -2,15 +2,10 @@
 unmodelled effect causes it (:mod:`apmcal.diagnosis`); summary and files out."""
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from apmcal.cli.common import add_session_options, check_writable, console_for, number_type
 from apmcal.core.errors import ApmcalError
-
-if TYPE_CHECKING:
-    from apmcal.core.options import Options
 
 
 def add_parser(sub) -> None:
@@ -134,11 +129,12 @@ def diagnose_file(args, names, console):
     which the diagnosis does not need), and the second core would otherwise be idle then."""
     from apmcal.core.options import Options
     from apmcal.diagnosis.compute import workers
+    from apmcal.diagnosis.reading import LogReading, import_diagnosis
 
     opts = Options(lat_deg=args.lat, lon_deg=args.lon, min_still_s=args.min_still,
                    instance=args.instance, generation=args.firmware)
     diagnose, [(session, warnings, error)] = workers.beside(
-        LogReading(args.file, opts), [("session", ())], _import_diagnosis)
+        LogReading(args.file, opts), [("session", ())], import_diagnosis)
     for line in warnings:
         console.print(line, soft_wrap=True)
     if error is not None:
@@ -146,42 +142,3 @@ def diagnose_file(args, names, console):
     with console.status("diagnosing") as status:
         return diagnose(session, names, seed=args.seed,
                         progress=lambda msg: status.update(f"diagnosing: {msg}"))
-
-
-def _import_diagnosis():
-    from apmcal.diagnosis.run import diagnose, preload_imports
-
-    preload_imports()
-    return diagnose
-
-
-@dataclass(frozen=True)
-class LogReading:
-    """One log to read and cut into a diagnosis session (a job for a forked worker).
-
-    Attributes
-    ----------
-    file : str
-        The log.
-    options : Options
-        Site and session options.
-    """
-
-    file: str
-    options: Options
-
-    def session(self) -> tuple:
-        """(session or None, the log's warning lines, the ApmcalError that stopped the reading
-        or None): the warnings are printed even when the log is then refused."""
-        from apmcal.diagnosis.session.log import session_from_log
-        from apmcal.sources import read_log
-        from apmcal.sources.units import require_plausible_units
-
-        warnings: list[str] = []
-        try:
-            contents = read_log(self.file)
-            require_plausible_units(contents)   # a sensor in impossible units is not data
-            warnings = [line for line in contents.messages if line.startswith("warning: ")]
-            return session_from_log(contents, self.options), warnings, None
-        except ApmcalError as err:
-            return None, warnings, err

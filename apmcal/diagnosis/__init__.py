@@ -15,7 +15,8 @@ on data the fit did not see. The flow, one subpackage per concern:
   of the residuals (real against twin);
 - :mod:`~apmcal.diagnosis.output` — the result, the summary, the report and its figures;
 - :mod:`~apmcal.diagnosis.compute` — worker processes and the caches that keep it fast;
-- :mod:`~apmcal.diagnosis.run` — all of it for one session.
+- :mod:`~apmcal.diagnosis.run` — all of it for one session; :mod:`~apmcal.diagnosis.reading`
+  — the log read and cut in a forked worker meanwhile.
 
 The benchmark of simulated sessions with one effect withheld from the twin needs the simulator,
 so it lives beside it: ``python -m apmcal_sim.gap_benchmark``.
