@@ -44,12 +44,13 @@ from apmcal.sources.flight import FlightData, MagSeries, read_flight
 MAX_RATE_HZ = 25.0            # compass samples used per second at most
 ORIENT_SAMPLES = 400          # samples per candidate in the orientation search
 MIN_HEADING_SPAN_DEG = 90.0   # a flight turns at least this much
-FULL_TURNS_DEG = 720.0        # heading change that determines the iron well ("two full turns")
+FULL_TURNS_DEG = 360.0        # heading change below which the iron counts as not determined
 MIN_CURRENT_SPAN_A = 5.0      # 5-95 % current span that lets COMPASS_MOT be fitted
 MIN_THROTTLE_SPAN = 0.15
 MOTOR_SIGMA_MGAUSS = 5.0      # σ of MOT·(drive span) above which MOT counts as not determined
 OFS_SIGMA_MGAUSS = 5.0
 DIA_SIGMA = 0.02
+MAX_TILT = math.radians(45.0)   # samples steeper than this are left out (heading ill-defined)
 ORIENT_RATIO = 1.5            # configured rms / best rms above which another rotation is named
 ORIENT_MARGIN_MGAUSS = 3.0
 MANOEUVRE = {"iron": "two full yaw turns (720°) in the hover",
@@ -343,6 +344,15 @@ def _candidates() -> dict[int, np.ndarray]:
     return out
 
 
+def attitude_at(fd: FlightData, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Logged roll and pitch [rad] interpolated to ``t`` (unwrapped first, so that a roll
+    through ±180° is not interpolated through 0), wrapped to (−π, π]."""
+    def at(a):
+        v = np.interp(t, fd.att_t, np.unwrap(a))
+        return (v + np.pi) % (2 * np.pi) - np.pi
+    return at(fd.roll), at(fd.pitch)
+
+
 def _configured_orientation(params: dict, instance: int) -> int:
     n = mag_param_names(instance)
     if params.get(n["external"], 0):
@@ -375,9 +385,15 @@ def _unidentified(fit, span_deg, drive_kind, drive_span, motor_fitted) -> list[t
     if sig[2] > OFS_SIGMA_MGAUSS or sig[5] > DIA_SIGMA or np.any(sig[7:9] > DIA_SIGMA):
         out.append(("the vertical axis (COMPASS_OFS_Z, DIA_Z, ODI_Y/Z)", MANOEUVRE["vertical"]))
     if not motor_fitted:
-        unit = "A" if drive_kind == "current" else ""
-        what = ("COMPASS_MOT (no current or throttle in the log)" if drive_kind is None else
-                f"COMPASS_MOT ({drive_kind} varied only {drive_span:.2g} {unit})".replace(" )", ")"))
+        unit = " A" if drive_kind == "current" else ""
+        low = MIN_CURRENT_SPAN_A if drive_kind == "current" else MIN_THROTTLE_SPAN
+        if drive_kind is None:
+            what = "COMPASS_MOT (no current or throttle in the log)"
+        elif drive_span < low:
+            what = f"COMPASS_MOT ({drive_kind} varied only {drive_span:.2g}{unit}, 5-95 %)"
+        else:
+            what = (f"COMPASS_MOT (the {drive_kind} changes, {drive_span:.2g}{unit}, came with "
+                    f"too little heading change to separate it from the offsets)")
         out.append((what, MANOEUVRE["motor"]))
     return out
 
@@ -385,8 +401,7 @@ def _unidentified(fit, span_deg, drive_kind, drive_span, motor_fitted) -> list[t
 def _fit_compass(fd, mag, params, generation, after, b_h, b_d, field_ned, decl,
                  ref_psi_rel, span_deg, check_orientation) -> tuple[CompassFlight, np.ndarray]:
     inst = mag.instance
-    roll = np.interp(mag.t, fd.att_t, fd.roll)
-    pitch = np.interp(mag.t, fd.att_t, fd.pitch)
+    roll, pitch = attitude_at(fd, mag.t)
     x, kind, span = _drive(fd, mag.t)
     motct = int(params.get("COMPASS_MOTCT", 0))
     mot0 = np.array([float(params.get(n, 0.0)) for n in _mot_names(inst)])
@@ -485,6 +500,8 @@ def calibrate_flight(source, site: tuple[float, float] | None = None, *,
         if np.count_nonzero(inside) < 50 or not np.any(mag.field[inside]):
             notes.append(f"compass {mag.instance}: too few or all-zero samples, not fitted")
             continue
+        roll, pitch = attitude_at(fd, mag.t)
+        inside &= (np.abs(roll) < MAX_TILT) & (np.abs(pitch) < MAX_TILT)
         mag = MagSeries(mag.instance, mag.t[inside], mag.field[inside], mag.offsets[inside],
                         mag.motor[inside])
         c, _ = _fit_compass(fd, mag, fd.params, generation, after, b_h, b_d, field_ned, decl,
@@ -495,3 +512,45 @@ def calibrate_flight(source, site: tuple[float, float] | None = None, *,
     duration = float(fd.att_t[-1] - fd.att_t[0])
     return FlightResult(fd.path, duration, field_ned, math.degrees(decl), incl, compasses,
                         reference, notes)
+
+
+# ----------------------------------------------------------------------------- the log command
+def log_flight(args, echo) -> int | None:
+    """``apmcal log FILE`` on a flight: the compass check instead of the IMU calibration.
+
+    Runs when ``args.method`` is "auto" (and no CSV layout or --summary-only is asked for), the
+    file is a dataflash log and :func:`flight_evidence` finds a flight; otherwise returns None
+    and the caller goes on as before. Prints :meth:`FlightResult.lines` through ``echo``,
+    writes ``args.json`` and ``args.param_file`` when given; returns the exit status 0.
+
+    Raises
+    ------
+    ApmcalError
+        A flight whose calibration in force cannot be undone, or an output that cannot be
+        written.
+    """
+    if (getattr(args, "method", "auto") != "auto" or getattr(args, "layout", "auto") != "auto"
+            or getattr(args, "summary_only", False)):
+        return None
+    from apmcal.sources import sniff_format
+    if sniff_format(args.file) not in ("bin", "log"):
+        return None
+    fd = read_flight(args.file)
+    lat, lon = getattr(args, "lat", None), getattr(args, "lon", None)
+    site = (lat, lon) if lat is not None and lon is not None else None
+    if not flight_evidence(fd, site)[0]:
+        return None
+    result = calibrate_flight(fd, site)
+    for line in result.lines():
+        echo(line)
+    echo("IMU calibration: not attempted on a flight log (choose --method static, ferraris, ... "
+         "to calibrate the IMU from its still stretches)")
+    if getattr(args, "param_file", None):
+        from apmcal.ardupilot.paramfile import write_param_file
+        write_param_file(args.param_file, result.params(),
+                         f"apmcal flight compass fit of {Path(args.file).name}")
+        echo(f"wrote {args.param_file}")
+    if getattr(args, "json", None):
+        result.save_json(args.json)
+        echo(f"wrote {args.json}")
+    return 0
