@@ -25,7 +25,8 @@ switchable IMU error model.
 Modules: truth (errors + defaults + name mapping), errors_model (sensor pipeline), motion
 (scripts, ``diagnosis`` = Ferraris + motors), firmware (INS_*/COMPASS_*/AHRS_ORIENTATION per
 generation), params_store, vehicle, mavlink_vehicle (network endpoint), logwriter, makelog,
-geomag (WMM field).
+geomag (WMM field), flight (a scripted multicopter flight written as a 4.x dataflash log with
+known compass errors and a biased logged yaw: ``python -m apmcal_sim.flight``).
 """
 from apmcal.sensor_model.truth import (
     DIAGNOSIS_EFFECTS,

@@ -100,9 +100,10 @@ def undo(mag: MagSeries, params: dict, instance: int, after: bool,
     """Uncorrected body-frame field (n, 3) [mGauss] of one compass: SCALE and M(DIA, ODI) in
     force, the offsets and the motor compensation of each sample taken back out.
 
-    The MAG record logs offsets and motor compensation rounded to whole mGauss; where they agree
-    with the parameters in force (COMPASS_OFS; ``motor_in_force`` = COMPASS_MOT·drive) within
-    that rounding the exact values are used, else (offsets learnt in flight, another motor
+    The MAG record logs offsets and motor compensation cut to whole mGauss (ardupilot-facts.md,
+    "Flight records the flight compass check reads"); where they agree with the parameters in
+    force (COMPASS_OFS; ``motor_in_force`` = COMPASS_MOT·drive) within 1 mGauss the exact
+    values are used, else (offsets learnt in flight, another motor
     model) the logged ones.
     """
     m = compass_matrix(params, instance) * applied_scale(params, instance)

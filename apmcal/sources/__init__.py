@@ -5,6 +5,10 @@
 (dataflash .bin), :func:`apmcal.sources.dataflash_text.read_dataflash_text` (dataflash text
 .log) or ``apmcal.sources.csv.read_csv`` (CSV and other text tables). Whatever the bytes, only
 :class:`~apmcal.core.errors.ApmcalError` escapes.
+
+:mod:`apmcal.sources.flight` (:func:`~apmcal.sources.flight.read_flight`) reads what the flight
+compass check needs from a dataflash log (ATT, GPS, MAG per instance, BAT/CURR, CTUN/RCOU, IMU
+gyro, PARM) as numpy arrays with their units.
 """
 from __future__ import annotations
 
