@@ -274,7 +274,8 @@ def write_flight(out, truth_out=None, *, seed: int = 1, rate_hz: float = 25.0,
     yaw_log = tr.yaw + yaw_bias(tr, yaw_bias_deg)
     roll_log = tr.roll + rng.normal(0, np.radians(0.1), len(tr.t))
     pitch_log = tr.pitch + rng.normal(0, np.radians(0.1), len(tr.t))
-    params = {"AHRS_ORIENTATION": 0, "COMPASS_MOTCT": 2, "COMPASS_USE": 1, "MOT_PWM_MIN": 1000,
+    params = {"AHRS_ORIENTATION": 0, "AHRS_EKF_TYPE": 3, "AHRS_TRIM_X": 0.0, "AHRS_TRIM_Y": 0.0,
+              "AHRS_TRIM_Z": 0.0, "COMPASS_MOTCT": 2, "COMPASS_USE": 1, "MOT_PWM_MIN": 1000,
               "MOT_PWM_MAX": 2000}
     for i, c in enumerate(compasses):
         params.update({param_name(k, i): v for k, v in c.params.items()})

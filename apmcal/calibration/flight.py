@@ -172,6 +172,9 @@ class Orientation:
     def evidence(self) -> str:
         """One line naming the rotation that fits and the numbers behind it."""
         cfg, best = self.scores.get(self.configured, math.inf), self.scores[self.best]
+        if not math.isfinite(best) and not math.isfinite(cfg):
+            return ("no ArduPilot rotation lets a soft-iron matrix within limits match the WMM "
+                    "field: check the site (--lat/--lon) and look for magnetic disturbance")
         ranked = sorted((v, k) for k, v in self.scores.items() if k != self.best)
         nxt = (f"; next best {rotation_name(ranked[0][1])} {ranked[0][0]:.1f}"
                if ranked and math.isfinite(ranked[0][0]) else "")
@@ -207,6 +210,7 @@ class CompassFlight:
     drive_span: float
     unidentified: list[tuple[str, str]] = field(default_factory=list)   # (what, manoeuvre)
     rms_mgauss: float = float("nan")
+    valid: bool = True          # False: the fit sits on ArduPilot's limits, nothing proposed
 
     def to_dict(self) -> dict:
         """JSON form (no per-sample arrays except the decimated heading errors)."""
@@ -215,7 +219,7 @@ class CompassFlight:
                 "proposed_health": self.health_proposed.to_dict(),
                 "orientation": self.orientation.to_dict() if self.orientation else None,
                 "motor_drive": self.drive, "motor_drive_span": self.drive_span,
-                "fit_rms_mgauss": self.rms_mgauss,
+                "fit_rms_mgauss": self.rms_mgauss, "proposal_valid": self.valid,
                 "not_identified": [{"what": w, "manoeuvre": m} for w, m in self.unidentified]}
 
 
@@ -241,7 +245,8 @@ class FlightResult:
         """Every proposed COMPASS_* value (all compasses)."""
         out = {}
         for c in self.compasses:
-            out.update(c.proposed)
+            if c.valid:
+                out.update(c.proposed)
         return out
 
     def lines(self) -> list[str]:
@@ -252,10 +257,12 @@ class FlightResult:
                f"declination {self.declination_deg:.1f}°"]
         for c in self.compasses:
             hi, hp = c.health_in_force, c.health_proposed
+            new = (f"proposed {hp.verdict.upper()} — 95 % {hp.p95_deg:.1f}° (rms "
+                   f"{hp.rms_deg:.1f}°)" if c.valid else
+                   "no proposal: the fit sits on ArduPilot's DIA/ODI limits")
             out.append(f"  compass {c.instance}: calibration in force {hi.verdict.upper()} — "
                        f"heading error 95 % {hi.p95_deg:.1f}° (rms {hi.rms_deg:.1f}°, max "
-                       f"{hi.max_deg:.1f}°); proposed {hp.verdict.upper()} — 95 % "
-                       f"{hp.p95_deg:.1f}° (rms {hp.rms_deg:.1f}°)")
+                       f"{hi.max_deg:.1f}°); {new}")
             out.append(f"    field residual against the WMM: {hi.field_rms_mgauss:.0f} → "
                        f"{hp.field_rms_mgauss:.0f} mGauss rms")
         out.append(f"  heading reference: {self.reference}")
@@ -266,7 +273,7 @@ class FlightResult:
                 out.append(f"  compass {c.instance}: {what} not identified by this flight — "
                            f"fly {how}")
         out.append("Proposed parameters (in force → proposed ± σ):")
-        for c in self.compasses:
+        for c in (c for c in self.compasses if c.valid):
             for name, value in c.proposed.items():
                 old = c.in_force.get(name)
                 old_s = "—" if old is None else f"{old:g}"
@@ -452,13 +459,19 @@ def _fit_compass(fd, mag, params, generation, after, b_h, b_d, field_ned, decl,
             proposed[n["external"]] = 2.0        # ForcedExternal: COMPASS_ORIENTn then applies
     in_force = {k: float(params[k]) for k in proposed if k in params}
     b_new = corrected(fit.x, raw, x)
-    psi_new = heading.compass_heading(b_new, roll, pitch, decl)
-    ref = heading.anchored_reference(mag.t, ref_psi_rel(mag.t), psi_new)
+    # the reference heading is anchored to the proposal, or to the calibration in force when
+    # the fit sits on its limits (then only the in-force spread is measured)
+    anchor = b_new if not fit.at_limits else mag.field
+    psi_anchor = heading.compass_heading(anchor, roll, pitch, decl)
+    ref = heading.anchored_reference(mag.t, ref_psi_rel(mag.t), psi_anchor)
     h_old = heading.heading_health(mag.t, mag.field, roll, pitch, ref, field_ned, decl)
     h_new = heading.heading_health(mag.t, b_new, roll, pitch, ref, field_ned, decl)
     unid = _unidentified(fit, span_deg, kind, span, fit_motor)
+    if fit.at_limits:
+        unid.append(("a correction within ArduPilot's limits (the compass does not match the "
+                     "WMM field)", "a flight away from steel and power lines, with the site known"))
     return CompassFlight(inst, in_force, proposed, sigma, h_old, h_new, orient, kind, span,
-                         unid, fit.rms), ref
+                         unid, fit.rms, not fit.at_limits), ref
 
 
 def calibrate_flight(source, site: tuple[float, float] | None = None, *,

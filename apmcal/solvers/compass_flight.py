@@ -55,6 +55,12 @@ class FlightFit:
     fixed: tuple[str, ...] = ()
 
     @property
+    def at_limits(self) -> bool:
+        """True when a DIA/ODI entry sits on its bound (no soft-iron matrix within limits fits)."""
+        return bool(np.any(np.isclose(self.x[3:9], _LOWER[3:9], atol=1e-3)
+                           | np.isclose(self.x[3:9], _UPPER[3:9], atol=1e-3)))
+
+    @property
     def sigma(self) -> np.ndarray:
         """One-σ of each parameter (0 for fixed ones)."""
         return np.sqrt(np.clip(np.diag(self.cov), 0.0, None))
@@ -290,7 +296,5 @@ def orientation_scores(raw_sensor: np.ndarray, rotations: dict[int, np.ndarray],
     for code, rot in rotations.items():
         raw = raw_sensor @ rot.T
         fit = fit_flight(raw, roll, pitch, drive, b_h, b_d, fit_motor=fit_motor, quick=True)
-        at_bound = np.any(np.isclose(fit.x[3:9], _LOWER[3:9], atol=1e-3)
-                          | np.isclose(fit.x[3:9], _UPPER[3:9], atol=1e-3))
-        out[code] = float("inf") if at_bound else fit.rms
+        out[code] = float("inf") if fit.at_limits else fit.rms
     return out
