@@ -212,9 +212,18 @@ class CompassFlight:
     rms_mgauss: float = float("nan")
     valid: bool = True          # False: the fit sits on ArduPilot's limits, nothing proposed
 
+    def series(self, max_points: int = 600) -> dict:
+        """Heading error along the flight [deg], in force and proposed, at most ``max_points``
+        samples (t [s] on the log's clock): what a report plots."""
+        h0, h1 = self.health_in_force, self.health_proposed
+        step = max(1, -(-len(h0.t) // max_points))
+        return {"t_s": h0.t[::step], "in_force_deg": h0.error_deg[::step],
+                "proposed_deg": h1.error_deg[::step]}
+
     def to_dict(self) -> dict:
         """JSON form (no per-sample arrays except the decimated heading errors)."""
-        return {"instance": self.instance, "in_force": self.in_force, "proposed": self.proposed,
+        return {"instance": self.instance, "heading_error_series": self.series(),
+                "in_force": self.in_force, "proposed": self.proposed,
                 "sigma": self.sigma, "in_force_health": self.health_in_force.to_dict(),
                 "proposed_health": self.health_proposed.to_dict(),
                 "orientation": self.orientation.to_dict() if self.orientation else None,
@@ -467,6 +476,10 @@ def _fit_compass(fd, mag, params, generation, after, b_h, b_d, field_ned, decl,
     h_old = heading.heading_health(mag.t, mag.field, roll, pitch, ref, field_ned, decl)
     h_new = heading.heading_health(mag.t, b_new, roll, pitch, ref, field_ned, decl)
     unid = _unidentified(fit, span_deg, kind, span, fit_motor)
+    s_name = _scale_name(inst)
+    if s_name in params:
+        in_force[s_name] = float(params[s_name])
+        proposed[s_name] = float(params[s_name])     # kept: M absorbs any scale (module doc)
     if fit.at_limits:
         unid.append(("a correction within ArduPilot's limits (the compass does not match the "
                      "WMM field)", "a flight away from steel and power lines, with the site known"))
