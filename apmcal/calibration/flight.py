@@ -523,7 +523,9 @@ def calibrate_flight(source, site: tuple[float, float] | None = None, *,
     compasses = []
     for mag in fd.mags:
         mag = _decimate(mag)
-        inside = (mag.t >= fd.att_t[0]) & (mag.t <= fd.att_t[-1])
+        inside = ((mag.t >= fd.att_t[0]) & (mag.t <= fd.att_t[-1])
+                  & np.all(np.isfinite(mag.field), axis=1) & np.all(np.isfinite(mag.motor), axis=1)
+                  & np.all(np.isfinite(mag.offsets), axis=1))
         if np.count_nonzero(inside) < 50 or not np.any(mag.field[inside]):
             notes.append(f"compass {mag.instance}: too few or all-zero samples, not fitted")
             continue
