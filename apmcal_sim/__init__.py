@@ -33,6 +33,8 @@ logwriter, makelog, geomag (WMM field), cli_common (the options of both commands
 gap_benchmark (``python -m apmcal_sim.gap_benchmark``: does ``apmcal gap`` find an effect the twin
 was not told about?). The error model itself — ``Truth`` (errors, defaults, name mapping) and
 ``ImuErrorModel`` (the sensor pipeline) — is :mod:`apmcal.sensor_model`'s.
+The flight: ``python -m apmcal_sim.flight`` (a scripted multicopter flight written as a 4.x
+dataflash log with known compass errors and a biased logged yaw).
 """
 from apmcal.sensor_model.truth import (
     DIAGNOSIS_EFFECTS,

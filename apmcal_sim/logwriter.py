@@ -29,7 +29,7 @@ DF_MESSAGES = {
     "BAT": (134, "Qff", "TimeUS,Volt,Curr"),
 }
 _STRUCT = {"Q": "Q", "f": "f", "h": "h", "H": "H", "I": "I", "B": "B", "L": "i", "n": "4s",
-           "N": "16s", "Z": "64s"}
+           "N": "16s", "Z": "64s", "c": "h", "C": "H", "e": "i"}   # c, C, e: ints ×100
 GPS_EPOCH_UNIX_S = 315964800       # 1980-01-06 UTC
 GPS_MINUS_UTC_S = 18               # leap seconds since 1980 (2017 on), as ArduPilot logs them
 
@@ -68,13 +68,16 @@ class DataflashWriter:
     """Write a binary dataflash log with FMT, PARM, MSG, IMU, MAG, GPS and BAT records.
 
     ``imu_instance``: IMU records in the 4.x layout with an instance column ``I`` (always 0),
-    as tools written for 4.x logs (ArduPilot's tempcal_imu.py) expect.
+    as tools written for 4.x logs (ArduPilot's tempcal_imu.py) expect. ``messages``: further or
+    replacing definitions, name → (type id, format, columns) as in ``DF_MESSAGES`` (the flight
+    writer's ATT, RCOU, 4.x GPS and MAG).
     """
 
-    def __init__(self, path, imu_instance: bool = False):
+    def __init__(self, path, imu_instance: bool = False, messages: dict | None = None):
         self.f = open(Path(path), "wb")
         self.imu_instance = imu_instance
-        self._messages = dict(DF_MESSAGES, **({"IMU": IMU_WITH_INSTANCE} if imu_instance else {}))
+        self._messages = dict(DF_MESSAGES, **({"IMU": IMU_WITH_INSTANCE} if imu_instance else {}),
+                              **(messages or {}))
         self._structs = {name: _struct(fmt) for name, (_, fmt, _) in self._messages.items()}
         for name, (mid, fmt, cols) in self._messages.items():
             length = 3 + self._structs[name].size

@@ -168,7 +168,7 @@ def _is_a_class(name: str) -> bool:
 
 
 def test_every_ardupilot_facts_section_the_code_cites_exists():
-    sections = set(re.findall(r"^## (.+?)\s*$", FACTS.read_text(), re.M))
+    sections = set(re.findall(r"^###? (.+?)\s*$", FACTS.read_text(), re.M))
     cited = set()
     for path in MODULES.values():
         for name in re.findall(r'ardupilot-facts(?:\.md)?,?\s+"([^"]+)"', path.read_text()):

@@ -11,4 +11,6 @@ preparation and the solvers, and builds each result once.
   prompted and checked one by one;
 - :mod:`~apmcal.calibration.validation` and :mod:`~apmcal.calibration.orientation_check` —
   methods scored out of sample by the orientation change between still poses ([Chow] §5).
+- :mod:`~apmcal.calibration.flight` — the compass from an ordinary flight log: health check in
+  heading degrees, COMPASS_* proposal with σ, orientation search (``apmcal log FLIGHT``);
 """

@@ -22,6 +22,10 @@ def run(args) -> int:
     from apmcal.sources import read_log
 
     check_outputs(args)
+    from apmcal.calibration.flight import log_flight  # a flight: the compass check
+
+    if (status := log_flight(args, console_for(args).print)) is not None:
+        return status
     if args.layout == "auto":
         contents = read_log(args.file)
     else:

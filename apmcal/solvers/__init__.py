@@ -11,4 +11,7 @@ still periods found beforehand), :mod:`~apmcal.solvers.ellipsoid` (subpackage),
 Shared: :mod:`~apmcal.solvers.coverage`, :mod:`~apmcal.solvers.identifiability`,
 :mod:`~apmcal.solvers.uncertainty`, :mod:`~apmcal.solvers.resolution_floor`,
 :mod:`~apmcal.solvers.strapdown`.
+Flight compass: :mod:`~apmcal.solvers.compass_flight` (the yaw-free fit of COMPASS_OFS/DIA/
+ODI/MOT to a flight, and the orientation search) and :mod:`~apmcal.solvers.compass_heading`
+(the heading error in degrees of a compass calibration along a flight, with its verdict).
 """

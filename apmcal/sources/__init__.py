@@ -13,6 +13,8 @@ framing and record helpers ``_framing``, ``_fastscan`` and ``_common``);
 :mod:`~apmcal.sources.gps_time` (a dataflash log's wall-clock time from its GPS records);
 :mod:`~apmcal.sources.units` (is each sensor's magnitude one the Earth allows?);
 :mod:`~apmcal.sources.live` (a live vehicle's IMU streamed and recorded over MAVLink).
+:mod:`~apmcal.sources.flight` (what the flight compass check needs from a dataflash log: ATT,
+GPS, MAG per instance, BAT/CURR, CTUN/RCOU, IMU gyro, PARM, as numpy arrays with their units).
 """
 from __future__ import annotations
 
