@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from apmcal.calibration.flight import calibrate_flight, log_flight
+from apmcal.calibration.flight import calibrate_flight, calibrate_flight_log
 from apmcal.core.errors import ApmcalError
 from apmcal.solvers import compass_heading
 from apmcal.sources.flight import read_flight
@@ -133,11 +133,8 @@ def test_reader_units(yaw_pair):
 def test_not_a_flight_goes_the_old_way():
     """A bench session (no ATT, no GPS) is not taken for a flight; asked directly, the reason
     is named."""
-    from types import SimpleNamespace
     path = ROOT / "logs" / "gap.bin"
-    args = SimpleNamespace(file=str(path), method="auto", layout="auto", lat=None, lon=None,
-                           json=None, param_file=None)
-    assert log_flight(args, print) is None
+    assert calibrate_flight_log(path) is None
     with pytest.raises(ApmcalError, match="not a flight.*ATT"):
         calibrate_flight(path)
 

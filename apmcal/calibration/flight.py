@@ -544,42 +544,30 @@ def calibrate_flight(source, site: tuple[float, float] | None = None, *,
 
 
 # ----------------------------------------------------------------------------- the log command
-def log_flight(args, echo) -> int | None:
-    """``apmcal log FILE`` on a flight: the compass check instead of the IMU calibration.
+def calibrate_flight_log(path, site: tuple[float, float] | None = None):
+    """The compass check of a dataflash flight log, or None when the file is not one.
 
-    Runs when ``args.method`` is "auto" (and no CSV layout or --summary-only is asked for), the
-    file is a dataflash log and :func:`flight_evidence` finds a flight; otherwise returns None
-    and the caller goes on as before. Prints :meth:`FlightResult.lines` through ``echo``,
-    writes ``args.json`` and ``args.param_file`` when given; returns the exit status 0.
+    None when the file is no dataflash log or :func:`flight_evidence` finds no flight (the
+    caller then calibrates it the ordinary way); else :func:`calibrate_flight`'s
+    :class:`FlightResult` (printed with :meth:`FlightResult.lines`, saved with
+    :meth:`FlightResult.save_json`, its parameters :meth:`FlightResult.params`).
+
+    Parameters
+    ----------
+    path : str or Path
+    site : (lat, lon) [deg], optional
+        For the WMM field when the log has no GPS fix.
 
     Raises
     ------
     ApmcalError
-        A flight whose calibration in force cannot be undone, or an output that cannot be
-        written.
+        A flight whose calibration in force cannot be undone.
     """
-    if (getattr(args, "method", "auto") != "auto" or getattr(args, "layout", "auto") != "auto"
-            or getattr(args, "summary_only", False)):
-        return None
     from apmcal.sources import sniff_format
-    if sniff_format(args.file) not in ("bin", "log"):
+
+    if sniff_format(path) not in ("bin", "log"):
         return None
-    fd = read_flight(args.file)
-    lat, lon = getattr(args, "lat", None), getattr(args, "lon", None)
-    site = (lat, lon) if lat is not None and lon is not None else None
+    fd = read_flight(path)
     if not flight_evidence(fd, site)[0]:
         return None
-    result = calibrate_flight(fd, site)
-    for line in result.lines():
-        echo(line)
-    echo("IMU calibration: not attempted on a flight log (choose --method static, ferraris, ... "
-         "to calibrate the IMU from its still stretches)")
-    if getattr(args, "param_file", None):
-        from apmcal.ardupilot.paramfile import write_param_file
-        write_param_file(args.param_file, result.params(),
-                         f"apmcal flight compass fit of {Path(args.file).name}")
-        echo(f"wrote {args.param_file}")
-    if getattr(args, "json", None):
-        result.save_json(args.json)
-        echo(f"wrote {args.json}")
-    return 0
+    return calibrate_flight(fd, site)

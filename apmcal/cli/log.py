@@ -22,9 +22,8 @@ def run(args) -> int:
     from apmcal.sources import read_log
 
     check_outputs(args)
-    from apmcal.calibration.flight import log_flight  # a flight: the compass check
-
-    if (status := log_flight(args, console_for(args).print)) is not None:
+    status = run_flight(args)               # a flight: the compass check instead
+    if status is not None:
         return status
     if args.layout == "auto":
         contents = read_log(args.file)
@@ -33,6 +32,36 @@ def run(args) -> int:
 
         contents = read_csv(args.file, layout=args.layout)
     return summarise_and_calibrate(contents, args).status
+
+
+def run_flight(args) -> int | None:
+    """On a flight log with ``--method auto``: the compass check printed and written, and the
+    exit status; None for any other file or choice (the caller calibrates it as before)."""
+    if args.method != "auto" or args.layout != "auto" or args.summary_only:
+        return None
+    from apmcal.calibration.flight import calibrate_flight_log
+
+    site = (args.lat, args.lon) if args.lat is not None and args.lon is not None else None
+    result = calibrate_flight_log(args.file, site)
+    if result is None:
+        return None
+    console = console_for(args)
+    for line in result.lines():
+        console.print(line)
+    console.print("IMU calibration: not attempted on a flight log (choose --method static, "
+                  "ferraris, ... to calibrate the IMU from its still stretches)")
+    if args.param_file:
+        from pathlib import Path
+
+        from apmcal.ardupilot.paramfile import write_param_file
+
+        write_param_file(args.param_file, result.params(),
+                         f"apmcal flight compass fit of {Path(args.file).name}")
+        console.print(f"wrote {args.param_file}")
+    if args.json:
+        result.save_json(args.json)
+        console.print(f"wrote {args.json}")
+    return 0
 
 
 def summarise_and_calibrate(contents, args):
