@@ -123,6 +123,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_gap_parser(sub)
     add_tcal_parser(sub)
+    from apmcal.cli import fleet as fleet_cli
+    fleet_cli.add_parser(sub)
     return parser
 
 
@@ -364,6 +366,7 @@ def entry() -> None:
 
 def run(argv: list[str] | None, operator=None) -> int:
     """:func:`main` without the Ctrl-C handling: parse, check, run the command; exit status."""
+    from apmcal.cli.fleet import run as fleet_cli_run
     parser = build_parser()
     args = parser.parse_args(argv)
     args.guide_operator = operator
@@ -380,7 +383,8 @@ def run(argv: list[str] | None, operator=None) -> int:
         parser.error(f"--hold {args.hold:g} is shorter than --min-still {args.min_still:g}: "
                      "the calibration would not find the poses as still periods")
     command = {"log": cmd_log, "live": cmd_live, "upload": cmd_upload,
-               "restore": cmd_restore, "gap": cmd_gap, "tcal": cmd_tcal}[args.command]
+               "restore": cmd_restore, "gap": cmd_gap, "tcal": cmd_tcal,
+               "fleet": fleet_cli_run}[args.command]
     try:
         with warnings.catch_warnings():
             if not args.debug:
