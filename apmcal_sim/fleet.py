@@ -172,6 +172,43 @@ def write_fleet(vehicles: int, flights: int, out: Path, seed: int = 0, rate: flo
     return truth
 
 
+#: the flag kind (apmcal.fleet.flags) that reports each injected event, and whether its date
+#: must be the event's
+EXPECTED_FLAG = {"compass_drift": ("compass_recalibrate", False),
+                 "hardware_changed": ("hardware_changed", True),
+                 "recalibration": ("calibration_changed", True),
+                 "gyro_temperature": ("gyro_tcal", False)}
+
+
+def score_flags(flags: list[dict], truth: dict) -> dict:
+    """Compare ``apmcal fleet``'s flags (vehicle_id, kind, date) with the injected events.
+
+    A vehicle's id is its UID line (board and UID, as :mod:`apmcal.fleet.identity` forms it).
+    An event is found when a flag of its kind (:data:`EXPECTED_FLAG`) names its vehicle (and
+    its date where the kind is dated); a flag that matches no event is false.
+
+    Returns
+    -------
+    dict
+        events, found, found_fraction, flags, false, false_fraction, missed (events),
+        false_flags (flags).
+    """
+    vid = {name: v["uid_line"] for name, v in truth["vehicles"].items()}
+    wanted = []
+    for e in truth["events"]:
+        kind, dated = EXPECTED_FLAG[e["kind"]]
+        wanted.append((vid[e["vehicle"]], kind, e["date"] if dated else None, e))
+    match = lambda f, w: (f["vehicle_id"] == w[0] and f["kind"] == w[1]
+                          and (w[2] is None or f["date"] == w[2]))
+    missed = [w[3] for w in wanted if not any(match(f, w) for f in flags)]
+    false = [f for f in flags if not any(match(f, w) for w in wanted)]
+    n_e, n_f = len(wanted), len(flags)
+    return {"events": n_e, "found": n_e - len(missed),
+            "found_fraction": (n_e - len(missed)) / n_e if n_e else 1.0,
+            "flags": n_f, "false": len(false), "false_fraction": len(false) / n_f if n_f else 0.0,
+            "missed": missed, "false_flags": false}
+
+
 def main(argv=None) -> int:
     """``python -m apmcal_sim.fleet``: write a simulated fleet; the exit status."""
     ap = argparse.ArgumentParser(prog="python -m apmcal_sim.fleet", description=__doc__.split("\n")[0])
