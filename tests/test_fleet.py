@@ -103,7 +103,8 @@ def test_damaged_and_text_files_become_rows(fleet, tmp_path):
 def test_local_cluster_same_as_serial(fleet, serial_run, tmp_path):
     folder, _ = fleet
     result = run_fleet([str(folder)], tmp_path / "out", workers=2, cache=False)
-    pd.testing.assert_frame_equal(comparable(serial_run.flights), comparable(result.flights))
+    pd.testing.assert_frame_equal(comparable(serial_run.flights), comparable(result.flights),
+                                  check_exact=True)
     pd.testing.assert_frame_equal(serial_run.flags, result.flags)
 
 
@@ -148,7 +149,7 @@ def test_scheduler_and_two_workers_on_loopback(fleet, serial_run, tmp_path):
         assert code == 1          # the injected events raise flags
         flights = pd.read_parquet(out / "flights.parquet")
         expected = pd.read_parquet(serial_run.out / "flights.parquet")
-        pd.testing.assert_frame_equal(comparable(expected), comparable(flights))
+        pd.testing.assert_frame_equal(comparable(expected), comparable(flights), check_exact=True)
         assert pd.read_csv(out / "flags.csv").equals(pd.read_csv(serial_run.out / "flags.csv"))
     finally:
         for p in reversed(procs):
@@ -206,3 +207,48 @@ def test_real_logs(tmp_path):
     assert "Pixhawk1 00310019 3138510E 35363631" in set(flights["vehicle_id"])
     assert (out / "index.html").exists()
     json.loads(by_name.loc["pixhawk1_copter368.bin", "dev_ids_json"])
+
+
+def test_heading_error_hand_worked():
+    """A compass sphere offset by 30 mGauss along x: asin(30 / B_h) at the WMM's B_h."""
+    from apmcal.core.geomag import earth_field_ned
+    from apmcal.core.recording import Recording
+    from apmcal.fleet.health import compass_health
+
+    rng = np.random.default_rng(0)
+    site, year = (45.0, 7.0, 0.0), 2026.0
+    field, _ = earth_field_ned(*site, year)
+    b_h = float(np.hypot(field[0], field[1]))
+    d = rng.standard_normal((4000, 3))
+    mag = d / np.linalg.norm(d, axis=1, keepdims=True) * np.linalg.norm(field)
+    mag += np.array([30.0, 0.0, -12.0]) + rng.normal(0, 2.0, mag.shape)
+    rec = Recording(pd.DataFrame({"t": np.arange(4000) * 0.1, "mag_x": mag[:, 0],
+                                  "mag_y": mag[:, 1], "mag_z": mag[:, 2]}))
+    out, notes = compass_health(rec, site, year)
+    assert out["mag_residual_x_mgauss"] == pytest.approx(30.0, abs=0.5)
+    assert out["mag_residual_z_mgauss"] == pytest.approx(-12.0, abs=0.5)
+    expected = np.degrees(np.arcsin(30.0 / b_h))
+    assert out["heading_error_deg"] == pytest.approx(expected, abs=3 * out["heading_error_sigma_deg"] + 0.05)
+    assert abs(out["field_residual_mgauss"]) < 1.0
+    # no site: the residual, but no heading error, and a note why
+    out, notes = compass_health(rec, None, None)
+    assert "heading_error_deg" not in out and "site is unknown" in notes[0]
+
+
+def test_identity_from_boot_messages():
+    from apmcal.core.recording import LogContents
+    from apmcal.fleet.identity import calibration_in_force, compares_as_change, identity
+
+    c = LogContents(path="x.bin", format="bin", vehicle="ArduCopter",
+                    messages=["ArduCopter V3.6.8 (2f409678)", "Pixhawk1 00310019 3138510E 35363631",
+                              "Frame: QUAD"],
+                    params={"SYSID_THISMAV": 7, "COMPASS_OFS_X": 12.0, "INS_GYROFFS_X": 0.01,
+                            "INS_TCAL1_ENABLE": 1, "RATE_RLL_P": 0.1})
+    ident = identity(c)
+    assert ident["vehicle_id"] == "Pixhawk1 00310019 3138510E 35363631"
+    assert ident["frame"] == "QUAD" and ident["sysid"] == 7
+    cal = calibration_in_force(c.params)
+    assert set(cal) == {"COMPASS_OFS_X", "INS_GYROFFS_X", "INS_TCAL1_ENABLE"}
+    assert not compares_as_change("INS_GYROFFS_X") and compares_as_change("COMPASS_OFS_X")
+    c.messages = []
+    assert identity(c)["vehicle_id"] == "ArduCopter sysid 7"

@@ -84,7 +84,7 @@ def _client(workers: int | None, scheduler: str | None):
 
 
 def run_dask(paths, cache_dir=None, site=None, *, workers: int | None = None,
-             scheduler: str | None = None, progress=None) -> list[dict]:
+             scheduler: str | None = None, progress=None, client=None) -> list[dict]:
     """The tasks on Dask; the records in completion order.
 
     Parameters
@@ -99,29 +99,38 @@ def run_dask(paths, cache_dir=None, site=None, *, workers: int | None = None,
         "tcp://HOST:PORT" of an existing scheduler (then ``workers`` is ignored).
     progress : callable, optional
         Called once per finished log.
+    client : dask.distributed.Client, optional
+        Use this client (left open) instead of making one from ``workers``/``scheduler``.
     """
-    from dask.distributed import as_completed
-
-    client, cluster = _client(workers, scheduler)
+    own = client is None
+    client, cluster = _client(workers, scheduler) if own else (client, None)
     try:
-        futures = client.map(process_log, [str(p) for p in paths], cache_dir=cache_dir,
-                             site=site, pure=False)
-        index = {f.key: str(p) for f, p in zip(futures, paths)}
-        records = []
-        for fut in as_completed(futures):
-            try:
-                records.append(fut.result())
-            except Exception as exc:     # a worker died on this log: a row, not a stop
-                from apmcal.fleet.extract import base_record
-
-                rec = base_record(Path(index[fut.key]))
-                rec["reason"] = f"task failed on its worker: {type(exc).__name__}: {exc}"
-                records.append(rec)
-            fut.release()
-            if progress:
-                progress()
-        return records
+        return _gather(client, paths, cache_dir, site, progress)
     finally:
-        client.close()
+        if own:
+            client.close()
         if cluster is not None:
             cluster.close()
+
+
+def _gather(client, paths, cache_dir, site, progress) -> list[dict]:
+    """Submit one task per log and collect the records as they finish."""
+    from dask.distributed import as_completed
+
+    futures = client.map(process_log, [str(p) for p in paths], cache_dir=cache_dir,
+                         site=site, pure=False)
+    index = {f.key: str(p) for f, p in zip(futures, paths)}
+    records = []
+    for fut in as_completed(futures):
+        try:
+            records.append(fut.result())
+        except Exception as exc:     # a worker died on this log: a row, not a stop
+            from apmcal.fleet.extract import base_record
+
+            rec = base_record(Path(index[fut.key]))
+            rec["reason"] = f"task failed on its worker: {type(exc).__name__}: {exc}"
+            records.append(rec)
+        fut.release()
+        if progress:
+            progress()
+    return records

@@ -11,7 +11,8 @@ applied by the firmware), with the library's own stillness detection, sphere fit
   parameters"), with the board temperature [°C] there; the noise (median std of still periods).
 - accelerometer: |mean specific force| − g [m/s²] in still periods (median), the tilt of the
   first still period from level [deg], the noise [m/s²].
-- vibration: the VIBE record's mean VibeX/Y/Z [m/s²] and clip count, where logged (.bin).
+- vibration: the VIBE record's mean VibeX/Y/Z [m/s²] and clip count, where logged (.bin;
+  ardupilot-facts.md "Identity and vibration records").
 """
 from __future__ import annotations
 
@@ -123,6 +124,9 @@ def compass_health(mag_recording, site: tuple[float, float, float] | None, year:
     out = {f"mag_residual_{a}_mgauss": float(v) for a, v in zip("xyz", centre)}
     out.update({f"mag_residual_{a}_sigma_mgauss": float(v) for a, v in zip("xyz", sigma)})
     out["mag_field_mgauss"] = float(radius)
+    # the compass's noise and what the centre cannot explain: rms distance from the sphere
+    out["mag_fit_rms_mgauss"] = float(np.sqrt(np.mean((np.linalg.norm(mag - centre, axis=1)
+                                                       - radius) ** 2)))
     horiz = float(np.hypot(centre[0], centre[1]))
     out["mag_residual_horizontal_mgauss"] = horiz
     if site is None or year is None:
@@ -143,13 +147,19 @@ def compass_health(mag_recording, site: tuple[float, float, float] | None, year:
 
 
 def vibration(msgs: dict) -> dict:
-    """Mean VibeX/Y/Z [m/s²] and the total clip count of the VIBE records; {} when absent."""
+    """Mean VibeX/Y/Z [m/s²] and the clip count of the first IMU's VIBE records; {} when absent
+    (ardupilot-facts.md "Identity and vibration records": "Clip" per instance on newer logs,
+    Clip0..2 on older ones; both are running counts, so their maximum is the total)."""
     vibe = msgs.get("VIBE", {})
     if not all(c in vibe for c in ("VibeX", "VibeY", "VibeZ")) or len(vibe["VibeX"]) == 0:
         return {}
-    out = {f"vibe_{a.lower()}_ms2": float(np.nanmean(np.asarray(vibe[f"Vibe{a}"], float)))
+    first = np.ones(len(vibe["VibeX"]), dtype=bool)
+    if "IMU" in vibe:
+        first = np.asarray(vibe["IMU"]) == np.min(vibe["IMU"])
+    out = {f"vibe_{a.lower()}_ms2": float(np.nanmean(np.asarray(vibe[f"Vibe{a}"], float)[first]))
            for a in "XYZ"}
-    clips = [np.asarray(vibe[c], float) for c in ("Clip0", "Clip1", "Clip2") if c in vibe]
+    clips = [np.asarray(vibe[c], float)[first] for c in ("Clip", "Clip0", "Clip1", "Clip2")
+             if c in vibe]
     out["vibe_clips"] = float(sum(np.nanmax(c) for c in clips if len(c))) if clips else 0.0
     return out
 

@@ -1,6 +1,7 @@
 """Who a log belongs to and which calibration it flew with.
 
-Identity: the board's UID line that ArduPilot logs at boot (``"<board> XXXXXXXX XXXXXXXX
+Identity (ardupilot-facts.md "Identity and vibration records"): the board's UID line that
+ArduPilot logs at boot (``"<board> XXXXXXXX XXXXXXXX
 XXXXXXXX"``, e.g. ``"Pixhawk1 00310019 3138510E 35363631"``, ``"PX4v2 004A002F 33345119
 32383433"``), else the vehicle type and SYSID_THISMAV. The calibration in force: the INS_*,
 COMPASS_* and AHRS_ORIENTATION calibration parameters (:data:`CALIBRATION_PARAM_PREFIXES`), the
