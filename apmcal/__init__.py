@@ -6,6 +6,7 @@ Data flow (one sub-package per stage):
     solvers/        Ferraris benchmark, one-position static method, ellipsoid fits
     vehicle/        turn a calibration into ArduPilot parameters, write .param files, upload
     diagnosis/      compare simulation with real data
+    fleet/          calibration health across many logs of many vehicles, on Dask (apmcal fleet)
 """
 from apmcal.core.errors import ApmcalError
 

@@ -25,7 +25,8 @@ switchable IMU error model.
 Modules: truth (errors + defaults + name mapping), errors_model (sensor pipeline), motion
 (scripts, ``diagnosis`` = Ferraris + motors), firmware (INS_*/COMPASS_*/AHRS_ORIENTATION per
 generation), params_store, vehicle, mavlink_vehicle (network endpoint), logwriter, makelog,
-geomag (WMM field).
+geomag (WMM field), fleet (``python -m apmcal_sim.fleet``: logs of several vehicles over weeks with
+injected compass drift, compass swap, recalibration, temperature-sensitive gyro, and their truth).
 """
 from apmcal.sensor_model.truth import (
     DIAGNOSIS_EFFECTS,

@@ -1,6 +1,6 @@
 """A simulated fleet: dataflash logs of several vehicles over weeks, with injected events.
 
-    python -m apmcal_sim.fleet --vehicles 5 --flights 6 --out DIR [--seed 0] [--rate 25]
+    python -m apmcal_sim.fleet --vehicles 5 --flights 6 --out DIR [--seed 0] [--rate 25] [--hold 8]
 
 Writes DIR/<vehicle>/flight_<k>.bin (one short session per flight: a still pre-flight hold, a
 turn about each body axis, a still hold after) and DIR/truth.json, the events injected. Vehicle
@@ -66,13 +66,14 @@ class FlightPlan:
     extra: dict = field(default_factory=dict)
 
 
-def flight_motion() -> motion.Motion:
-    """A still hold, a full turn about the body z, x, y and a diagonal axis, a still hold."""
-    m = motion.Motion().hold(HOLD_S, "preflight")
+def flight_motion(hold_s: float = HOLD_S) -> motion.Motion:
+    """A still hold of ``hold_s`` [s], a full turn about the body z, x, y and a diagonal axis,
+    a still hold of ``hold_s``."""
+    m = motion.Motion().hold(hold_s, "preflight")
     for axis, label in (((0, 0, 1), "yaw"), ((1, 0, 0), "roll"), ((0, 1, 0), "pitch"),
                         ((1, 1, 1), "diagonal")):
         m.rotate(axis, 360.0, TURN_S, label).hold(1.0, "pause")
-    return m.hold(HOLD_S, "postflight")
+    return m.hold(hold_s, "postflight")
 
 
 def vehicle_truth(seed: int, plan: FlightPlan) -> Truth:
@@ -131,12 +132,13 @@ def uid_line(i: int) -> str:
     return f"fmuv3 {0x00400020 + i:08X} {0x3436510B + 7 * i:08X} {0x36383331 + 13 * i:08X}"
 
 
-def write_flight(plan: FlightPlan, i: int, out: Path, rate: float, seed: int) -> None:
+def write_flight(plan: FlightPlan, i: int, out: Path, rate: float, seed: int,
+                 hold_s: float = HOLD_S) -> None:
     """Simulate one flight and write it as a dataflash log ``out``."""
     truth = vehicle_truth(seed * 1000 + i, plan)
     v = SimVehicle(truth, "operator", "3.3", None, fs=2 * rate, seed=seed * 1000 + 100 * i + plan.index,
                    gyro_boot_s=1.0, start_unix=plan.unix_s)
-    v.motion = flight_motion()
+    v.motion = flight_motion(hold_s)
     v._boot_gyro = None                 # INS_GYROFFS below are in force; no boot calibration
     v.params.set("INS_GYR_CAL", 0, save=False)
     v.params.set("SYSID_THISMAV", i + 1, save=False)
@@ -149,8 +151,10 @@ def write_flight(plan: FlightPlan, i: int, out: Path, rate: float, seed: int) ->
     write_bin(v, out, rate, v.motion.duration + 0.5, messages=(uid_line(i), "Frame: QUAD"))
 
 
-def write_fleet(vehicles: int, flights: int, out: Path, seed: int = 0, rate: float = 25.0) -> dict:
-    """Write the fleet's logs under ``out`` and return the truth (also saved as truth.json)."""
+def write_fleet(vehicles: int, flights: int, out: Path, seed: int = 0, rate: float = 25.0,
+                hold_s: float = HOLD_S) -> dict:
+    """Write the fleet's logs under ``out`` and return the truth (also saved as truth.json);
+    ``rate`` [Hz] of the IMU/MAG records, ``hold_s`` [s] each still hold (longer logs)."""
     if vehicles < 1 or flights < 2:
         raise ApmcalError("need at least one vehicle and two flights", str(out))
     rng = np.random.default_rng(seed)
@@ -160,7 +164,7 @@ def write_fleet(vehicles: int, flights: int, out: Path, seed: int = 0, rate: flo
         folder = out / plans[0].vehicle
         folder.mkdir(parents=True, exist_ok=True)
         for plan in plans:
-            write_flight(plan, i, folder / f"flight_{plan.index:02d}.bin", rate, seed)
+            write_flight(plan, i, folder / f"flight_{plan.index:02d}.bin", rate, seed, hold_s)
         truth["vehicles"][plans[0].vehicle] = {
             "scenario": SCENARIOS[i % len(SCENARIOS)], "sysid": i + 1, "uid_line": uid_line(i),
             "flights": [{"file": f"{p.vehicle}/flight_{p.index:02d}.bin", "unix_s": p.unix_s,
@@ -217,9 +221,11 @@ def main(argv=None) -> int:
     ap.add_argument("--out", required=True, help="output folder")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--rate", type=float, default=25.0, help="IMU/MAG log rate [Hz]")
+    ap.add_argument("--hold", type=float, default=HOLD_S,
+                    help=f"each still hold before and after the turns [s] (default {HOLD_S:g})")
     args = ap.parse_args(argv)
     try:
-        write_fleet(args.vehicles, args.flights, Path(args.out), args.seed, args.rate)
+        write_fleet(args.vehicles, args.flights, Path(args.out), args.seed, args.rate, args.hold)
     except (ApmcalError, OSError) as err:
         print(f"apmcal_sim.fleet: {err}", file=sys.stderr)
         return 2

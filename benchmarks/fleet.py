@@ -1,21 +1,27 @@
 """Speed of ``apmcal fleet``'s engine: logs per second serial and on 2 local Dask workers, the
 scheduler's overhead per log, peak memory per worker.
 
-    python benchmarks/fleet.py [--vehicles 8] [--flights 6] [--rate 50] [--repeat 2]
+    python benchmarks/fleet.py [--vehicles 6] [--flights 4] [--rate 400] [--hold 60] [--repeat 2]
 
-A simulated fleet (``python -m apmcal_sim.fleet``, seed 7) is written to a temporary folder.
+A simulated fleet (``python -m apmcal_sim.fleet``, seed 7) is written to a temporary folder:
+by default 24 flights of 2.6 min logged at 400 Hz (2 MB each, like a short real flight; the
+test fleet's 25 Hz, 45 s logs are too small to say anything about the engine).
 Every mode processes the same logs without the cache (each log read and measured), after a
 warm-up log on every process (imports and compiled readers loaded), and each mode runs
 ``--repeat`` times, modes interleaved so that all see the same machine load; the best time
 of each counts. Modes:
 
 - serial: :func:`apmcal.fleet.engine.run_serial` in this process (the peer: no Dask);
-- dask 1 worker: a LocalCluster of one single-threaded worker process; its time minus the
-  serial time, per log, is the scheduler's overhead (serialising the task and the record,
-  the round trips to the scheduler and the worker);
+- dask 1 worker: a LocalCluster of one single-threaded worker process; its CPU time (this
+  process, which hosts the LocalCluster's scheduler, plus the worker's) minus the serial CPU
+  time, per log, is the scheduler's overhead (serialising the task and the record, the round
+  trips to the scheduler and the worker); CPU time, unlike wall time, barely depends on what
+  else runs on the machine, so it is the figure to quote on a shared machine (wall also shown);
 - dask 2 workers: a LocalCluster of two single-threaded worker processes; the ratio
   serial / 2 workers is the speed-up.
 
+The LocalClusters are made as ``apmcal fleet`` makes its own (workers without Dask's
+MALLOC_TRIM_THRESHOLD_; ``--dask-default-env`` keeps it, to measure what that costs).
 Also printed: the time to start each LocalCluster (paid once per run), the peak resident memory
 of each worker process (``ru_maxrss``, after the warm-up and after the run) and of this process,
 and the load average (the machine is shared: other work slows every mode alike).
@@ -35,19 +41,43 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
+DASK_DEFAULT_ENV = "--dask-default-env" in sys.argv
+
+
 def peak_rss_mb() -> float:
     """Peak resident memory of the calling process [MB] (Linux ru_maxrss is in kB)."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+def cpu_s() -> float:
+    """CPU time [s] of the calling process (all its threads)."""
+    return time.process_time()
+
+
+def timed(fn, clients=()):
+    """(wall [s], CPU [s] of this process plus every worker of ``clients``, result) of fn().
+
+    A LocalCluster's scheduler runs in this process, so its CPU time is in this process's."""
+    before = [c.run(cpu_s) for c in clients]
+    c0, t0 = cpu_s(), time.perf_counter()
+    out = fn()
+    wall, cpu = time.perf_counter() - t0, cpu_s() - c0
+    for c, b in zip(clients, before):
+        after = c.run(cpu_s)
+        cpu += sum(after[w] - b[w] for w in after)
+    return wall, cpu, out
+
+
 def cluster(n: int, warm_path: str):
+    import dask
     from dask.distributed import Client, LocalCluster
 
-    from apmcal.fleet.engine import process_log
+    from apmcal.fleet.engine import WORKER_ENV, process_log
 
     t0 = time.perf_counter()
-    c = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                     silence_logs=logging.ERROR)
+    with dask.config.set(WORKER_ENV if not DASK_DEFAULT_ENV else {}):
+        c = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                         dashboard_address=None, silence_logs=logging.ERROR)
     client = Client(c)
     client.wait_for_workers(n)
     started = time.perf_counter() - t0
@@ -57,10 +87,14 @@ def cluster(n: int, warm_path: str):
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--vehicles", type=int, default=8)
-    ap.add_argument("--flights", type=int, default=6)
-    ap.add_argument("--rate", type=float, default=50.0, help="log rate [Hz] of IMU and MAG")
+    ap.add_argument("--vehicles", type=int, default=6)
+    ap.add_argument("--flights", type=int, default=4)
+    ap.add_argument("--rate", type=float, default=400.0, help="log rate [Hz] of IMU and MAG")
+    ap.add_argument("--hold", type=float, default=60.0, help="each still hold [s]")
     ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--dask-default-env", action="store_true",
+                    help="workers with Dask's MALLOC_TRIM_THRESHOLD_=65536 (apmcal fleet "
+                         "starts them without it; see apmcal.fleet.engine.WORKER_ENV)")
     args = ap.parse_args()
     logging.getLogger("distributed").setLevel(logging.ERROR)
 
@@ -69,11 +103,14 @@ def main() -> int:
     from apmcal_sim.fleet import write_fleet
 
     with tempfile.TemporaryDirectory() as tmp:
-        write_fleet(args.vehicles, args.flights, Path(tmp), seed=7, rate=args.rate)
+        t0 = time.perf_counter()
+        write_fleet(args.vehicles, args.flights, Path(tmp), seed=7, rate=args.rate,
+                    hold_s=args.hold)
+        print(f"fleet simulated in {time.perf_counter() - t0:.0f} s")
         paths = discover([tmp])
         n = len(paths)
-        size = sum(p.stat().st_size for p in paths) / n / 1024
-        print(f"{n} logs ({args.vehicles} vehicles × {args.flights} flights), {size:.0f} kB "
+        size = sum(p.stat().st_size for p in paths) / n / 1e6
+        print(f"{n} logs ({args.vehicles} vehicles × {args.flights} flights), {size:.1f} MB "
               f"each, {args.rate:g} Hz; {os.cpu_count()} cores, load average "
               f"{os.getloadavg()[0]:.1f}")
         process_log(str(paths[0]), None)                 # warm this process too
@@ -81,32 +118,38 @@ def main() -> int:
         c2, client2, start2 = cluster(2, str(paths[0]))
         warm_rss = client2.run(peak_rss_mb)
         times = {"serial": [], "dask 1 worker": [], "dask 2 workers": []}
+        cpus = {k: [] for k in times}
+        runs = {"serial": (lambda: run_serial(paths), ()),
+                "dask 1 worker": (lambda: run_dask(paths, client=client1), (client1,)),
+                "dask 2 workers": (lambda: run_dask(paths, client=client2), (client2,))}
+        records = {}
         for _ in range(args.repeat):
-            t = time.perf_counter()
-            serial = run_serial(paths)
-            times["serial"].append(time.perf_counter() - t)
-            t = time.perf_counter()
-            one = run_dask(paths, client=client1)
-            times["dask 1 worker"].append(time.perf_counter() - t)
-            t = time.perf_counter()
-            two = run_dask(paths, client=client2)
-            times["dask 2 workers"].append(time.perf_counter() - t)
-        assert sorted(map(str, serial)) == sorted(map(str, one)) == sorted(map(str, two)), \
-            "the modes gave different records"
+            for mode, (fn, clients) in runs.items():
+                wall, cpu, records[mode] = timed(fn, clients)
+                times[mode].append(wall)
+                cpus[mode].append(cpu)
+        key = lambda recs: sorted(map(str, recs))
+        assert key(records["serial"]) == key(records["dask 1 worker"]) == \
+            key(records["dask 2 workers"]), "the modes gave different records"
         rss = client2.run(peak_rss_mb)
         for c, client in ((c1, client1), (c2, client2)):
             client.close()
             c.close()
         best = {k: min(v) for k, v in times.items()}
-        print(f"{'mode':16s} {'best [s]':>9s} {'logs/s':>8s}   all runs [s]")
+        cpu = {k: min(v) for k, v in cpus.items()}
+        print(f"{'mode':16s} {'wall [s]':>9s} {'logs/s':>8s} {'CPU [s]':>8s}   all runs wall / CPU [s]")
         for k, v in times.items():
-            print(f"{k:16s} {best[k]:9.2f} {n / best[k]:8.2f}   "
-                  + ", ".join(f"{x:.2f}" for x in v))
-        per_log = best["serial"] / n
-        over = (best["dask 1 worker"] - best["serial"]) / n
-        print(f"speed-up, 2 workers vs serial: {best['serial'] / best['dask 2 workers']:.2f}×")
-        print(f"scheduler overhead per log (1 worker − serial): {over * 1000:.1f} ms, "
-              f"{100 * over / per_log:.1f} % of a log's {per_log * 1000:.0f} ms")
+            print(f"{k:16s} {best[k]:9.2f} {n / best[k]:8.2f} {cpu[k]:8.2f}   "
+                  + ", ".join(f"{x:.2f}/{y:.2f}" for x, y in zip(v, cpus[k])))
+        print(f"speed-up, 2 workers vs serial (wall): {best['serial'] / best['dask 2 workers']:.2f}×")
+        per_log = cpu["serial"] / n
+        for mode in ("dask 1 worker", "dask 2 workers"):
+            over = (cpu[mode] - cpu["serial"]) / n
+            print(f"scheduler overhead per log, {mode} (CPU − serial CPU): {over * 1000:.1f} ms, "
+                  f"{100 * over / per_log:.1f} % of a log's {per_log * 1000:.0f} ms CPU")
+        over_wall = (best["dask 1 worker"] - best["serial"]) / n
+        print(f"same from wall time, 1 worker: {over_wall * 1000:.1f} ms per log "
+              f"({100 * over_wall / (best['serial'] / n):.1f} %)")
         print(f"LocalCluster start: {start1:.1f} s (1 worker), {start2:.1f} s (2 workers)")
         for addr in rss:
             print(f"worker {addr}: peak RSS {warm_rss[addr]:.0f} MB after warm-up, "

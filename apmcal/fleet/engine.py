@@ -69,7 +69,16 @@ def run_serial(paths, cache_dir=None, site=None, progress=None) -> list[dict]:
     return out
 
 
+# Dask starts its workers with MALLOC_TRIM_THRESHOLD_=65536 so that they hand freed memory back
+# to the system at once; glibc then also stops adapting its mmap threshold, so every large numpy
+# array of a log is mapped and unmapped afresh. Measured (benchmarks/fleet.py setup, 400 Hz
+# logs): twice the CPU time per log, the extra all system time (page faults). One log at a time
+# per worker keeps the memory bounded without it, so the LocalCluster's workers start without it.
+WORKER_ENV = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
+
+
 def _client(workers: int | None, scheduler: str | None):
+    import dask
     from dask.distributed import Client, LocalCluster
 
     if scheduler:
@@ -78,8 +87,9 @@ def _client(workers: int | None, scheduler: str | None):
         except (OSError, TimeoutError) as exc:
             raise ApmcalError(f"cannot reach the Dask scheduler: {exc}", scheduler) from None
     n = workers or os.cpu_count() or 1
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                           dashboard_address=None, silence_logs=logging.ERROR)
+    with dask.config.set(WORKER_ENV):
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.ERROR)
     return Client(cluster), cluster
 
 
