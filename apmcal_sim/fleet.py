@@ -213,6 +213,23 @@ def score_flags(flags: list[dict], truth: dict) -> dict:
             "missed": missed, "false_flags": false}
 
 
+def print_score(flags_csv: Path, truth_json: Path) -> int:
+    """Print :func:`score_flags` of a flags.csv against a truth.json; 1 when it falls short of
+    90 % of the events found with at most 10 % false flags, 2 when a file cannot be read."""
+    import csv
+
+    try:
+        with open(flags_csv, newline="") as f:
+            flags = list(csv.DictReader(f))
+        truth = json.loads(truth_json.read_text())
+    except (OSError, ValueError) as err:
+        print(f"apmcal_sim.fleet: {err}", file=sys.stderr)
+        return 2
+    score = score_flags(flags, truth)
+    print(json.dumps(score, indent=1))
+    return 0 if score["found_fraction"] >= 0.9 and score["false_fraction"] <= 0.1 else 1
+
+
 def main(argv=None) -> int:
     """``python -m apmcal_sim.fleet``: write a simulated fleet; the exit status."""
     ap = argparse.ArgumentParser(prog="python -m apmcal_sim.fleet", description=__doc__.split("\n")[0])
@@ -223,7 +240,13 @@ def main(argv=None) -> int:
     ap.add_argument("--rate", type=float, default=25.0, help="IMU/MAG log rate [Hz]")
     ap.add_argument("--hold", type=float, default=HOLD_S,
                     help=f"each still hold before and after the turns [s] (default {HOLD_S:g})")
+    ap.add_argument("--score", metavar="FLAGS.csv",
+                    help="instead of writing: score apmcal fleet's flags.csv against "
+                         "DIR/truth.json (prints JSON; exit 1 below 90 %% found or above 10 %% "
+                         "false)")
     args = ap.parse_args(argv)
+    if args.score:
+        return print_score(Path(args.score), Path(args.out) / "truth.json")
     try:
         write_fleet(args.vehicles, args.flights, Path(args.out), args.seed, args.rate, args.hold)
     except (ApmcalError, OSError) as err:

@@ -1,10 +1,10 @@
 """Speed of ``apmcal fleet``'s engine: logs per second serial and on 2 local Dask workers, the
 scheduler's overhead per log, peak memory per worker.
 
-    python benchmarks/fleet.py [--vehicles 6] [--flights 4] [--rate 400] [--hold 60] [--repeat 2]
+    python benchmarks/fleet.py [--vehicles 4] [--flights 3] [--rate 400] [--hold 150] [--repeat 2]
 
 A simulated fleet (``python -m apmcal_sim.fleet``, seed 7) is written to a temporary folder:
-by default 24 flights of 2.6 min logged at 400 Hz (2 MB each, like a short real flight; the
+by default 12 flights of 5.6 min logged at 400 Hz (about 10 MB each, like a real flight; the
 test fleet's 25 Hz, 45 s logs are too small to say anything about the engine).
 Every mode processes the same logs without the cache (each log read and measured), after a
 warm-up log on every process (imports and compiled readers loaded), and each mode runs
@@ -87,10 +87,10 @@ def cluster(n: int, warm_path: str):
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--vehicles", type=int, default=6)
-    ap.add_argument("--flights", type=int, default=4)
+    ap.add_argument("--vehicles", type=int, default=4)
+    ap.add_argument("--flights", type=int, default=3)
     ap.add_argument("--rate", type=float, default=400.0, help="log rate [Hz] of IMU and MAG")
-    ap.add_argument("--hold", type=float, default=60.0, help="each still hold [s]")
+    ap.add_argument("--hold", type=float, default=150.0, help="each still hold [s]")
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--dask-default-env", action="store_true",
                     help="workers with Dask's MALLOC_TRIM_THRESHOLD_=65536 (apmcal fleet "
