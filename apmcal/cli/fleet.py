@@ -4,6 +4,7 @@ from __future__ import annotations
 import sys
 
 EXIT_FLAGS = 1
+MAX_LINES = 30          # per list in the summary; the rest is in the output files
 
 
 def add_parser(sub) -> None:
@@ -46,10 +47,11 @@ def run(args) -> int:
     if args.lat is not None and not (-90 <= args.lat <= 90 and -180 <= args.lon <= 180):
         raise ApmcalError("--lat must lie in -90..90 and --lon in -180..180")
     site = (args.lat, args.lon, 0.0) if args.lat is not None else None
+    from rich.console import Console
     from rich.progress import Progress
 
     with Progress(transient=True, disable=args.quiet or not sys.stderr.isatty(),
-                  console=None) as bar:
+                  console=Console(stderr=True)) as bar:
         task = bar.add_task("logs", total=None)
         result = run_fleet(args.paths, args.out, workers=args.workers or None,
                            scheduler=args.scheduler, site=site, cache=not args.no_cache,
@@ -68,9 +70,14 @@ def print_summary(result) -> None:
     cached = int(f["cached"].fillna(False).astype(bool).sum())
     print(f"{len(f)} logs: {ok} read ({cached} from the cache), {len(f) - ok} not read; "
           f"{len(result.vehicles)} vehicles")
-    for r in f[f["status"] != "ok"].itertuples():
+    bad = f[f["status"] != "ok"]
+    for r in bad.head(MAX_LINES).itertuples():
         print(f"  not read: {r.reason}")
-    for r in result.flags.itertuples():
+    if len(bad) > MAX_LINES:
+        print(f"  ... {len(bad) - MAX_LINES} more not read (flights.parquet, index.html)")
+    for r in result.flags.head(MAX_LINES).itertuples():
         print(f"  [{r.level}] {r.vehicle_id}: {r.reason} -> {r.next_step}")
+    if len(result.flags) > MAX_LINES:
+        print(f"  ... {len(result.flags) - MAX_LINES} more flags (flags.csv, index.html)")
     print(f"{result.action_flags} action flag(s); results in {result.out}/ (index.html, "
           f"flights.parquet, vehicles.parquet, flags.csv)")

@@ -17,7 +17,7 @@ from apmcal.core.blas_threads import single_threaded_blas
 from apmcal.core.errors import ApmcalError
 
 #: bump when a record's meaning changes: the cache key includes it, so old records are redone
-EXTRACT_VERSION = 2
+EXTRACT_VERSION = 3
 
 
 def base_record(path: Path) -> dict:
@@ -30,12 +30,15 @@ def base_record(path: Path) -> dict:
             "format": None, "vehicle_id": None, "notes": ""}
 
 
-def _year(unix_s: float | None) -> float | None:
-    if unix_s is None:
-        return None
+def _year(unix_s: float | None) -> tuple[float, str | None]:
+    """Decimal year of the log for the WMM, and a note when undated (today's field is used, as
+    the single-log commands do; the field changes about 0.1 % a year)."""
     from apmcal.core.geomag import decimal_year
 
-    return decimal_year(datetime.datetime.fromtimestamp(unix_s, tz=datetime.timezone.utc))
+    if unix_s is None:
+        return (decimal_year(datetime.datetime.now(datetime.timezone.utc)),
+                "no date in the log: the WMM field of today used")
+    return decimal_year(datetime.datetime.fromtimestamp(unix_s, tz=datetime.timezone.utc)), None
 
 
 def _extra_messages(contents) -> dict:
@@ -96,10 +99,10 @@ def describe(contents, site: tuple[float, float, float] | None = None) -> dict:
     mag = mag_recording if mag_recording is not None else (
         recording if recording.has("mag") else None)
     if mag is not None and has_live_magnetometer(mag):
-        figures, mag_notes = health.compass_health(mag, site, _year(contents.start_unix_s)
-                                                   if site else None)
+        year, year_note = _year(contents.start_unix_s)
+        figures, mag_notes = health.compass_health(mag, site, year)
         rec.update(figures)
-        notes += mag_notes
+        notes += mag_notes + ([year_note] if year_note and "heading_error_deg" in figures else [])
     else:
         notes.append("no live compass")
     rec.update(health.vibration(msgs))

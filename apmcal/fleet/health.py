@@ -25,6 +25,9 @@ STD_GRAVITY = 9.80665
 # than a calibration's 0.25, since only the centre is fitted here (no shape), and a flight's
 # turns rarely cover a sphere
 MIN_SPREAD = 0.15
+# a logged field whose distance from the fitted centre scatters more than this fraction of the
+# radius is no offset sphere (soft iron, motor currents, a wrong DIA/ODI): no heading error then
+MAX_FIT_RMS_FRACTION = 0.10
 
 
 def still_segments(recording):
@@ -129,6 +132,11 @@ def compass_health(mag_recording, site: tuple[float, float, float] | None, year:
                                                        - radius) ** 2)))
     horiz = float(np.hypot(centre[0], centre[1]))
     out["mag_residual_horizontal_mgauss"] = horiz
+    if out["mag_fit_rms_mgauss"] > MAX_FIT_RMS_FRACTION * radius:
+        return out, [f"heading error not measured: the logged field is no offset sphere (rms "
+                     f"{out['mag_fit_rms_mgauss']:.0f} mGauss, "
+                     f"{100 * out['mag_fit_rms_mgauss'] / radius:.0f} % of its radius): soft "
+                     f"iron, motor interference or a poor calibration"]
     if site is None or year is None:
         return out, ["heading error not measured: the site is unknown (no GPS fix; give "
                      "--lat/--lon)"]
