@@ -20,8 +20,9 @@ of each counts. Modes:
 - dask 2 workers: a LocalCluster of two single-threaded worker processes; the ratio
   serial / 2 workers is the speed-up.
 
-The LocalClusters are made as ``apmcal fleet`` makes its own (workers without Dask's
-MALLOC_TRIM_THRESHOLD_; ``--dask-default-env`` keeps it, to measure what that costs).
+The LocalClusters are made as ``apmcal fleet`` makes its own (apmcal.fleet.engine.WORKER_ENV:
+workers without Dask's MALLOC_TRIM_THRESHOLD_, dashboard-only timers slowed;
+``--dask-default-env`` keeps Dask's defaults, to measure what they cost).
 Also printed: the time to start each LocalCluster (paid once per run), the peak resident memory
 of each worker process (``ru_maxrss``, after the warm-up and after the run) and of this process,
 and the load average (the machine is shared: other work slows every mode alike).
@@ -92,9 +93,12 @@ def main() -> int:
     ap.add_argument("--rate", type=float, default=400.0, help="log rate [Hz] of IMU and MAG")
     ap.add_argument("--hold", type=float, default=150.0, help="each still hold [s]")
     ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--fleet", default=None, metavar="DIR",
+                    help="simulate into DIR, or reuse the logs already there (default: a "
+                         "temporary folder)")
     ap.add_argument("--dask-default-env", action="store_true",
-                    help="workers with Dask's MALLOC_TRIM_THRESHOLD_=65536 (apmcal fleet "
-                         "starts them without it; see apmcal.fleet.engine.WORKER_ENV)")
+                    help="LocalClusters with Dask's defaults (apmcal fleet changes a few; "
+                         "see apmcal.fleet.engine.WORKER_ENV)")
     args = ap.parse_args()
     logging.getLogger("distributed").setLevel(logging.ERROR)
 
@@ -103,10 +107,12 @@ def main() -> int:
     from apmcal_sim.fleet import write_fleet
 
     with tempfile.TemporaryDirectory() as tmp:
-        t0 = time.perf_counter()
-        write_fleet(args.vehicles, args.flights, Path(tmp), seed=7, rate=args.rate,
-                    hold_s=args.hold)
-        print(f"fleet simulated in {time.perf_counter() - t0:.0f} s")
+        tmp = args.fleet or tmp
+        if not (Path(tmp) / "truth.json").exists():
+            t0 = time.perf_counter()
+            write_fleet(args.vehicles, args.flights, Path(tmp), seed=7, rate=args.rate,
+                        hold_s=args.hold)
+            print(f"fleet simulated in {time.perf_counter() - t0:.0f} s")
         paths = discover([tmp])
         n = len(paths)
         size = sum(p.stat().st_size for p in paths) / n / 1e6

@@ -69,12 +69,20 @@ def run_serial(paths, cache_dir=None, site=None, progress=None) -> list[dict]:
     return out
 
 
-# Dask starts its workers with MALLOC_TRIM_THRESHOLD_=65536 so that they hand freed memory back
-# to the system at once; glibc then also stops adapting its mmap threshold, so every large numpy
-# array of a log is mapped and unmapped afresh. Measured (benchmarks/fleet.py setup, 400 Hz
-# logs): twice the CPU time per log, the extra all system time (page faults). One log at a time
-# per worker keeps the memory bounded without it, so the LocalCluster's workers start without it.
-WORKER_ENV = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
+# The LocalCluster's configuration (dask.config keys):
+# - Dask starts its workers with MALLOC_TRIM_THRESHOLD_=65536 so that they hand freed memory back
+#   to the system at once; glibc then also stops adapting its mmap threshold, so every large
+#   numpy array of a log is mapped and unmapped afresh. Measured (benchmarks/fleet.py setup,
+#   400 Hz logs): twice the CPU time per log, the extra all system time (page faults). One log at
+#   a time per worker keeps the memory bounded without it, so the workers start without it.
+# - the statistical profiler (every 10 ms), the event-loop tick check (every 20 ms) and the
+#   system monitor (every 0.5 s) serve the dashboard, which is off: slower, they cost a third of
+#   the CPU time an idle worker and scheduler spend (about 22 → 7 ms per second each, measured
+#   with a LocalCluster of one worker idle for 5 s).
+WORKER_ENV = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+              "distributed.worker.profile.enabled": False,
+              "distributed.admin.tick.interval": "1s",
+              "distributed.admin.system-monitor.interval": "2s"}
 
 
 def _client(workers: int | None, scheduler: str | None):
