@@ -6,7 +6,8 @@ Writes DIR/<vehicle>/flight_<k>.bin (one short session per flight: a still pre-f
 turn about each body axis, a still hold after) and DIR/truth.json, the events injected. Vehicle
 i gets the scenario ``SCENARIOS[i % 5]``:
 
-- ``healthy``: calibration in force matches the sensors throughout;
+- ``healthy``: calibration in force matches the sensors throughout (COMPASS_OFS within a few
+  mGauss, :data:`CALIBRATION_SLACK_MGAUSS`, as after a good calibration);
 - ``compass_drift``: the compass's hard-iron offset [mGauss] grows from the second flight on
   while COMPASS_OFS stays, so the heading error rises (event ``compass_drift``);
 - ``compass_swap``: at the middle flight the compass is replaced: a new COMPASS_DEV_ID, a new
@@ -49,6 +50,7 @@ SENSITIVE_GYRO_COEF = 4e-4      # gyro_temperature: bias per kelvin [rad/s/K] (0
 NORMAL_GYRO_COEF = 1e-5         # the others [rad/s/K]
 WARMUP = {"rise_k": 18.0, "tau_s": 12.0}   # the board warms 18 K with a 12 s time constant
 COMPASS_DEV_IDS = (466441.0, 662793.0)     # before / after a swap (bus, address, type codes)
+CALIBRATION_SLACK_MGAUSS = 5.0  # 1-σ error of each vehicle's COMPASS_OFS against its hard iron
 
 
 @dataclass
@@ -92,19 +94,20 @@ def plan_vehicle(i: int, flights: int, rng: np.random.Generator) -> tuple[list[F
     name = f"veh{i:02d}"
     scenario = SCENARIOS[i % len(SCENARIOS)]
     base = rng.normal(0.0, 80.0, 3)
+    slack = rng.normal(0.0, CALIBRATION_SLACK_MGAUSS, 3)   # no calibration is exact
     angle = rng.uniform(0, 2 * np.pi)          # compass_drift: direction of the growth
     middle = flights // 2
     plans, events = [], []
     for k in range(flights):
         unix = FIRST_FLIGHT.timestamp() + (k * DAYS_BETWEEN_FLIGHTS + i * 0.1) * 86400.0
         ambient = 12.0 + 10.0 * np.sin(2 * np.pi * (k / max(flights, 1))) + rng.normal(0, 2)
-        hard, ofs = base.copy(), -base
+        hard, ofs = base.copy(), -base + slack
         coef, dev = NORMAL_GYRO_COEF, COMPASS_DEV_IDS[0]
         if scenario == "compass_drift" and k >= 1:
             hard = base + DRIFT_MGAUSS_PER_FLIGHT * k * np.array([np.cos(angle), np.sin(angle), 0.3])
         if scenario in ("compass_swap", "recalibration") and k >= middle:
             new = base + np.array([120.0, -90.0, 40.0])
-            hard, ofs = new, -new
+            hard, ofs = new, -new + slack
             if scenario == "compass_swap":
                 dev = COMPASS_DEV_IDS[1]
         if scenario == "gyro_temperature":

@@ -52,8 +52,28 @@ def test_flags_find_the_injected_events(fleet, serial_run):
     slope = v.loc[sensitive["uid_line"], "gyro_temp_slope_dps_per_c"]
     injected = np.degrees(sensitive["flights"][0]["gyro_coef_rad_s_per_k"])
     assert slope == pytest.approx(injected, rel=0.1)
-    healthy = serial_run.flights[serial_run.flights["vehicle_id"] == truth["vehicles"]["veh00"]["uid_line"]]
-    assert (healthy["heading_error_deg"] < 1.0).all()
+
+
+def test_heading_error_against_the_injected_offsets(fleet, serial_run):
+    """Every flight's heading error against asin(|horizontal (hard iron + COMPASS_OFS)| / B_h)
+    of the truth (the residual offset the simulated calibration leaves, body = compass frame)."""
+    from apmcal.core.geomag import decimal_year, earth_field_ned
+    from apmcal.sensor_model.truth import DEFAULT_SITE
+
+    folder, truth = fleet
+    by_path = serial_run.flights.set_index("path")
+    n = 0
+    for v in truth["vehicles"].values():
+        for f in v["flights"]:
+            row = by_path.loc[str((folder / f["file"]).resolve())]
+            when = pd.Timestamp(f["unix_s"], unit="s", tz="UTC").to_pydatetime()
+            field, _ = earth_field_ned(DEFAULT_SITE["lat"], DEFAULT_SITE["lon"],
+                                       DEFAULT_SITE["alt"], decimal_year(when))
+            residual = np.add(f["hard_iron_mgauss"], f["compass_ofs"])
+            expected = np.degrees(np.arcsin(np.hypot(*residual[:2]) / np.hypot(*field[:2])))
+            assert row["heading_error_deg"] == pytest.approx(expected, abs=0.3), f["file"]
+            n += 1
+    assert n == 20
 
 
 def test_outputs_written(serial_run):
