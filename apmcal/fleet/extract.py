@@ -17,7 +17,7 @@ from apmcal.core.blas_threads import single_threaded_blas
 from apmcal.core.errors import ApmcalError
 
 #: bump when a record's meaning changes: the cache key includes it, so old records are redone
-EXTRACT_VERSION = 3
+EXTRACT_VERSION = 4
 
 
 def base_record(path: Path) -> dict:

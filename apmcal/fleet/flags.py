@@ -33,8 +33,9 @@ def _day(ts) -> str:
 
 
 def _flag(vid, level, kind, reason, next_step, date=None, path=None) -> dict:
-    return {"vehicle_id": vid, "level": level, "kind": kind, "date": _day(date) if date is not None
-            else "", "reason": reason, "next_step": next_step, "path": path or ""}
+    dated = date is not None and not pd.isna(date)
+    return {"vehicle_id": vid, "level": level, "kind": kind, "date": _day(date) if dated else "",
+            "reason": reason, "next_step": next_step, "path": path or ""}
 
 
 def compass_flag(vid: str, seg: pd.DataFrame) -> dict | None:
@@ -101,7 +102,7 @@ def change_flags(changes: list[dict]) -> list[dict]:
 
 
 def _g(v) -> str:
-    return "none" if v is None else f"{v:g}"
+    return f"{v:g}"
 
 
 def acc_flag(vid: str, flights: pd.DataFrame) -> dict | None:

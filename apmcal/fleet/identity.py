@@ -82,9 +82,8 @@ def calibration_in_force(params: dict[str, float]) -> dict[str, float]:
 
 
 def dev_ids(params: dict[str, float]) -> dict[str, float]:
-    """The sensors' DEV_ID parameters that name a sensor (non-zero), name → value."""
-    return {k: float(v) for k, v in sorted(params.items())
-            if DEV_ID_RE.match(k) and _finite(v) and v != 0}
+    """The sensors' DEV_ID parameters, name → value (0: no sensor in that slot)."""
+    return {k: float(v) for k, v in sorted(params.items()) if DEV_ID_RE.match(k) and _finite(v)}
 
 
 def sensor_of(dev_id_name: str) -> str:

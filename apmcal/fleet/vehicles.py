@@ -3,7 +3,8 @@ outliers against the other vehicles of the same type.
 
 - change points: between consecutive flights, a calibration parameter with a new value
   (:func:`apmcal.fleet.identity.compares_as_change`: the boot gyro offsets excluded) or a
-  sensor's DEV_ID with a new value (the hardware changed);
+  sensor's DEV_ID with a new value (the hardware changed; 0 = no sensor); a parameter logged in
+  only one of the two flights is no change;
 - drift rates: least-squares slopes over time [per day] with their standard errors, over the
   flights since the last compass calibration change;
 - gyro temperature sensitivity: the slope of the gyro bias against board temperature between
@@ -43,15 +44,12 @@ def flights_table(records: list[dict]) -> pd.DataFrame:
 
 
 def _changed(old: dict, new: dict, keep) -> dict:
+    """Parameters logged in both flights whose values differ, name → (old, new). A parameter
+    logged in only one of them is no change: another firmware logs another set."""
     out = {}
-    for name in sorted(set(old) | set(new)):
-        if not keep(name):
-            continue
-        a, b = old.get(name), new.get(name)
-        if a is None or b is None:
-            if a != b:
-                out[name] = (a, b)
-        elif abs(a - b) > REL_TOL * max(abs(a), abs(b), 1e-3):
+    for name in sorted(set(old) & set(new)):
+        a, b = old[name], new[name]
+        if keep(name) and abs(a - b) > REL_TOL * max(abs(a), abs(b), 1e-3):
             out[name] = (a, b)
     return out
 
