@@ -39,7 +39,10 @@ def trend_png(flights: pd.DataFrame, title: str) -> str:
     if "heading_error_deg" in flights:
         axes[0].errorbar(x, flights["heading_error_deg"],
                          yerr=1.96 * flights.get("heading_error_sigma_deg", 0), fmt="o-")
-    axes[0].set_title("compass heading error [°] (95 %)")
+    from apmcal.fleet.flags import HEADING_LIMIT_DEG
+
+    axes[0].axhline(HEADING_LIMIT_DEG, color="tab:red", lw=0.8, ls="--")
+    axes[0].set_title("compass heading error [°] (95 %; -- flag limit)")
     for a in "xyz":
         for tag, mark in (("start", "o"), ("end", "s")):
             col = f"gyro_bias_{tag}_{a}_dps"
