@@ -26,6 +26,7 @@ The package, in the order the data flows (each subpackage's docstring maps its m
     link/           MAVLink to a vehicle: parameters, verified upload and restore
     sensor_model/   the IMU error model the gap diagnosis twins a board with
     diagnosis/      the gap between a real board and its simulation (apmcal gap)
+    fleet/          calibration health across many logs of many vehicles, on Dask (apmcal fleet)
     cli/            the command line, one module per command
 """
 from __future__ import annotations

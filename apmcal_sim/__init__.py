@@ -35,6 +35,8 @@ was not told about?). The error model itself — ``Truth`` (errors, defaults, na
 ``ImuErrorModel`` (the sensor pipeline) — is :mod:`apmcal.sensor_model`'s.
 The flight: ``python -m apmcal_sim.flight`` (a scripted multicopter flight written as a 4.x
 dataflash log with known compass errors and a biased logged yaw).
+The fleet: ``python -m apmcal_sim.fleet`` (logs of several vehicles over weeks with injected
+compass drift, compass swap, recalibration, temperature-sensitive gyro, and their truth).
 """
 from apmcal.sensor_model.truth import (
     DIAGNOSIS_EFFECTS,

@@ -140,7 +140,7 @@ def run_case(withheld: tuple, seed: int, rate_hz: float, fs: float) -> Case:
     -------
     Case
     """
-    from apmcal.calibration.log import Options
+    from apmcal.core.options import Options
     from apmcal.diagnosis.run import diagnose
     from apmcal.diagnosis.session.log import session_from_log
     from apmcal.sources import read_log

@@ -65,14 +65,17 @@ def write_tlog(v: SimVehicle, out: Path, rate: float, seconds: float,
 
 
 def write_bin(v: SimVehicle, out: Path, rate: float, seconds: float,
-              imu_instance: bool = False) -> None:
-    """Write ``seconds`` of the vehicle to the dataflash .bin ``out``: PARM, MSG, then IMU and MAG
-    at ``rate`` [Hz], GPS at 1 Hz and BAT at 10 Hz."""
+              imu_instance: bool = False, messages: tuple = ()) -> None:
+    """Write ``seconds`` of the vehicle to the dataflash .bin ``out``: PARM, MSG (the firmware
+    string, then ``messages``, e.g. a board's UID line), then IMU and MAG at ``rate`` [Hz], GPS
+    at 1 Hz and BAT at 10 Hz."""
     v.set_interval("HIGHRES_IMU", rate)
     with DataflashWriter(out, imu_instance=imu_instance) as w:
         for name in v.params.names:
             w.parm(0, name, v.params[name])
         w.msg(0, VERSION_TEXT[v.generation])
+        for text in messages:
+            w.msg(0, text)
         ofs = [v.params[f"COMPASS_OFS_{a}"] for a in "XYZ"]
         site = v.truth.site
         bat_due = [0]                       # index k of the next BAT record, due at k / 10 Hz
@@ -85,7 +88,7 @@ def write_bin(v: SimVehicle, out: Path, rate: float, seconds: float,
             k = 0
             for t, m in messages:
                 if m.get_type() == "HEARTBEAT":     # 1 Hz: a GPS fix dates the log (no RTC)
-                    w.gps(int(round(t * 1e6)), START_UNIX + t, site["lat"], site["lon"],
+                    w.gps(int(round(t * 1e6)), v.start_unix + t, site["lat"], site["lon"],
                           site["alt"])
                 if m.get_type() != "HIGHRES_IMU":
                     continue

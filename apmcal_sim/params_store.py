@@ -135,6 +135,13 @@ class ParamStore:
             self.save()
         return self._values[name]
 
+    def declare(self, name: str, value: float) -> None:
+        """Add a parameter the default table lacks (e.g. a fleet vehicle's COMPASS_DEV_ID) with
+        ``value`` (float32), or overwrite it; not saved."""
+        if name not in self._values:
+            self.names = sorted([*self._values, name])
+        self._values[name] = float(np.float32(value))
+
     def answered_set_with(self, name: str) -> list[str]:
         """The names whose PARAM_VALUE answers a PARAM_SET of ``name``.
 
