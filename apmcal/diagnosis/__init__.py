@@ -19,6 +19,7 @@ on data the fit did not see. The flow, one module per step:
   from "off"?) and :mod:`~apmcal.diagnosis.model.plausible` (within physical limits?), and a
   stepwise combination;
 - :mod:`~apmcal.diagnosis.run` — all of it for one session; :mod:`~apmcal.diagnosis.output.result`,
+  :mod:`~apmcal.diagnosis.output.advice` (what to do, one sentence per selected effect),
   :mod:`~apmcal.diagnosis.output.summary`, :mod:`~apmcal.diagnosis.output.report`,
   :mod:`~apmcal.diagnosis.output.plots`, :mod:`~apmcal.diagnosis.twin.file` — what the user gets;
 - :mod:`~apmcal.diagnosis.noise.allan`, :mod:`~apmcal.diagnosis.noise.terms`,

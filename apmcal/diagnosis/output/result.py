@@ -4,12 +4,14 @@ Schema 1 (every gap in nats per sample, see :mod:`apmcal.diagnosis.scoring.gap`)
 
     {"schema": 1, "source": ..., "session": {...},
      "gap": {"total": in-sample, "heldout": held-out, "breakdown": {...},
-             "breakdown_heldout": {...}},
+             "breakdown_heldout": {...},
+             "noise_ratio_heldout": {sensor: {band: real RMS / twin RMS}}},
      "effects": [{"name", "shrink_heldout", "shrink_in_sample", "gap_heldout", "evidence_nats",
                   "supported_alone", "significant", "evidence_when_selected_nats",
                   "evidence_beyond_selection_nats", "params", "not_tested",
                   "implausible", "scored_at_hz"}, ...]  (best first),
-     "selected": [names], "after": {"total", "heldout", "breakdown", "breakdown_heldout"},
+     "selected": [names], "after": {"total", "heldout", "breakdown", "breakdown_heldout",
+                                    "noise_ratio_heldout"},
      "white_noise": {...}, "noise_structure": {...}, "notes": [...]}
 
 "shrink_*", "gap_*" and "evidence_nats" score the effect alone on the nominal model;
