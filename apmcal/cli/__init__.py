@@ -271,9 +271,10 @@ def add_gap_parser(sub) -> None:
     gap.add_argument("--json", default=None, help="write the result as JSON")
     gap.add_argument("--report", default=None, metavar="DIR",
                      help="write a Markdown report with PNG plots into DIR")
-    gap.add_argument("--write-twin", default=None, metavar="TWIN.json",
+    gap.add_argument("--write-twin", default=None, metavar="TWIN.json|TWIN.parm",
                      help="write the selected effects as a simulator configuration "
-                          "(python -m apmcal_sim --twin TWIN.json)")
+                          "(python -m apmcal_sim --twin TWIN.json), or with .parm/.param as "
+                          "ArduPilot SITL parameters (docs/sitl-twin.md)")
     gap.add_argument("--benchmark", action="store_true",
                      help="instead of a log: simulate sessions with one effect withheld from "
                           "the twin and check the diagnosis finds it")

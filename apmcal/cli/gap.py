@@ -99,7 +99,10 @@ def run_gap(args, console) -> int:
         from apmcal.diagnosis.twin.file import write_twin
 
         write_twin(diagnosis, args.write_twin)
-        console.print(f"wrote {args.write_twin} (python -m apmcal_sim --twin {args.write_twin})")
+        sitl = str(args.write_twin).lower().endswith((".parm", ".param"))
+        console.print(f"wrote {args.write_twin} ("
+                      + ("ArduPilot SITL parameters" if sitl else
+                         f"python -m apmcal_sim --twin {args.write_twin}") + ")")
     return 0
 
 
