@@ -126,11 +126,19 @@ def print_effects(result, console) -> None:
                                f"{e['evidence_nats']:.0f}", style="bold"))
             for name, p in e.get("params", {}).items():
                 _say(console, f"      {name} = {param_text(p)} {p['unit']}")
-    redundant = [e for e in tested if e["supported_alone"] and not e["significant"]]
+    confounded = [e for e in tested if e.get("confounded_with")]
+    if confounded:
+        _say(console, "  supported alone, but confounded: it adds nothing where its shape and "
+                      "the other's part, the other still does: " + ", ".join(
+                          f"{e['name']} (by {e['confounded_with']})" for e in confounded))
+    redundant = [e for e in tested if e["supported_alone"] and not e["significant"]
+                 and not e.get("confounded_with")]
     if redundant:
         _say(console, "  supported alone, but explained by the selection (evidence left on top "
                       "of it): " + ", ".join(f"{e['name']} {_shrink(e)} "
-                                             f"({e.get('evidence_beyond_selection_nats', 0):.0f})"
+                                             f"({e.get('evidence_beyond_selection_nats', 0):.0f}"
+                                             + (f"; stands in for {e['stands_in_for']}"
+                                                if e.get("stands_in_for") else "") + ")"
                                              for e in redundant))
     odd = [e for e in tested if e.get("implausible")]
     if odd:
