@@ -21,7 +21,9 @@ on data the fit did not see. The flow, one module per step:
 - :mod:`~apmcal.diagnosis.run` — all of it for one session; :mod:`~apmcal.diagnosis.output.result`,
   :mod:`~apmcal.diagnosis.output.advice` (what to do, one sentence per selected effect),
   :mod:`~apmcal.diagnosis.output.summary`, :mod:`~apmcal.diagnosis.output.report`,
-  :mod:`~apmcal.diagnosis.output.plots`, :mod:`~apmcal.diagnosis.twin.file` — what the user gets;
+  :mod:`~apmcal.diagnosis.output.plots`, :mod:`~apmcal.diagnosis.twin.file` (with
+  :mod:`~apmcal.diagnosis.twin.sitl_params`, the twin as ArduPilot SITL parameters) — what the
+  user gets;
 - :mod:`~apmcal.diagnosis.noise.allan`, :mod:`~apmcal.diagnosis.noise.terms`,
   :mod:`~apmcal.diagnosis.noise.bias_track` — Allan deviation, noise terms and the random-walk bias
   track of the residuals (real against twin);
