@@ -82,12 +82,13 @@ def warmup(tmp_path_factory):
     subprocess.run([sys.executable, "-m", "apmcal_sim.makelog", "--script", "warmup", "--out",
                     str(log), "--rate", "10", "--duration", "600", "--seed", "3", "--truth",
                     str(out / "truth.json")], check=True, cwd=ROOT, timeout=300)
-    assert main(["gap", str(log), "--json", str(out / "gap.json"), "--quiet"]) == 0
-    return truth, GapResult.load(out / "gap.json"), json.loads((out / "gap.json").read_text())
+    assert main(["gap", str(log), "--json", str(out / "gap.json"), "--quiet",
+                 "--write-twin", str(out / "twin.parm")]) == 0
+    return truth, GapResult.load(out / "gap.json"), json.loads((out / "gap.json").read_text()), out
 
 
 def test_every_figure_is_finite_and_per_sample_gaps_are_small(warmup):
-    _, _, data = warmup
+    _, _, data, _ = warmup
     numbers = list(_numbers(data))
     assert numbers and all(math.isfinite(v) for _, v in numbers)
     per_sample = [(p, v) for p, v in numbers
@@ -101,7 +102,7 @@ def test_every_figure_is_finite_and_per_sample_gaps_are_small(warmup):
 
 
 def test_the_temperature_drift_is_found_and_the_summary_opens_with_its_action(warmup):
-    truth, result, _ = warmup
+    truth, result, _, _ = warmup
     assert result.selected[0] == "temperature_drift"
     console = Console(record=True, width=300)
     print_summary(result, console)
@@ -126,3 +127,19 @@ def test_nothing_selected_says_the_simulator_matches():
     console = Console(record=True, width=300)
     print_summary(result, console)
     assert console.export_text().splitlines()[0].startswith(NOTHING)
+
+
+def test_the_sitl_twin_file_carries_the_fitted_temperature_drift(warmup):
+    """--write-twin x.parm end to end: SIM_IMUT1_* from the fitted coefficients, the warm-up
+    curve from the log, no drift, and no compass lines (one orientation fits no geometry)."""
+    from apmcal.ardupilot.paramfile import read_param_file
+
+    _, result, _, out = warmup
+    values = read_param_file(out / "twin.parm")
+    assert values["SIM_IMUT1_ENABLE"] == 1 and values["SIM_DRIFT_SPEED"] == 0
+    coef = np.array(result.effect("temperature_drift")["params"]["gyro_coef"]["value"])
+    fitted = np.array([values[f"SIM_IMUT1_GYR1_{a}"] for a in "XYZ"]) / 1e6
+    np.testing.assert_allclose(fitted, coef, rtol=0.05, atol=2e-6)   # refitted on every piece
+    lo, hi = result.session["temperature_c"]
+    assert abs(values["SIM_IMUT_START"] - lo) < 1.0 and abs(values["SIM_IMUT_END"] - hi) < 2.0
+    assert not any(name.startswith("SIM_MAG") for name in values)
