@@ -22,7 +22,8 @@ on top of those already chosen, for as long as one reaches the threshold, and dr
 one that the later ones explain. The simplest sufficient explanation is preferred: a stochastic
 effect (a random walk, which bends to any slow curve) is chosen over a deterministic one only
 when it has :data:`SIMPLER_SHARE` more evidence, and is removed again when it takes a
-deterministic effect's place instead of adding to it; and of two confounded effects
+deterministic effect's place while adding less than that share of what the deterministic one
+explained; and of two confounded effects
 (:data:`CONFOUNDED`: a bias following the temperature, one following time) one that adds nothing
 where the two shapes part while the other does is left out (:func:`confounded_effects`).
 An effect is *significant* in the end when it is in that
@@ -239,9 +240,11 @@ def forward_selection(evaluator, ranked: list[EffectScore], max_rounds: int = MA
         selected.append(best.name)
         joined[best.name] = best.evidence
         weakest = weakest_unsupported(evaluator, selected, base)
-        if weakest is not None and best.name in STOCHASTIC and weakest not in STOCHASTIC:
-            # a stochastic effect that takes a deterministic one's place instead of adding to
-            # it is standing in for it: it goes, the simpler explanation stays
+        if weakest is not None and best.name in STOCHASTIC and weakest not in STOCHASTIC \
+                and best.evidence < SIMPLER_SHARE * joined[weakest]:
+            # a stochastic effect that takes a deterministic one's place while adding less
+            # than SIMPLER_SHARE of what that one explained is standing in for it: it goes,
+            # the simpler explanation stays
             stand_in[best.name] = weakest
             weakest = best.name
         if weakest is not None:
