@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.special import ndtr
 
 from apmcal.diagnosis.model.static_fit import MIN_CHORD, distinct_directions
 from apmcal.diagnosis.scoring.gap import (
     SHAPE_BINS,
+    SHAPE_SMOOTHING,
     bin_index,
     shape_shares,
     sorted_quantiles,
@@ -22,12 +24,15 @@ RNG = np.random.default_rng(20261124)
 
 
 def plain_shape_shares(real, twin):
-    """shape_shares as first written: np.quantile edges, np.searchsorted bins."""
+    """shape_shares as first written: np.quantile edges, np.searchsorted bins (and the twin's
+    histogram smoothed by its normal distribution, SHAPE_SMOOTHING of it)."""
     edges = np.unique(np.quantile(twin, np.arange(1, SHAPE_BINS) / SHAPE_BINS))
     b_r, b_t = np.searchsorted(edges, real), np.searchsorted(edges, twin)
     bins = len(edges) + 1
     p = (np.bincount(b_r, minlength=bins) + 0.5) / (len(real) + 0.5 * bins)
     q = (np.bincount(b_t, minlength=bins) + 0.5) / (len(twin) + 0.5 * bins)
+    g = np.diff(ndtr(np.concatenate([[-np.inf], edges / np.sqrt(np.mean(twin ** 2)), [np.inf]])))
+    q = (1.0 - SHAPE_SMOOTHING) * q + SHAPE_SMOOTHING * g
     return np.log(p / q)[b_r] - 0.5 * (bins - 1) * (1.0 + len(real) / len(twin)) / len(real)
 
 

@@ -26,9 +26,10 @@ def add_parser(sub) -> None:
     gap.add_argument("--json", default=None, help="write the result as JSON")
     gap.add_argument("--report", default=None, metavar="DIR",
                      help="write a Markdown report with PNG plots into DIR")
-    gap.add_argument("--write-twin", default=None, metavar="TWIN.json",
+    gap.add_argument("--write-twin", default=None, metavar="TWIN.json|TWIN.parm",
                      help="write the selected effects as a simulator configuration "
-                          "(python -m apmcal_sim --twin TWIN.json)")
+                          "(python -m apmcal_sim --twin TWIN.json), or with .parm/.param as "
+                          "ArduPilot SITL parameters (docs/sitl-twin.md)")
     gap.add_argument("--quiet", action="store_true")
 
 
@@ -117,7 +118,10 @@ def run_gap(args, console) -> int:
         from apmcal.diagnosis.twin.file import write_twin
 
         write_twin(diagnosis, args.write_twin)
-        console.print(f"wrote {args.write_twin} (python -m apmcal_sim --twin {args.write_twin})")
+        sitl = str(args.write_twin).lower().endswith((".parm", ".param"))
+        console.print(f"wrote {args.write_twin} ("
+                      + ("ArduPilot SITL parameters" if sitl else
+                         f"python -m apmcal_sim --twin {args.write_twin}") + ")")
     return 0
 
 

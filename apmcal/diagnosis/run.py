@@ -175,6 +175,10 @@ def _effect_entry(s, selection, params: dict) -> dict:
         entry["evidence_in_combination_nats"] = selection.needed[s.name]
     if s.name in selection.beyond:
         entry["evidence_beyond_selection_nats"] = selection.beyond[s.name]
+    if s.name in selection.confounded:
+        entry["confounded_with"] = selection.confounded[s.name]
+    if s.name in selection.stand_in:
+        entry["stands_in_for"] = selection.stand_in[s.name]
     if s.tested:
         entry.update({"shrink_heldout": s.shrink_out, "shrink_in_sample": s.shrink_in,
                       "gap_heldout": s.gap_out, "gap_in_sample": s.gap_in,

@@ -128,8 +128,9 @@ class ImuErrorModel:
         return y
 
     def _quantize(self, x: np.ndarray, lsb: float, full_scale: float) -> np.ndarray:
-        """ADC counts: round to 1/lsb steps, saturate at ± full scale (sensor units)."""
-        if not self.truth.on("quantization"):
+        """ADC counts: round to 1/lsb steps, saturate at ± full scale (sensor units); an lsb
+        of 0 leaves this sensor unrounded (the other one may still be)."""
+        if not self.truth.on("quantization") or not lsb > 0:
             return x
         return np.clip(np.round(x * lsb), -32768, 32767).clip(-full_scale * lsb,
                                                                 full_scale * lsb) / lsb

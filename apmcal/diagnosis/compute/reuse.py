@@ -109,7 +109,7 @@ def _scoring(block) -> tuple:
     return (tuple(block.names), block.shape, block.mean_dof, block.mean_nuisance)
 
 
-def cells(real, twin, keep, in_sample: bool, compute) -> list:
+def cells(real, twin, keep, in_sample: bool, compute, floors: dict | None = None) -> list:
     """The gap cells of one block (real and twin BlockCoefficients): those kept for the same
     coefficients (the very objects :func:`coefficients` hands out), pieces kept, side and
     scoring, turned to this block; or ``compute()``'s, then kept.
@@ -122,6 +122,8 @@ def cells(real, twin, keep, in_sample: bool, compute) -> list:
     in_sample : bool
     compute : callable
         () -> list of CellShare.
+    floors : dict, optional
+        The channels' variance floors the cells were scored with (part of the match).
 
     Returns
     -------
@@ -130,7 +132,7 @@ def cells(real, twin, keep, in_sample: bool, compute) -> list:
     """
     block = real.block
     keep_bytes = None if keep is None else np.asarray(keep).tobytes()
-    scoring = _scoring(block)
+    scoring = _scoring(block) + (tuple(sorted((floors or {}).items())),)
 
     def match(key) -> bool:
         levels, twin_levels, kept, side, kept_scoring, piece, radial = key

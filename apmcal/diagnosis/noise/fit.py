@@ -26,11 +26,13 @@ from scipy.optimize import nnls
 from apmcal.diagnosis.compute import reuse
 
 N_FREQ = 4096                      # frequency grid of the Haar gains
-CUTOFF_GRID = 16                   # candidate low-pass cut-offs between fs/8 and 45 % of fs
-# an on-chip filter sits at or above an eighth of the logging rate (MPU-6000 DLPF 20-256 Hz
-# read at 50-1000 Hz); below that a "filter" would only be a way to reshape any slow power
-# with an absurd white level behind it
-LOWEST_CUTOFF = 1.0 / 8
+CUTOFF_GRID = 30                   # candidate low-pass cut-offs between fs/32 and 45 % of fs
+# ArduPilot logs its IMU filtered by INS_GYRO_FILTER / INS_ACCEL_FILTER (20 Hz by default) at
+# the loop rate (400 Hz on a copter): a twentieth of the logging rate (ardupilot-facts.md "What
+# the telemetry really carries" and "Dataflash logs (.bin)"); an on-chip filter sits higher
+# (MPU-6000 DLPF 20-256 Hz read at 50-1000 Hz). Below fs/32 a "filter" would only be a way to
+# reshape any slow power with an absurd white level behind it
+LOWEST_CUTOFF = 1.0 / 32
 
 
 @dataclass
@@ -143,7 +145,7 @@ def shared_cutoff(sensors: list) -> float | None:
     Returns
     -------
     float or None
-        Cut-off [Hz], one of ``CUTOFF_GRID`` values from fs/8 to 0.45·fs.
+        Cut-off [Hz], one of ``CUTOFF_GRID`` values from fs/32 to 0.45·fs.
     """
     fs = sensors[0]["fs"]
     best, best_obj = None, np.inf

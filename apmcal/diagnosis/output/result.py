@@ -4,18 +4,23 @@ Schema 1 (every gap in nats per sample, see :mod:`apmcal.diagnosis.scoring.gap`)
 
     {"schema": 1, "source": ..., "session": {...},
      "gap": {"total": in-sample, "heldout": held-out, "breakdown": {...},
-             "breakdown_heldout": {...}},
+             "breakdown_heldout": {...},
+             "noise_ratio_heldout": {sensor: {band: real RMS / twin RMS}}},
      "effects": [{"name", "shrink_heldout", "shrink_in_sample", "gap_heldout", "evidence_nats",
                   "supported_alone", "significant", "evidence_when_selected_nats",
                   "evidence_beyond_selection_nats", "params", "not_tested",
-                  "implausible", "scored_at_hz"}, ...]  (best first),
-     "selected": [names], "after": {"total", "heldout", "breakdown", "breakdown_heldout"},
+                  "implausible", "scored_at_hz", "confounded_with", "stands_in_for"}, ...]  (best first),
+     "selected": [names], "after": {"total", "heldout", "breakdown", "breakdown_heldout",
+                                    "noise_ratio_heldout"},
      "white_noise": {...}, "noise_structure": {...}, "notes": [...]}
 
 "shrink_*", "gap_*" and "evidence_nats" score the effect alone on the nominal model;
 "supported_alone" is that evidence ≥ 15 nats with plausible parameters ("implausible" says why
 not, :mod:`apmcal.diagnosis.model.plausible`); "significant" means selected, or still supported
-on top of the selected combination (see :mod:`apmcal.diagnosis.scoring.select`). "scored_at_hz" is
+on top of the selected combination (see :mod:`apmcal.diagnosis.scoring.select`);
+"confounded_with" (only when so) names the effect that explains this one where their shapes
+part (:func:`apmcal.diagnosis.scoring.select.confounded_effects`); "stands_in_for" (only when
+so) the deterministic effect whose place a stochastic one took (removed from the selection). "scored_at_hz" is
 the sample rate the effect was scored at: the recording's, or for a slow effect in a recording
 faster than 200 Hz the block means' (:mod:`apmcal.diagnosis.session.decimate`), whose gaps are per
 averaged sample; there a slow effect is scored "alone" on top of the low-pass filter when the

@@ -1,5 +1,7 @@
-"""The terminal summary of ``apmcal gap``: the verdict first, then where the gap lies and the
-candidate effects ranked. Works from the saved result alone (:class:`GapResult`)."""
+"""The terminal summary of ``apmcal gap``: what to do first (one sentence per selected effect,
+:mod:`apmcal.diagnosis.output.advice`), then the verdict, where the gap lies (in nats and as
+"real noise is N× the twin's") and the candidate effects ranked. Works from the saved result
+alone (:class:`GapResult`)."""
 from __future__ import annotations
 
 import numpy as np
@@ -43,6 +45,10 @@ def print_summary(result, console) -> None:
     s = result.session
     temp = (f"; temperature {s['temperature_c'][0]:.1f}-{s['temperature_c'][1]:.1f} °C"
             if "temperature_c" in s else "")
+    from apmcal.diagnosis.output.advice import advice
+
+    for line in advice(result):
+        _say(console, Text(line, style="bold"))
     _say(console, Text(f"apmcal gap — {result.source}", style="bold"))
     _say(console, f"{s['duration_s']:.0f} s at {s['rate_hz']:.0f} Hz; {s['holds']} holds, "
                   f"{s['moves']} moves, {s['orientations']} orientations; "
@@ -57,10 +63,26 @@ def print_summary(result, console) -> None:
                       ("scale", "within / across pieces"), ("temperature", "by temperature")):
         if key in b:
             _say(console, f"  {what}: {top_parts(b[key], total)}")
+    ratios = ratio_text(g.get("noise_ratio_heldout", {}))
+    if ratios:
+        _say(console, f"  real noise vs the twin's (held-out RMS ratio): {ratios}")
     print_noise(result, console)
     print_effects(result, console)
     for note in result.notes:
         _say(console, f"note: {note}")
+
+
+def ratio_text(ratios: dict, n: int = 2) -> str:
+    """"gyr 3.1× at 0.0195-0.0391 Hz, ..." — per sensor the ``n`` bands where the real
+    residuals' RMS is furthest from the twin's (by |log ratio|), "≈1×" when all within 10 %."""
+    out = []
+    for sensor, bands in ratios.items():
+        far = sorted(bands.items(), key=lambda kv: -abs(np.log(max(kv[1], 1e-300))))[:n]
+        if not far or all(abs(r - 1.0) < 0.1 for _, r in far):
+            out.append(f"{sensor} ≈1×")
+        else:
+            out.append(f"{sensor} " + ", ".join(f"{r:.2g}× at {band}" for band, r in far))
+    return "; ".join(out)
 
 
 def noise_line(axes: dict) -> str:
@@ -104,11 +126,19 @@ def print_effects(result, console) -> None:
                                f"{e['evidence_nats']:.0f}", style="bold"))
             for name, p in e.get("params", {}).items():
                 _say(console, f"      {name} = {param_text(p)} {p['unit']}")
-    redundant = [e for e in tested if e["supported_alone"] and not e["significant"]]
+    confounded = [e for e in tested if e.get("confounded_with")]
+    if confounded:
+        _say(console, "  supported alone, but confounded: it adds nothing where its shape and "
+                      "the other's part, the other still does: " + ", ".join(
+                          f"{e['name']} (by {e['confounded_with']})" for e in confounded))
+    redundant = [e for e in tested if e["supported_alone"] and not e["significant"]
+                 and not e.get("confounded_with")]
     if redundant:
         _say(console, "  supported alone, but explained by the selection (evidence left on top "
                       "of it): " + ", ".join(f"{e['name']} {_shrink(e)} "
-                                             f"({e.get('evidence_beyond_selection_nats', 0):.0f})"
+                                             f"({e.get('evidence_beyond_selection_nats', 0):.0f}"
+                                             + (f"; stands in for {e['stands_in_for']}"
+                                                if e.get("stands_in_for") else "") + ")"
                                              for e in redundant))
     odd = [e for e in tested if e.get("implausible")]
     if odd:

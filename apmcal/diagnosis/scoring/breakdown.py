@@ -155,6 +155,36 @@ def _imu_temp(cell, session, known: dict) -> np.ndarray:
     return known[id(block)][np.clip(cell.center, 0, len(block.t) - 1)]
 
 
+def noise_ratios(cells: list) -> dict:
+    """The gap in a unit people read: how many times the real residuals' RMS is the twin's,
+    per sensor and frequency band ("real noise is N× the twin's"), √(Σ n·V_real / Σ n·V_twin)
+    over the cells of that sensor and band (each variance at least its cell's floor, so a
+    ratio stays finite where the readings cannot resolve it).
+
+    Parameters
+    ----------
+    cells : list of CellShare
+
+    Returns
+    -------
+    dict
+        {sensor: {band label: ratio}}, bands fast to slow.
+    """
+    sums: dict = defaultdict(lambda: np.zeros(2))
+    order: dict = {}
+    rates: dict = {}
+    for c in cells:
+        label = band_label(c, rates)
+        order[label] = _band_key(c, rates)
+        sums[(c.channel.split("_")[0], label)] += (c.n * c.v_real, c.n * c.v_twin)
+    out: dict = {}
+    for (sensor, label) in sorted(sums, key=lambda k: (k[0], order[k[1]])):
+        real, twin = sums[(sensor, label)]
+        if twin > 0 and np.isfinite(real / twin):
+            out.setdefault(sensor, {})[label] = float(np.sqrt(real / twin))
+    return out
+
+
 def gap_summary(evaluation, session) -> dict:
     """In-sample and held-out gap of an evaluation (:class:`apmcal.diagnosis.scoring.evaluate.
     Evaluation`), each with its breakdown.
@@ -163,11 +193,12 @@ def gap_summary(evaluation, session) -> dict:
     -------
     dict
         "total" and "heldout" [nats per sample], "breakdown" and "breakdown_heldout"
-        (:func:`breakdown`).
+        (:func:`breakdown`), and "noise_ratio_heldout" (:func:`noise_ratios`, held-out).
     """
     n_in = sum(f.gap_in.n_samples for f in evaluation.folds)
     n_out = sum(f.gap_out.n_samples for f in evaluation.folds)
     cells_in = [c for f in evaluation.folds for c in f.gap_in.cells]
     return {"total": evaluation.gap_in, "heldout": evaluation.gap_out,
             "breakdown": breakdown(cells_in, n_in, session),
-            "breakdown_heldout": breakdown(evaluation.held_out_cells(), n_out, session)}
+            "breakdown_heldout": breakdown(evaluation.held_out_cells(), n_out, session),
+            "noise_ratio_heldout": noise_ratios(evaluation.held_out_cells())}

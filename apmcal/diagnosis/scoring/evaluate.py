@@ -28,7 +28,7 @@ from apmcal.diagnosis.model.static_fit import count_orientations
 from apmcal.diagnosis.noise.fit import NoiseModel, fit_noise
 from apmcal.diagnosis.scoring.gap import GapEstimate, coefficients, compare
 from apmcal.diagnosis.session.decimate import block_factor, decimated
-from apmcal.diagnosis.session.facts import earth_field, lattice_steps, sample_sigma
+from apmcal.diagnosis.session.facts import earth_field, lattice_steps, sample_sigma, variance_floors
 from apmcal.diagnosis.session.hold_motion import (
     amplitudes,
     confirmed,
@@ -230,6 +230,7 @@ class Evaluator:
         self.reduced = reduce_session(session)
         self.field_mgauss, self.declination_rad = earth_field(session)
         self.steps = lattice_steps(session)
+        self.floors = variance_floors(session, self.steps)
         self.context = Context(count_orientations(self.reduced.acc, "acc"), self.steps)
         self.sample_sigma = sample_sigma(session)
         self.fs_of = {"acc": session.fs, "gyr": session.fs}
@@ -541,6 +542,7 @@ class Evaluator:
         _, _, tw = self.fit(twin, reduce_session(twin), effects, fold, start=fit,
                             with_noise=False)
         train, test = s.pieces.select(fold=fold), s.pieces.select(fold=1 - fold)
-        return FoldResult(fold, fit, noise, real, tw, compare(real, tw, train, in_sample=True),
-                          compare(real, tw, test, in_sample=False),
+        return FoldResult(fold, fit, noise, real, tw,
+                          compare(real, tw, train, in_sample=True, floors=self.floors),
+                          compare(real, tw, test, in_sample=False, floors=self.floors),
                           {name: effect_params(name, fit, noise) for name in effects})

@@ -29,7 +29,7 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import digamma
+from scipy.special import digamma, ndtr
 
 from apmcal.diagnosis.compute import reuse
 from apmcal.diagnosis.scoring.haar import Coefficients, details, piece_means
@@ -38,6 +38,7 @@ LEVEL_MEANS = 0          # cell code of the piece means ("across pieces")
 MIN_CELL = 8             # coarse levels are pooled until a cell has this many coefficients
 SHAPE_BINS = 32          # histogram bins, at the twin's quantiles
 MIN_SHAPE = 400          # fewer level-1 coefficients: no shape cell
+SHAPE_SMOOTHING = 0.02   # share of the twin's histogram that is its normal distribution
 _TINY = 1e-300
 
 
@@ -309,8 +310,8 @@ def level_groups(counts: list[int], min_cell: int = MIN_CELL) -> list[list[int]]
     return groups[::-1]
 
 
-def variance_shares(real: np.ndarray, twin: np.ndarray, dof_loss: float = 0.0
-                    ) -> tuple[np.ndarray, float, float]:
+def variance_shares(real: np.ndarray, twin: np.ndarray, dof_loss: float = 0.0,
+                    floor: float = 0.0) -> tuple[np.ndarray, float, float]:
     """Per-coefficient shares of ½Σ(x − 1 − ln x) − E[...] for one cell; V_real, V_twin.
 
     Parameters
@@ -319,22 +320,30 @@ def variance_shares(real: np.ndarray, twin: np.ndarray, dof_loss: float = 0.0
         The cell's real and twin coefficients (any unit, the same for both).
     dof_loss : float
         Degrees of freedom the fit took from the cell.
+    floor : float
+        Smallest variance the readings can resolve (their rounding, step²/12), in the
+        coefficients' unit squared: both variances are raised to it.
 
     Returns
     -------
     shares : (n,) array
         Share of each real coefficient [nats].
     v_real, v_twin : float
-        Mean squares, in the coefficients' unit squared.
+        Mean squares, in the coefficients' unit squared (each at least ``floor``).
     """
-    (out,) = variance_shares_by_row(real[None], twin[None], dof_loss)
+    (out,) = variance_shares_by_row(real[None], twin[None], dof_loss, np.array([floor]))
     return out
 
 
-def variance_shares_by_row(real: np.ndarray, twin: np.ndarray, dof_loss: float = 0.0
+def variance_shares_by_row(real: np.ndarray, twin: np.ndarray, dof_loss: float = 0.0,
+                           floors: np.ndarray | None = None
                            ) -> list[tuple[np.ndarray, float, float]]:
     """:func:`variance_shares` of each row of (c, n) arrays (one cell per channel, all of n
     coefficients), the arithmetic shared by the rows done once.
+
+    ``floors`` (c,): each row's smallest resolvable variance. Both variances are raised to it,
+    x = V_real' / V_twin' (a cell where neither reaches it carries no information: shares 0);
+    the shares still add up to ½n(x − 1 − ln x) minus the expectation.
 
     Returns
     -------
@@ -345,13 +354,21 @@ def variance_shares_by_row(real: np.ndarray, twin: np.ndarray, dof_loss: float =
     sq = real ** 2
     v_real = np.mean(sq, axis=1)        # each row as np.mean of the row alone would
     v_twin = np.mean(twin ** 2, axis=1)
+    floors = np.zeros(len(sq)) if floors is None else np.asarray(floors, float)
     dof = n - dof_loss
     expected = _expected_variance_kl(n, dof) if dof > 2 else 0.0
     out = []
-    for row, v_r, v_t in zip(sq, v_real, v_twin):
-        v_r, v_t = max(float(v_r), _TINY), max(float(v_t), _TINY)
+    for row, v_r, v_t, floor in zip(sq, v_real, v_twin, floors):
+        lowest = max(float(floor), _TINY)
+        if v_r <= floor and v_t <= floor and floor > 0:
+            out.append((np.zeros(n), lowest, lowest))
+            continue
+        raw = max(float(v_r), 0.0)
+        v_r, v_t = max(float(v_r), lowest), max(float(v_t), lowest)
         share = 0.5 * (row * (1.0 / v_t - 1.0 / v_r) + np.log(v_t / v_r))
-        out.append((share - expected / n, v_r, v_t))
+        # a floored real variance: what makes the shares add up to the floored cell's KL
+        lift = 0.5 * (v_r - raw) * (1.0 / v_t - 1.0 / v_r)
+        out.append((share + lift - expected / n, v_r, v_t))
     return out
 
 
@@ -361,7 +378,7 @@ def _expected_variance_kl(n: int, dof: float) -> float:
     return expected_variance_kl(n, dof, dof)
 
 
-def shape_shares(real: np.ndarray, twin: np.ndarray) -> np.ndarray:
+def shape_shares(real: np.ndarray, twin: np.ndarray, floor: float = 0.0) -> np.ndarray:
     """Per-coefficient shares of the histogram KL of the real coefficients against the twin's,
     minus its first-order expectation (B − 1)/2·(1 + n_r/n_t) under "same distribution".
 
@@ -370,12 +387,21 @@ def shape_shares(real: np.ndarray, twin: np.ndarray) -> np.ndarray:
     have near-empty tails where one coefficient is worth nats; a rounding lattice in the
     twin gives tied quantiles, which merge into fewer bins.
 
+    The twin's histogram is smoothed: a share :data:`SHAPE_SMOOTHING` of it is the normal
+    distribution of the twin's variance (at least ``floor``, the readings' rounding), so
+    that a real coefficient where the twin has none (a lattice value the twin never reached,
+    a twin whose reading never changes) costs a bounded amount, not the log of a count. To
+    first order this leaves the null expectation as it is (the mixture moves q by
+    λ(g − q), whose expectation over p = q is zero).
+
     Parameters
     ----------
     real : (n_r,) array
         The cell's real coefficients.
     twin : (n_t,) array
         The twin's, in the same unit.
+    floor : float
+        Smallest variance the readings resolve [unit²].
 
     Returns
     -------
@@ -392,6 +418,9 @@ def shape_shares(real: np.ndarray, twin: np.ndarray) -> np.ndarray:
     n_r, n_t = len(real), len(twin)
     p = (np.bincount(b_r, minlength=bins) + 0.5) / (n_r + 0.5 * bins)
     q = (t_counts + 0.5) / (n_t + 0.5 * bins)
+    sd = np.sqrt(max(float(np.mean(twin ** 2)) if n_t else 0.0, floor, _TINY))
+    g = np.diff(ndtr(np.concatenate([[-np.inf], edges / sd, [np.inf]])))
+    q = (1.0 - SHAPE_SMOOTHING) * q + SHAPE_SMOOTHING * g
     expected = 0.5 * (bins - 1) * (1.0 + n_r / n_t)
     return np.log(p / q)[b_r] - expected / n_r
 
@@ -455,7 +484,12 @@ def _dof_loss(block: ResidualBlock, in_sample: bool) -> int:
     return block.mean_dof if in_sample else block.mean_nuisance
 
 
-def _block_cells(rc: BlockCoefficients, tc: BlockCoefficients, keep, in_sample):
+def _floors_of(names, floors: dict | None) -> np.ndarray:
+    """Variance floor of each channel [unit²] (0 where none is known)."""
+    return np.array([(floors or {}).get(name, 0.0) for name in names], float)
+
+
+def _block_cells(rc: BlockCoefficients, tc: BlockCoefficients, keep, in_sample, floors=None):
     """The cells of every channel of one block over the kept pieces, channel by channel.
 
     What the channels share (which coefficients are kept, their pieces and centres, how the
@@ -479,14 +513,17 @@ def _block_cells(rc: BlockCoefficients, tc: BlockCoefficients, keep, in_sample):
     loss = _dof_loss(block, in_sample)
     score_means = block.shape and block.radial is None and mean_mask.sum() - loss > 2
     # every channel's variance cells at once, per group of levels
+    floor = _floors_of(block.names, floors)
     group_shares = [variance_shares_by_row(
         np.concatenate([real_lv[j - 1] for j in group], axis=1),
-        np.concatenate([twin_lv[j - 1] for j in group], axis=1)) for group, _, _ in groups]
+        np.concatenate([twin_lv[j - 1] for j in group], axis=1), floors=floor)
+        for group, _, _ in groups]
     for col, name in enumerate(block.names):
         if histogram:      # level 1 scored by its whole distribution: width and shape
             real, twin = real_lv[0][col], twin_lv[0][col]
-            yield CellShare(name, 1, (1,), len(real), float(np.mean(real ** 2)),
-                            float(np.mean(twin ** 2)), shape_shares(real, twin),
+            yield CellShare(name, 1, (1,), len(real), max(float(np.mean(real ** 2)), floor[col]),
+                            max(float(np.mean(twin ** 2)), floor[col]),
+                            shape_shares(real, twin, floor[col]),
                             piece_lv[0], center_lv[0], block, kind="histogram")
         for (group, piece, center), shares in zip(groups, group_shares):
             share, v_r, v_t = shares[col]
@@ -494,13 +531,14 @@ def _block_cells(rc: BlockCoefficients, tc: BlockCoefficients, keep, in_sample):
                             center, block)
         if score_means:
             real = rc.means.values[mean_mask, col]
-            share, v_r, v_t = variance_shares(real, tc.means.values[mean_mask, col], loss)
+            share, v_r, v_t = variance_shares(real, tc.means.values[mean_mask, col], loss,
+                                              floor[col])
             yield CellShare(name, LEVEL_MEANS, (LEVEL_MEANS,), len(real), v_r, v_t, share,
                             block.piece[rc.means.piece[mean_mask]], rc.means.center[mean_mask],
                             block)
 
 
-def _radial_cell(rc: BlockCoefficients, tc: BlockCoefficients, keep, in_sample):
+def _radial_cell(rc: BlockCoefficients, tc: BlockCoefficients, keep, in_sample, floors=None):
     """The piece means of a geometric sensor along the field, as one channel "<sensor>_norm"."""
     block = rc.block
     _, mask, _ = rc.masks(keep)
@@ -510,14 +548,15 @@ def _radial_cell(rc: BlockCoefficients, tc: BlockCoefficients, keep, in_sample):
     along = block.radial[rc.means.piece[mask]]
     real = np.sum(rc.means.values[mask] * along, axis=1)
     twin = np.sum(tc.means.values[mask] * along, axis=1)
-    share, v_r, v_t = variance_shares(real, twin, loss)
     name = block.names[0].split("_")[0] + "_norm"
+    share, v_r, v_t = variance_shares(real, twin, loss, (floors or {}).get(name, 0.0))
     yield CellShare(name, LEVEL_MEANS, (LEVEL_MEANS,), len(real), v_r, v_t, share,
                     block.piece[rc.means.piece[mask]], rc.means.center[mask], block)
 
 
 def compare(real: list[BlockCoefficients], twin: list[BlockCoefficients],
-            keep: np.ndarray | None = None, in_sample: bool = True) -> GapEstimate:
+            keep: np.ndarray | None = None, in_sample: bool = True,
+            floors: dict | None = None) -> GapEstimate:
     """The gap between real and twin residual coefficients over the pieces ``keep`` (all if None).
 
     ``real`` and ``twin`` come from blocks with the same channels and pieces (the twin is
@@ -532,6 +571,9 @@ def compare(real: list[BlockCoefficients], twin: list[BlockCoefficients],
         Session-wide ids of the pieces compared.
     in_sample : bool
         Whether ``keep`` are the fitting pieces.
+    floors : dict, optional
+        Smallest resolvable variance of each channel's coefficients [unit²]
+        (:func:`apmcal.diagnosis.session.facts.variance_floors`); none when not given.
 
     Returns
     -------
@@ -541,12 +583,14 @@ def compare(real: list[BlockCoefficients], twin: list[BlockCoefficients],
     for rc, tc in zip(real, twin):
         n_samples += rc.block.n_samples(keep)
         cells.extend(reuse.cells(rc, tc, keep, in_sample,
-                                 lambda rc=rc, tc=tc: _cells_of(rc, tc, keep, in_sample)))
+                                 lambda rc=rc, tc=tc: _cells_of(rc, tc, keep, in_sample, floors),
+                                 floors))
     return GapEstimate(cells, n_samples)
 
 
-def _cells_of(rc: BlockCoefficients, tc: BlockCoefficients, keep, in_sample: bool) -> list:
-    cells = list(_block_cells(rc, tc, keep, in_sample))
+def _cells_of(rc: BlockCoefficients, tc: BlockCoefficients, keep, in_sample: bool,
+              floors: dict | None = None) -> list:
+    cells = list(_block_cells(rc, tc, keep, in_sample, floors))
     if rc.block.radial is not None:
-        cells.extend(_radial_cell(rc, tc, keep, in_sample))
+        cells.extend(_radial_cell(rc, tc, keep, in_sample, floors))
     return cells

@@ -19,7 +19,14 @@ the total until that one is modelled.
 
 Stepwise selection then adds, round after round, the supported effect with the most evidence
 on top of those already chosen, for as long as one reaches the threshold, and drops an earlier
-one that the later ones explain; an effect is *significant* in the end when it is in that
+one that the later ones explain. The simplest sufficient explanation is preferred: a stochastic
+effect (a random walk, which bends to any slow curve) is chosen over a deterministic one only
+when it has :data:`SIMPLER_SHARE` more evidence, and is removed again when it takes a
+deterministic effect's place while adding less than that share of what the deterministic one
+explained; and of two confounded effects
+(:data:`CONFOUNDED`: a bias following the temperature, one following time) one that adds nothing
+where the two shapes part while the other does is left out (:func:`confounded_effects`).
+An effect is *significant* in the end when it is in that
 combination or still supported on top of it, and the combination is ranked by what it loses
 without each of its effects. An effect whose fitted parameters lie beyond physical limits
 (:mod:`apmcal.diagnosis.model.plausible`) is never supported, whatever its evidence: it stands in for
@@ -38,6 +45,14 @@ from apmcal.diagnosis.model.wald import MAX_P_VALUE, wald_p_value
 
 MIN_EVIDENCE_NATS = 15.0    # held-out log-likelihood ratio an effect must reach
 MAX_ROUNDS = 5              # effects in a combination at most
+# a stochastic effect can stand in for any slow deterministic one (a random walk bends to a
+# triangle or a warm-up curve): it is chosen only when no deterministic candidate comes within
+# this share of its evidence, and otherwise has to earn its place on top of that one
+STOCHASTIC = frozenset({"bias_random_walk"})
+SIMPLER_SHARE = 0.05
+# effects whose shapes in a still recording are confounded: a bias following the temperature
+# and biases following time (both rise during a warm-up); each must hold where they disagree
+CONFOUNDED = ("temperature_drift", "bias_drift", "triangle_drift")
 
 
 @dataclass
@@ -164,6 +179,12 @@ class Selection:
         [nats].
     needed : dict of str to float
         Evidence of each selected effect given all the others [nats].
+    confounded : dict of str to str
+        Effects supported alone but left out of the selection because another effect of
+        :data:`CONFOUNDED` explains them where the two disagree (:func:`confounded_effects`).
+    stand_in : dict of str to str
+        Stochastic effects removed because they took a deterministic effect's place instead of
+        adding to it, with that effect.
     """
 
     selected: list[str]
@@ -174,9 +195,16 @@ class Selection:
     needed: dict[str, float] = field(default_factory=dict)   # evidence each selected effect
                                   # has given all the others: what the combination loses
                                   # without it
+    confounded: dict[str, str] = field(default_factory=dict)  # effect -> the confounded one
+                                  # that explains it where the two disagree (left out)
+    stand_in: dict[str, str] = field(default_factory=dict)    # stochastic effect -> the
+                                  # deterministic one whose place it took (removed)
 
     def significant(self, name: str) -> bool:
-        """Part of the combination, or still supported on top of it."""
+        """Part of the combination, or still supported on top of it (a stochastic effect
+        removed as a stand-in never is)."""
+        if name in self.stand_in or name in self.confounded:
+            return name in self.selected
         return name in self.selected or self.beyond.get(name, -np.inf) >= MIN_EVIDENCE_NATS
 
     def order(self) -> list[str]:
@@ -193,29 +221,80 @@ def forward_selection(evaluator, ranked: list[EffectScore], max_rounds: int = MA
     for good. The last round says what each effect left out would still add. ``base``: effects
     already chosen (at another rate, :mod:`apmcal.diagnosis.session.decimate`), part of every model and
     not questioned here."""
-    pool = [s.name for s in sorted((s for s in ranked if s.supported),
-                                   key=lambda s: -s.evidence)]
     base = tuple(base)
+    confounded = confounded_effects(evaluator, ranked, base)
+    pool = [s.name for s in sorted((s for s in ranked if s.supported and s.name not in confounded),
+                                   key=lambda s: -s.evidence)]
     selected: list[str] = []
     joined: dict[str, float] = {}
     dropped: list[str] = []
+    stand_in: dict[str, str] = {}
     for _ in range(2 * max_rounds + 1):     # each effect is added once and dropped at most once
         others = [n for n in pool if n not in selected]
         evaluator.prefetch([base + tuple(selected) + (n,) for n in others])
         trials = [score(evaluator, base + tuple(selected), n) for n in others]
         beyond = {s.name: s.evidence for s in trials}
-        best = max((s for s in trials if s.name not in dropped), key=lambda s: s.evidence,
-                   default=None)
+        best = simplest_best([s for s in trials if s.name not in dropped])
         if best is None or not best.supported or len(base) + len(selected) >= max_rounds:
             break
         selected.append(best.name)
         joined[best.name] = best.evidence
         weakest = weakest_unsupported(evaluator, selected, base)
+        if weakest is not None and best.name in STOCHASTIC and weakest not in STOCHASTIC \
+                and best.evidence < SIMPLER_SHARE * joined[weakest]:
+            # a stochastic effect that takes a deterministic one's place while adding less
+            # than SIMPLER_SHARE of what that one explained is standing in for it: it goes,
+            # the simpler explanation stays
+            stand_in[best.name] = weakest
+            weakest = best.name
         if weakest is not None:
             selected.remove(weakest)
             joined.pop(weakest)
             dropped.append(weakest)
-    return Selection(selected, joined, beyond, leave_one_out(evaluator, selected, base))
+    return Selection(selected, joined, beyond, leave_one_out(evaluator, selected, base),
+                     confounded, stand_in)
+
+
+def simplest_best(trials: list[EffectScore]) -> EffectScore | None:
+    """The trial with the most evidence, unless it is stochastic (:data:`STOCHASTIC`) and a
+    supported deterministic trial comes within :data:`SIMPLER_SHARE` of its evidence: then the
+    best of those (the simplest sufficient explanation; the stochastic one may still join on
+    top of it in a later round)."""
+    best = max(trials, key=lambda s: s.evidence, default=None)
+    if best is None or best.name not in STOCHASTIC:
+        return best
+    simpler = [s for s in trials if s.name not in STOCHASTIC and s.supported
+               and s.evidence >= (1.0 - SIMPLER_SHARE) * best.evidence]
+    return max(simpler, key=lambda s: s.evidence) if simpler else best
+
+
+def confounded_effects(evaluator, ranked: list[EffectScore], base: tuple = ()) -> dict:
+    """Supported effects of :data:`CONFOUNDED` that another one explains where they disagree.
+
+    For each pair (X, Y) of them supported alone, X on top of Y and Y on top of X are scored:
+    X is left out when it adds less than the threshold on top of Y while Y still adds at least
+    the threshold on top of X — X only held where the two shapes coincide (a temperature that
+    rises while a drift rises), Y also where they part.
+
+    Returns
+    -------
+    dict
+        {left-out effect: the effect that explains it}.
+    """
+    names = [s.name for s in ranked if s.supported and s.name in CONFOUNDED]
+    pairs = [(x, y) for x in names for y in names if x != y]
+    if not pairs:
+        return {}
+    base = tuple(base)
+    evaluator.prefetch([base + (y,) for _, y in pairs] + [base + tuple(sorted(p)) for p in pairs])
+    gain = {(x, y): score(evaluator, base + (y,), x) for x, y in pairs}     # x on top of y
+    out = {}
+    for x, y in pairs:
+        if x in out or y in out:
+            continue
+        if not gain[(x, y)].supported and gain[(y, x)].supported:
+            out[x] = y
+    return out
 
 
 def _without(selected: list[str], name: str, base: tuple = ()) -> tuple:
@@ -244,4 +323,5 @@ def weakest_unsupported(evaluator, selected: list[str], base: tuple = ()) -> str
 def merged(slow: Selection, fine: Selection) -> Selection:
     """One selection from the slow effects' and the fine effects' (each made at its own rate)."""
     return Selection(slow.selected + fine.selected, {**slow.joined, **fine.joined},
-                     {**slow.beyond, **fine.beyond}, {**slow.needed, **fine.needed})
+                     {**slow.beyond, **fine.beyond}, {**slow.needed, **fine.needed},
+                     {**slow.confounded, **fine.confounded}, {**slow.stand_in, **fine.stand_in})

@@ -98,15 +98,22 @@ def decimated(session: Session, k: int) -> Session:
         gyr=block_means(session.gyr, k), holds=[_hold(h, k) for h in session.holds],
         segments=[_segment(s, k) for s in session.segments], pieces=pieces,
         temp=block_means(session.temp, k), current=block_means(session.current, k),
-        notes=list(session.notes))
+        notes=list(session.notes),
+        resolution={s: step / (1 if s == "mag" and _own_axis(session) else k)
+                    for s, step in session.resolution.items()}, truncated=False)
     if session.mag is not None:
         out.mag = _mag(session, out, k)
     return out
 
 
+def _own_axis(session: Session) -> bool:
+    """Whether the compass has its own (slower) time axis, kept as it is in block means."""
+    return session.mag is not None and len(session.mag.t) != len(session.t)
+
+
 def _mag(session: Session, out: Session, k: int) -> MagAxis:
     m = session.mag
-    if len(m.t) != len(session.t):      # on its own (slower) time axis: kept, pieces remapped
+    if _own_axis(session):      # on its own (slower) time axis: kept, pieces remapped
         i0, i1 = map_pieces(out.t, m.t, out.pieces)
         return MagAxis(m.t, m.values, i0, i1, m.current)
     return MagAxis(out.t, block_means(m.values, k), out.pieces.i0, out.pieces.i1, out.current)

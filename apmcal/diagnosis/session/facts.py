@@ -53,7 +53,9 @@ def sample_sigma(session) -> dict:
 def lattice_steps(session) -> dict:
     """Quantization step per axis of each sensor's hold samples (None: not on a lattice). In
     block means of rounded readings it is the step over the block length, which the twin's
-    rounding then reproduces (apmcal.diagnosis.session.decimate).
+    rounding then reproduces (apmcal.diagnosis.session.decimate). A sensor the log stores as
+    integers has the format's step (``session.resolution``) even where its samples hardly
+    change (a gyro at rest under a 1 mrad/s step: too few differences to see a lattice in).
 
     Returns
     -------
@@ -70,6 +72,51 @@ def lattice_steps(session) -> dict:
     if session.mag is not None:
         m = session.mag
         out["mag"] = _axis_steps(np.concatenate([m.values[a:b] for a, b in zip(m.i0[ids], m.i1[ids])]))
+    for sensor, step in getattr(session, "resolution", {}).items():
+        if out.get(sensor) is None and sensor in out:
+            out[sensor] = np.full(3, float(step))
+    return out
+
+
+FLOAT32_SPACING = 2.0 ** -23    # a float32's spacing relative to its leading power of two
+
+
+def variance_floors(session, steps: dict) -> dict:
+    """The smallest variance [unit²] a Haar coefficient of each channel can be told to have:
+    the rounding of its readings, step²/12 per coefficient (the Haar transform is orthonormal,
+    so white rounding noise of variance step²/12 per sample has it at every level and in the
+    piece means). The step is the sensor's lattice (``steps``, :func:`lattice_steps`), or the
+    spacing of a float32 (dataflash stores floats) at the largest reading of the axis — both
+    for the real readings and for the twin, which is rounded the same way. A variance below
+    that is the rounding's, not the sensor's, and a ratio of two such variances is noise: a
+    twin whose reading does not change in a cell would otherwise have a variance of zero and
+    a gap of 1e+293.
+
+    Parameters
+    ----------
+    session : Session
+    steps : dict
+        Lattice step per axis of each sensor, (3,) or None.
+
+    Returns
+    -------
+    dict
+        {channel ("acc_x", ..., "mag_z", and "acc_norm", "mag_norm" for the piece means along
+        the field): variance floor [unit²]}.
+    """
+    samples = {"acc": session.acc, "gyr": session.gyr}
+    if session.mag is not None:
+        samples["mag"] = session.mag.values
+    out = {}
+    for sensor, x in samples.items():
+        top = np.max(np.abs(x), axis=0) if len(x) else np.zeros(3)
+        spacing = FLOAT32_SPACING * 2.0 ** np.floor(np.log2(np.maximum(top, 1e-30)))
+        step = steps.get(sensor)
+        step = np.maximum(spacing, step) if step is not None else spacing
+        floors = step ** 2 / 12.0
+        for axis, floor in zip("xyz", floors):
+            out[f"{sensor}_{axis}"] = float(floor)
+        out[f"{sensor}_norm"] = float(np.mean(floors))
     return out
 
 

@@ -160,6 +160,13 @@ class Session:
     notes : list of str
     integer_sensors : frozenset of str
         Sensors whose log format stores integers.
+    resolution : dict
+        The step [m/s², rad/s, mGauss] of each sensor the log format stores as integers (in
+        block means: that step over the block length).
+    truncated : bool
+        Whether those integers are the format's truncation toward zero, undone by half a step
+        (RAW_IMU, SCALED_IMU*: :func:`apmcal.preprocessing.resolution.undo_truncation`); the
+        twin then truncates and undoes the same way.
     """
 
     source: str
@@ -179,6 +186,8 @@ class Session:
     # sensors whose log format stores integers (RAW_IMU's mG / mrad/s / mGauss, dataflash
     # MAG's int16 mGauss): their rounding is the recording's, part of every twin
     integer_sensors: frozenset = frozenset()
+    resolution: dict = field(default_factory=dict)     # sensor -> step of its integers
+    truncated: bool = False     # integers truncated toward zero, then moved half a step out
 
     @property
     def fs(self) -> float:
@@ -440,6 +449,8 @@ def session_from_log(contents, opts) -> Session:
                       lat_deg=opts.lat_deg, lon_deg=opts.lon_deg,
                       date=recording_date(contents), notes=notes + prepared.warnings)
     integer = set(raw.sensors) if recording.message in INT16_TELEMETRY else set()
+    session.resolution = {s: float(prepared.steps[s]) for s in integer if s in prepared.steps}
+    session.truncated = bool(integer)
     if has_live_magnetometer(raw):
         session.mag = MagAxis(t, raw.xyz("mag"), pieces.i0, pieces.i1, session.current)
     elif mag_recording is not None and has_live_magnetometer(mag_recording):
@@ -449,6 +460,7 @@ def session_from_log(contents, opts) -> Session:
         session.mag = MagAxis(m.t, m.xyz("mag"), i0, i1, cur)
         if INTEGER_MAG.match(mag_recording.message):
             integer.add("mag")
+            session.resolution["mag"] = 1.0     # int16 mGauss
     session.integer_sensors = frozenset(integer)
     return session
 

@@ -1,5 +1,8 @@
 """``apmcal gap --write-twin``: the selected model as a simulator configuration.
 
+A file ending in ``.parm`` or ``.param`` gets the same twin as ArduPilot SITL parameters instead
+(:mod:`apmcal.diagnosis.twin.sitl_params`); any other name the JSON below.
+
 The file is sitl's own truth format (:meth:`apmcal.sensor_model.truth.Truth.save`) plus a ``"twin"`` block
 saying where it came from, so ``python -m apmcal_sim --twin TWIN.json`` (or ``apmcal_sim.makelog --twin``)
 runs a vehicle with the real board's fitted errors. Two things differ from the in-process twin:
@@ -132,8 +135,12 @@ def _temperature(truth, fit, session) -> None:
     truth.temperature = dict(truth.temperature, ambient_c=ambient, rise_k=rise, tau_s=tau)
 
 
+SITL_SUFFIXES = (".parm", ".param")
+
+
 def write_twin(diagnosis, path) -> None:
-    """Write the twin file (see the module docstring).
+    """Write the twin file (see the module docstring): ArduPilot SITL parameters for a name
+    ending in .parm or .param, else apmcal_sim's truth JSON.
 
     Raises
     ------
@@ -142,6 +149,17 @@ def write_twin(diagnosis, path) -> None:
     """
     truth = standalone_truth(diagnosis)
     result = diagnosis.result
+    if str(path).lower().endswith(SITL_SUFFIXES):
+        from apmcal.diagnosis.twin.sitl_params import write_sitl_params
+
+        sigma = {s: np.asarray(v["value"], float) for s, v in result.white_noise.items()}
+        # a compass whose geometry the session could not fit (too few orientations) has
+        # nothing to write: zeros would claim a perfect compass
+        geometry = np.any(truth.mag_hard_iron) or not np.allclose(truth.mag_soft_iron, np.eye(3))
+        write_sitl_params(path, truth, compass=diagnosis.evaluator.session.mag is not None
+                          and bool(geometry), sigma=sigma, source=result.source,
+                          selected=result.selected)
+        return
     extra = {"twin": {"source": result.source, "selected": result.selected,
                       "gap_nominal": {"total": result.gap["total"],
                                       "heldout": result.gap["heldout"]},

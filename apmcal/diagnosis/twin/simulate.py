@@ -120,12 +120,13 @@ def _noise_truth(truth, noise, fs: float, on: set) -> None:
            (("acc", acc), ("gyro", gyr))}
     truth.lowpass_hz = cut
     # sitl rounds acc and gyro to its ADC steps when "quantization" is on: a sensor whose log
-    # samples are not on a lattice gets a step far below its noise
+    # samples are not on a lattice gets an lsb of 0, which leaves it unrounded (a step "far
+    # below its noise" would saturate it at 32767 steps: ±3e-5 rad/s for a 1e-9 step)
     truth.quantization = dict(truth.quantization)
-    acc_step = float(np.mean(acc.step)) if acc.step is not None else 1e-9
-    gyr_step = float(np.mean(gyr.step)) if gyr.step is not None else 1e-9
-    truth.quantization["acc_lsb_per_g"] = 9.80665 / acc_step
-    truth.quantization["gyro_lsb_per_dps"] = DEG / gyr_step
+    truth.quantization["acc_lsb_per_g"] = 9.80665 / float(np.mean(acc.step)) \
+        if acc.step is not None else 0.0
+    truth.quantization["gyro_lsb_per_dps"] = DEG / float(np.mean(gyr.step)) \
+        if gyr.step is not None else 0.0
     if acc.step is None and gyr.step is None:
         on.discard("quantization")
     truth.motion_contamination = dict(truth.motion_contamination,
@@ -180,6 +181,7 @@ def simulate(session, fit: ModelFit, noise, seed: int = 0, motion_path=None):
     hold_rot, traj = motion_path or motion_of(session, fit)
     t = session.t
     truth = twin_truth(fit, noise, session.fs)
+    formatted = _truncated_format(session, truth)
     tremor = fit.hold_motion is not None
     if tremor:
         traj = trajectory.with_hold_motion(traj, session, *fit.hold_motion)
@@ -195,11 +197,52 @@ def simulate(session, fit: ModelFit, noise, seed: int = 0, motion_path=None):
     model.rng = replayed(model.rng, TWIN_SEEDS + seed)
     acc = model.accel(t, f_acc, temperature=session.temp)
     gyr = model.gyro(t, w_body, f_body, temperature=session.temp)
+    if "acc" in formatted:
+        acc = truncated_reading(acc, formatted["acc"])
+    if "gyr" in formatted:
+        gyr = truncated_reading(gyr, formatted["gyr"])
     twin = replace(session, acc=acc, gyr=gyr)
     if session.mag is not None and fit.mag is not None:
         twin.mag = replace(session.mag, values=_mag(session, traj, hold_rot, b_hold, model, noise,
                                                      still_holds=not tremor))
     return twin, truth
+
+
+def truncated_reading(x: np.ndarray, step: float) -> np.ndarray:
+    """Readings as an int16 telemetry log holds them, after the reader's correction: counts
+    truncated toward zero (C's float → int16 cast), then moved half a step away from zero
+    (:func:`apmcal.preprocessing.resolution.undo_truncation`; a count of 0 stays 0).
+
+    Parameters
+    ----------
+    x : array
+        Readings [unit].
+    step : float
+        The format's step [unit].
+
+    Returns
+    -------
+    array
+        The same shape, on the lattice the real session's readings are on.
+    """
+    counts = np.clip(np.trunc(x / step), -32768, 32767)
+    return (counts + 0.5 * np.sign(counts)) * step
+
+
+def _truncated_format(session, truth) -> dict:
+    """The sensors whose real readings are truncated integers ({sensor: step}): the twin is
+    formatted the same way (:func:`truncated_reading`) instead of rounded to nearest by the
+    error model, whose own rounding of them is switched off here."""
+    if not getattr(session, "truncated", False):
+        return {}
+    out = {s: step for s, step in session.resolution.items() if s in ("acc", "gyr")}
+    q = dict(truth.quantization)
+    if "acc" in out:
+        q["acc_lsb_per_g"] = 0.0
+    if "gyr" in out:
+        q["gyro_lsb_per_dps"] = 0.0
+    truth.quantization = q
+    return out
 
 
 _CARRIED = reuse.Recent(8)     # the holds' vectors carried along a motion path, recent ones
@@ -259,6 +302,8 @@ def _mag(session, traj, hold_rot, b_hold, model, noise, still_holds: bool) -> np
                 else np.zeros(len(m.t)))
     values = model.mag(np.take(b_imu, idx, axis=0), throttle)
     step = noise["mag"].step if "mag" in noise else None
+    if getattr(session, "truncated", False) and "mag" in session.resolution:
+        return truncated_reading(values, session.resolution["mag"])
     if step is not None:    # the log's integer mGauss (dataflash MAG, RAW_IMU): the vehicle's
         values = np.round(values / step) * step     # rounding, not the sensor's (sitl's writer)
     return values
