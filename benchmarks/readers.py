@@ -1,16 +1,16 @@
 """Reader speed: apmcal.sources.read_log against pymavlink (and fasttlogparser) on the same files.
 
-    python benchmarks/readers.py FILE [FILE ...]        (make big files with make_big_log.py)
+    python benchmarks/readers.py FILE [FILE ...]        (make big files with make_big_log.py;
+                                                          damaged ones with its --damage N)
 
-For each file: apmcal is run cold (first call in the process: an undamaged file is framed by numpy;
-a damaged one loads numba's cached machine code, or compiles it on the very first run after a
-change) and warm (best of 3); pymavlink reads the IMU messages with mavutil.mavlink_connection +
-recv_match (DFReader for .bin/.log); the IMU values of both are asserted identical (exact float64
-equality, after the documented unit conversion). For .tlog, fasttlogparser is timed too when
-importable. Peak memory is the tracemalloc peak of Python/numpy allocations during one apmcal read
-(the read-only memory map of the file itself is not an allocation and is not counted; the compiled
-kernels write only into numpy-allocated arrays, so those are traced) and the ru_maxrss growth of
-the process over the cold read (which includes the mapped file pages touched, shared with the page
+For each file: apmcal is run cold (first call in the process) and warm (best of 3); an undamaged
+file up to 32 MB is framed in one numpy pass, a larger or damaged one by the chunked numpy scan.
+pymavlink reads the IMU messages with mavutil.mavlink_connection + recv_match (DFReader for
+.bin/.log); the IMU values of both are asserted identical (exact float64 equality, after the
+documented unit conversion). For .tlog, fasttlogparser is timed too when importable. Peak memory
+is the tracemalloc peak of Python/numpy allocations during one apmcal read (the read-only memory
+map of the file itself is not an allocation and is not counted) and the ru_maxrss growth of the
+process over the cold read (which includes the mapped file pages touched, shared with the page
 cache). The last line is ``ratio_vs_pymavlink=N``: the smallest pymavlink/apmcal time ratio over
 the files.
 """
