@@ -134,9 +134,14 @@ def make_session(path: Path) -> None:
 
 
 def export_tree(ref: str, folders: tuple = ("apmcal",)) -> Path:
-    """``ref``'s ``folders`` (git archive) in the cache directory, once per commit."""
+    """``ref``'s ``folders`` (git archive) in the cache directory, once per commit; folders the
+    revision does not have are left out (the simulator was ``sitl`` before it became
+    ``apmcal_sim``: pass both)."""
     commit = subprocess.run(["git", "rev-parse", ref], cwd=ROOT, check=True, capture_output=True,
                             text=True).stdout.strip()
+    top = subprocess.run(["git", "ls-tree", "--name-only", commit], cwd=ROOT, check=True,
+                         capture_output=True, text=True).stdout.split()
+    folders = tuple(f for f in folders if f in top)
     tree = DATA / f"tree-{commit[:12]}"
     if not all((tree / folder).is_dir() for folder in folders):
         tree.mkdir(parents=True, exist_ok=True)
