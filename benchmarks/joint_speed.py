@@ -40,6 +40,7 @@ TARGET_RATIO = 4.0
 # run in a fresh process with an exported tree first on the path: time and parameters as JSON
 _CHILD = r"""
 import datetime, json, sys, time
+import numpy, scipy.linalg  # the BLAS libraries loaded, so that the limit below reaches them
 from threadpoolctl import threadpool_limits
 threadpool_limits(1, user_api="blas")
 from apmcal.calibration.log import Options, calibrate_log
