@@ -5,7 +5,7 @@
 The session is simulated once with sitl (the ``diagnosis`` script: 632 s at 400 Hz with
 accelerometer, gyro and compass — six faces, corner holds, turns about each axis, motors; a
 dataflash .bin of 20 MB) and kept in ``benchmarks/_data/``. Measured in this one run, each in a
-fresh process (so imports, numba's cache loading and the page cache are as for a user):
+fresh process (so imports and the page cache are as for a user):
 
 * ``import``: ``python -c "import apmcal.cli, apmcal.calibration.log, apmcal.sources"``;
 * the stages of ``apmcal log SESSION --lat 47.4 --lon 8.5`` run in-process: read, prepare
@@ -172,7 +172,7 @@ def _run(tree: Path, argv: list[str]) -> tuple[float, str, float]:
 
 def measure(tree: Path, session: Path, runs: int, whole: bool = True) -> dict:
     """Minimum over ``runs`` of: import, each stage, whole process, --help (after a warm-up
-    read: numba's cache, .pyc files and the file's pages in place). ``whole=False`` (the slow
+    read: .pyc files and the file's pages in place). ``whole=False`` (the slow
     "before" code) takes the in-process total of the staged run as the whole process."""
     _run(tree, ["-c", f"from apmcal.sources import read_log; read_log({str(session)!r})"])
     best: dict = {}

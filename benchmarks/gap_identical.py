@@ -3,9 +3,9 @@
     python benchmarks/gap_identical.py [--before REV] [--no-real]
 
 A speed change to the diagnosis must not change a single number it reports. This runs
-``apmcal gap FILE --json OUT`` with this tree and with revision ``--before`` (its apmcal and simulator
-exported with ``git archive``; default: main before the speed work that began at 05:44 UTC on
-2026-11-24) on:
+``apmcal gap FILE --json OUT`` with this tree and with revision ``--before`` (its apmcal and its
+simulator, apmcal_sim or the older sitl, exported with ``git archive``; default: main before the
+speed work that began at 05:44 UTC on 2026-11-24) on:
 
 * the 400 Hz session of ``gap_speed.py`` (made by it, kept in ``benchmarks/_data/``);
 * six 100 Hz sitl sessions, each with other effects withheld from the twin (made here once);
@@ -67,7 +67,7 @@ def sessions(with_real: bool) -> list[tuple[Path, list[str]]]:
 
 
 def gap_json(tree: Path, log: Path, extra: list[str], out: Path) -> None:
-    """``apmcal gap LOG --json OUT`` with ``tree``'s apmcal and sitl (run from the data folder:
+    """``apmcal gap LOG --json OUT`` with ``tree``'s apmcal (run from the data folder:
     ``python -m`` would put the current directory first)."""
     env = dict(os.environ, PYTHONPATH=str(tree))
     subprocess.run([sys.executable, "-m", "apmcal", "gap", str(log), *extra, "--json", str(out)],

@@ -2,11 +2,14 @@
 
     python benchmarks/make_big_log.py ../shared/data/ardupilot/ardusub_small.tlog
     python benchmarks/make_big_log.py ../shared/data/ardupilot/pixhawk_3imu_log171.bin --mb 120
+    python benchmarks/make_big_log.py ../shared/data/ardupilot/ardusub_small.tlog --damage 200
 
 Output goes to benchmarks/_data/ (gitignored). Each copy's timestamps are shifted by the span of
 the source so time keeps increasing: for .tlog the 8-byte big-endian frame stamps and the
 time_usec / time_boot_ms field of every message that starts with one (its CRC is rewritten; MAVLink 2
 signatures are left stale); for .bin the leading TimeUS/TimeMS field of every record.
+``--damage N`` then overwrites N runs of 1-200 random bytes at random places (seeded numpy RNG)
+and inserts N more such runs, so the reader must resynchronise (name ends in ``_damagedN``).
 """
 from __future__ import annotations
 
@@ -19,19 +22,18 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from numba import njit  # noqa: E402
-
-from apmcal.sources import _framing, dataflash, sniff_format, tlog  # noqa: E402
+from apmcal.sources import _fastscan, dataflash, sniff_format, tlog  # noqa: E402
 from apmcal.sources._common import load_bytes  # noqa: E402
 
 
-@njit(cache=True)
 def _recrc(buf, starts, hlens, plens, extras):
     """Rewrite the CRC of the frames at ``starts`` after their payload was changed."""
-    for i in range(starts.shape[0]):
-        p = starts[i]
-        end = p + 8 + hlens[i] + plens[i]
-        crc = _framing.x25_crc(buf, p + 9, end, extras[i])
+    span = hlens - 1 + plens
+    for m in np.unique(span):
+        sel = np.flatnonzero(span == m)
+        rows = _fastscan.gather_fixed(buf, starts[sel], 9, int(m))
+        crc = _fastscan.x25_crc_rows(rows, extras[sel])
+        end = starts[sel] + 9 + m
         buf[end] = crc & 0xFF
         buf[end + 1] = crc >> 8
 
@@ -115,15 +117,34 @@ def _shift_bin(src: np.ndarray, copies: int) -> bytes:
     return b"".join(parts)
 
 
-def make_big_log(src: Path, mb: float = 100.0, out_dir: Path = ROOT / "benchmarks" / "_data") -> Path:
-    """Write ``src`` repeated to at least ``mb`` megabytes (10⁶ bytes); returns the new path."""
+def damage(data: bytes, runs: int, seed: int = 0) -> bytes:
+    """``data`` with ``runs`` runs of 1-200 random bytes overwritten and ``runs`` more inserted
+    (the file starts intact: the first 4096 bytes, where the format is sniffed, are spared)."""
+    rng = np.random.default_rng(seed)
+    b = bytearray(data)
+    for _ in range(runs):
+        at, k = int(rng.integers(4096, len(b) - 200)), int(rng.integers(1, 201))
+        b[at:at + k] = rng.integers(0, 256, k, dtype=np.uint8).tobytes()
+    for _ in range(runs):
+        at, k = int(rng.integers(4096, len(b))), int(rng.integers(1, 201))
+        b[at:at] = rng.integers(0, 256, k, dtype=np.uint8).tobytes()
+    return bytes(b)
+
+
+def make_big_log(src: Path, mb: float = 100.0, out_dir: Path = ROOT / "benchmarks" / "_data",
+                 damaged: int = 0) -> Path:
+    """Write ``src`` repeated to at least ``mb`` megabytes (10⁶ bytes), with ``damaged`` runs of
+    overwritten and as many of inserted random bytes when > 0; returns the new path."""
     kind = sniff_format(src)
     buf = load_bytes(src)
     copies = int(np.ceil(mb * 1e6 / buf.shape[0]))
     data = _shift_tlog(buf, copies) if kind == "tlog" else _shift_bin(buf, copies)
+    if damaged:
+        data = damage(data, damaged)
     out_dir.mkdir(parents=True, exist_ok=True)
     ext = ".tlog" if kind == "tlog" else ".bin"
-    out = out_dir / f"{Path(src).stem}_x{copies}{ext}"
+    tag = f"_damaged{damaged}" if damaged else ""
+    out = out_dir / f"{Path(src).stem}_x{copies}{tag}{ext}"
     out.write_bytes(data)
     return out
 
@@ -132,8 +153,10 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("source", type=Path)
     ap.add_argument("--mb", type=float, default=100.0, help="minimum size [MB], default 100")
+    ap.add_argument("--damage", type=int, default=0, metavar="N",
+                    help="overwrite N runs of random bytes and insert N more (default 0: intact)")
     args = ap.parse_args(argv)
-    out = make_big_log(args.source, args.mb)
+    out = make_big_log(args.source, args.mb, damaged=args.damage)
     print(f"{out} {out.stat().st_size / 1e6:.1f} MB")
 
 

@@ -129,12 +129,11 @@ def _score_nominal(ev: Evaluator) -> Evaluation:
 
 
 def preload_imports() -> None:
-    """Import scipy.signal (scipy.stats with it), filterpy and allantools. The low-pass filter
+    """Import scipy.signal (scipy.stats with it) and filterpy. The low-pass filter
     and motion contamination models, the random-walk smoother and the noise structure need
     them, the nominal model does not. Imported in this process once, every worker forked
     afterwards has them; a worker that imported them itself would spend 0.8 s on it, once per
     pool. ``apmcal gap`` imports them while a worker reads the log."""
-    import allantools  # noqa: F401
     import filterpy.kalman  # noqa: F401
     import scipy.signal  # noqa: F401
 

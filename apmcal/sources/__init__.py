@@ -42,8 +42,8 @@ def _head(path: Path) -> bytes:
 def _has_tlog_frame(head: bytes) -> bool:
     """True when a CRC-checked tlog frame of a known message starts within the first bytes.
 
-    Plain Python on at most 512 positions: the compiled framing would cost numba's ~2 s load
-    for a few bytes.
+    Plain Python on at most 512 positions (a few bytes: the vectorised framing would cost more
+    to set up).
     """
     from apmcal.sources._fastscan import tlog_frame_at
     from apmcal.sources.tlog import _tables
@@ -112,7 +112,7 @@ def read_log(path, *, progress: bool = False) -> LogContents:
     ----------
     path : str or Path
     progress : bool
-        Accepted for API compatibility; the compiled readers are fast enough not to report.
+        Accepted for API compatibility; the vectorised readers are fast enough not to report.
 
     Raises
     ------

@@ -1,20 +1,17 @@
-"""Framing of undamaged .tlog and dataflash .bin files with numpy alone (no numba).
+"""Framing of undamaged .tlog and dataflash .bin files up to 32 MB in one vectorised pass.
 
-Why: the compiled scans of :mod:`apmcal.sources._framing` are fast once loaded, but loading
-numba and its cached machine code costs ~2 s per process (its import, then its typing and BLAS
-registries at the first call), more than reading a 20 MB log takes. Most logs are undamaged:
+Why: most logs are undamaged:
 their records tile the file from byte 0 to the end. That case is found here without a
 sequential loop — every position holding a record header is a candidate, each candidate's
 length gives its successor, and the records are the candidates some other record (or byte 0)
 points at; the result is checked to tile the file exactly and to satisfy every rule the
 sequential scan applies (types defined before use, CRCs of the wanted MAVLink messages).
-When any check fails the caller falls back to the compiled scan, which also resynchronises
-after damage; so the records returned are always the compiled scan's, and a file needing
-resynchronisation is read as before.
+When any check fails the caller falls back to the chunked scan of
+:mod:`apmcal.sources._framing`, which also resynchronises after damage and returns the same
+records on an undamaged file (tests/test_framing.py checks both against a byte-by-byte loop).
 
 Functions return None for "not this fast path". Files over ``MAX_BYTES`` are left to the
-compiled scan: numpy's candidate arrays cost ~2.5× the file in memory and ~15-35 ms per MB,
-where numba's load (~2 s) is then repaid (it frames ~300 MB/s in bounded memory).
+chunked scan: the candidate arrays here cost ~2.5× the file in memory, there a bounded amount.
 """
 from __future__ import annotations
 
@@ -26,7 +23,7 @@ DF_HEAD1 = 0xA3
 DF_HEAD2 = 0x95
 DF_FMT_TYPE = 0x80
 DF_FMT_LEN = 89
-MAX_BYTES = 32 << 20        # larger files: the compiled scan (see the module docstring)
+MAX_BYTES = 32 << 20        # larger files: the chunked scan (see the module docstring)
 
 
 # ------------------------------------------------------------------------- gathering
@@ -192,7 +189,7 @@ def _tlog_frames(buf: np.ndarray, cand: np.ndarray) -> tuple[np.ndarray, ...]:
 
 def x25_crc_rows(rows: np.ndarray, extra: np.ndarray) -> np.ndarray:
     """MAVLink CRC-16/MCRF4XX of each row of ``rows`` (k, m) uint8, then its CRC_EXTRA byte,
-    column by column over all k frames at once (the same steps as ``_framing.x25_crc``)."""
+    column by column over all k frames at once (the bitwise steps of the MAVLink C library)."""
     crc = np.full(rows.shape[0], 0xFFFF, dtype=np.int64)
     for col in (*rows.T.astype(np.int64), np.asarray(extra, dtype=np.int64)):
         tmp = (col ^ crc) & 0xFF

@@ -2,7 +2,8 @@
 
 A dataflash log is a stream of records ``0xA3 0x95 type body``; FMT records (type 0x80) give each
 type its name, length, field formats and column names. The record boundaries are found in one pass
-(numpy for an undamaged log, else the compiled ``_framing.scan_dataflash``), then all records of
+(numpy throughout: ``_fastscan`` for an undamaged log, else the resynchronising
+``_framing.scan_dataflash``), then all records of
 one type are gathered and decoded at once with a numpy structured dtype. Format-character
 multipliers (c, C, e, E: 0.01; L: 1e-7) are applied the way pymavlink's DFReader does (division by
 ``1/mul``), so values are identical to DFReader's.
@@ -32,7 +33,7 @@ import pandas as pd
 
 from apmcal.core.errors import ApmcalError
 from apmcal.core.recording import ACC, GYR, MAG, LogContents
-from apmcal.sources import _fastscan
+from apmcal.sources import _fastscan, _framing
 from apmcal.sources._common import (
     MAX_DAMAGE_OFFSETS,
     _params,
@@ -108,9 +109,9 @@ def convert_column(values: np.ndarray, fmt_char: str) -> np.ndarray:
 def scan(buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, list[int]]:
     """Record offsets and types of a whole .bin buffer, bytes skipped, damage offsets.
 
-    An undamaged log up to 32 MB is framed by numpy (:mod:`apmcal.sources._fastscan`), which
-    spares the ~2 s numba costs to load; a bigger one or one that needs resynchronising by the
-    compiled scan.
+    An undamaged log up to 32 MB is framed in one vectorised pass (:mod:`apmcal.sources._fastscan`);
+    a bigger one or one that needs resynchronising by the chunked scan of
+    :mod:`apmcal.sources._framing` (numpy too, bounded memory).
 
     Parameters
     ----------
@@ -130,22 +131,7 @@ def scan(buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, list[int]]:
     fast = _fastscan.scan_dataflash(buf)
     if fast is not None:
         return fast[0], fast[1], 0, []
-    from apmcal.sources import _framing
-
-    lengths = np.zeros(256, dtype=np.int64)
-    lengths[_fastscan.DF_FMT_TYPE] = _fastscan.DF_FMT_LEN
-    state = np.zeros(3, dtype=np.int64)
-    damage = np.zeros(MAX_DAMAGE_OFFSETS, dtype=np.int64)
-    offs, types = [], []
-    chunk = min(_CHUNK, buf.shape[0] // 16 + 1024)
-    while state[0] < buf.shape[0]:
-        off = np.empty(chunk, np.int64)
-        typ = np.empty(chunk, np.uint8)
-        k = _framing.scan_dataflash(buf, state, lengths, off, typ, damage)
-        offs.append(off[:k].copy())
-        types.append(typ[:k].copy())
-    nd = int(min(state[2], MAX_DAMAGE_OFFSETS))
-    return (np.concatenate(offs), np.concatenate(types), int(state[1]), damage[:nd].tolist())
+    return _framing.scan_dataflash(buf, MAX_DAMAGE_OFFSETS)
 
 
 def record_spans(buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

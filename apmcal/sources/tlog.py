@@ -2,8 +2,8 @@
 
 A .tlog is a sequence of frames: an 8-byte big-endian timestamp [µs since 1970] followed by one
 MAVLink v1 (0xFE) or v2 (0xFD) packet. Framing and the CRC check (with the dialect's CRC_EXTRA)
-run in one pass (numpy for an undamaged log, :mod:`apmcal.sources._fastscan`, else the compiled
-``_framing.scan_tlog``); the wanted messages are then gathered into a
+run with numpy (an undamaged log up to 32 MB in one pass, :mod:`apmcal.sources._fastscan`, else
+the chunked, resynchronising ``_framing.scan_tlog``); the wanted messages are then gathered into a
 zero-padded (n, wire_length) byte array and decoded all at once through a numpy structured dtype
 built from pymavlink's own message definition (same field order and types as pymavlink), so the
 values are bit-identical to pymavlink's.
@@ -49,7 +49,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from apmcal.core.constants import GAUSS_TO_MGAUSS, MG_TO_MS2, MRAD_TO_RAD
 from apmcal.core.errors import ApmcalError
 from apmcal.core.recording import LogContents
-from apmcal.sources import _fastscan
+from apmcal.sources import _fastscan, _framing
 from apmcal.sources._common import (
     MAX_DAMAGE_OFFSETS,
     _params,
@@ -118,25 +118,11 @@ def _index(buf: np.ndarray, wanted: np.ndarray):
     """Frame offsets, payload lengths and msgids of wanted frames; bytes skipped; damage."""
     crc, max_len, _ = _tables()
     fast = _fastscan.scan_tlog(buf, crc, max_len, wanted)
-    if fast is not None:            # undamaged: framed by numpy, numba not even loaded
+    if fast is not None:            # undamaged and up to 32 MB: one vectorised pass
         return (*fast, 0, [])
-    from apmcal.sources import _framing
-
-    state = np.zeros(3, dtype=np.int64)
-    damage = np.zeros(MAX_DAMAGE_OFFSETS, dtype=np.int64)
-    offs, lens, mids = [], [], []
-    chunk = min(_CHUNK, buf.shape[0] // 64 + 1024)
-    while state[0] < buf.shape[0]:
-        off = np.empty(chunk, np.int64)
-        ln = np.empty(chunk, np.int16)
-        mid = np.empty(chunk, np.int32)
-        k = _framing.scan_tlog(buf, state, crc, max_len, wanted, off, ln, mid, damage)
-        offs.append(off[:k].copy())
-        lens.append(ln[:k].copy())
-        mids.append(mid[:k].copy())
-    nd = int(min(state[2], MAX_DAMAGE_OFFSETS))
-    return (np.concatenate(offs), np.concatenate(lens), np.concatenate(mids), int(state[1]),
-            damage[:nd].tolist())
+    (off, ln, mid), skipped, damage = _framing.scan_tlog(buf, crc, max_len, wanted,
+                                                         MAX_DAMAGE_OFFSETS)
+    return off, ln, mid, skipped, damage
 
 
 def _header_len(buf: np.ndarray, off: np.ndarray) -> np.ndarray:

@@ -187,7 +187,7 @@ def _chi2_ppf(q: float, edf: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------
-# Allan deviation with allantools
+# Allan deviation (overlapping, [IEEE952] Annex C, [NIST1065] eq. 11)
 # ---------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class AllanDeviation:
@@ -200,7 +200,7 @@ class AllanDeviation:
     adev : (K,) array
         Overlapping Allan deviation [u], pooled as √(Σ n_p σ²_p / Σ n_p).
     err : (K,) array
-        One-sigma error bar [u]: allantools' simple ``adev/√n`` with the pooled n.
+        One-sigma error bar [u]: the simple ``adev/√n`` with the pooled n (allantools' too).
     n : (K,) int array
         Number of terms (second differences) behind each value, all pieces.
     """
@@ -226,13 +226,35 @@ def _tau_grid(n_max: int, fs: float, taus) -> np.ndarray:
     return m[(m >= 1) & (m <= m_top)].astype(int)
 
 
+def _oadev(x: np.ndarray, fs: float, ms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(overlapping Allan deviation [u], number of terms) of rate samples ``x`` at the
+    averaging factors ``ms`` (each with at least one term), [NIST1065] eq. (11).
+
+    The rate is integrated to phase (mean removed first, a zero prepended: N + 1 phase points
+    x_k), and σ²(mτ₀) = Σ (x_{k+2m} - 2x_{k+m} + x_k)² / (2 (mτ₀)² (N + 1 - 2m)). Hand-written
+    (allantools' ``oadev`` computes the same; its package would pull pytest, sphinx and
+    numpydoc into every install): the steps and their order are allantools' own, so the values
+    are the same floats (tests/test_noise_terms.py compares them).
+    """
+    phase = np.insert(np.cumsum(x - np.nanmean(x)) * (1.0 / float(fs)), 0, 0)
+    dev, n = np.zeros(len(ms)), np.zeros(len(ms))
+    for i, m in enumerate(ms):
+        m = int(m)
+        k = len(phase) - 2 * m
+        v = phase[2 * m:] - 2 * phase[m:m + k] + phase[:k]
+        dev[i] = np.sqrt(np.sum(v * v) / (2.0 * k)) / m * float(fs)
+        n[i] = k
+    return dev, n
+
+
 def allan_deviation(pieces, fs: float, taus="log10") -> AllanDeviation:
-    """Overlapping Allan deviation of each piece with ``allantools.oadev``, pooled over pieces.
+    """Overlapping Allan deviation ([IEEE952] Annex C, [NIST1065] eq. 11) of each piece,
+    pooled over pieces.
 
     Parameters
     ----------
     pieces : list of 1-D arrays
-        Residual samples of separate still periods [u] (rate-like data, ``data_type="freq"``).
+        Residual samples of separate still periods [u] (rate-like data, integrated to phase).
     fs : float
         Sample rate [Hz].
     taus : "log10", "octave" or array of float
@@ -244,19 +266,16 @@ def allan_deviation(pieces, fs: float, taus="log10") -> AllanDeviation:
     AllanDeviation
         Values at the taus that at least one piece supports with two or more terms.
     """
-    import allantools
-
-    xs = _finite_pieces(pieces)                  # mean kept: allantools removes it
+    xs = _finite_pieces(pieces)                  # mean kept: _oadev removes it
     ms = _tau_grid(max(len(x) for x in xs), fs, taus)
     num, cnt = np.zeros(len(ms)), np.zeros(len(ms))
     for x in xs:
-        ok = ms[len(x) - 2 * ms + 1 > 1]         # allantools keeps n > 1 terms only
+        ok = np.flatnonzero(len(x) - 2 * ms + 1 > 1)    # two terms or more
         if len(ok) == 0:
             continue
-        t, ad, _, n = allantools.oadev(x, rate=fs, data_type="freq", taus=ok / fs)
-        idx = np.searchsorted(ms, np.round(np.asarray(t) * fs).astype(int))
-        num[idx] += n * ad ** 2
-        cnt[idx] += n
+        ad, n = _oadev(x, fs, ms[ok])
+        num[ok] += n * ad ** 2
+        cnt[ok] += n
     keep = cnt > 0
     adev = np.sqrt(num[keep] / cnt[keep])
     return AllanDeviation(tau=ms[keep] / fs, adev=adev, err=adev / np.sqrt(cnt[keep]),

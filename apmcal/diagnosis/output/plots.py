@@ -88,7 +88,7 @@ def psd(diagnosis, path) -> bool:
 
 
 def allan(diagnosis, path) -> bool:
-    """Allan deviation of the hold residuals (allantools, pooled over the holds), real
+    """Allan deviation of the hold residuals (overlapping, pooled over the holds), real
     against twin, per sensor axis."""
     from apmcal.diagnosis.noise.allan import allan_deviation
 

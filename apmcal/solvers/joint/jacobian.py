@@ -41,8 +41,11 @@ def _signals(x: np.ndarray, d):
 
 
 def sample_derivatives(x: np.ndarray, d, free: np.ndarray):
-    """∂a, ∂ω, ∂m per sample: each (n, 3, p) over the free parameters (zeros where a sensor
-    does not depend on a parameter).
+    """∂a, ∂ω, ∂m per sample over the free parameters each depends on: ∂a (n, 3, p_a) over the
+    free accelerometer parameters, ∂ω (n, 3, p_ω) over the free accelerometer then gyro
+    parameters, ∂m (n, 3, p_m) over the free magnetometer parameters (the free parameters in
+    :data:`~apmcal.solvers.joint.model.NAMES` order are exactly these: accelerometer, gyro,
+    magnetometer; every other derivative is zero, so it is not computed).
 
     Closed form through the matrices: with a = K_a⁻¹(y_a − b_a), ∂a = −K_a⁻¹·(∂b_a + ∂K_a·a);
     with ω = K_ω⁻¹(y_ω − b_ω − G_ω·a), ∂ω = −K_ω⁻¹·(∂b_ω + ∂G_ω·a + G_ω·∂a + ∂K_ω·ω);
@@ -56,18 +59,19 @@ def sample_derivatives(x: np.ndarray, d, free: np.ndarray):
     d : JointData
         The session's samples and condition layout (:func:`apmcal.solvers.joint.residuals.layout`).
     free : (42,) bool array
-        The parameters estimated (p of them).
+        The parameters estimated (p = p_ω + p_m of them).
 
     Returns
     -------
     signals : tuple
         a (n, 3) [m/s²], ω (n, 3) [rad/s], m (n, 3) [mGauss] or None.
     derivatives : tuple
-        ∂a, ∂ω, ∂m, each (n, 3, p) (∂m None without a magnetometer).
+        ∂a (n, 3, p_a), ∂ω (n, 3, p_ω), ∂m (n, 3, p_m) (None without a magnetometer).
     """
     m0 = jm.matrices(x)
     a0, w0, mag0 = _signals(x, d)
     cols = np.flatnonzero(free)
+    pa, pw = _counts(free)
     dmat = {k: [] for k in m0}
     for i in cols:
         h = STEP * max(1.0, abs(x[i]))
@@ -78,14 +82,28 @@ def sample_derivatives(x: np.ndarray, d, free: np.ndarray):
             dmat[k].append((mh[k] - m0[k]) / h)
     dmat = {k: np.array(v) for k, v in dmat.items()}             # (p, 3) or (p, 3, 3)
     ka_inv, kw_inv = np.linalg.inv(m0["K_a"]), np.linalg.inv(m0["K_w"])
-    da = -_left(ka_inv, dmat["b_a"].T[None] + _each(dmat["K_a"], a0))
-    inner = (dmat["b_w"].T[None] + _each(dmat["G_w"], a0) + _left(m0["G_w"], da)
-             + _each(dmat["K_w"], w0))
+    da = -_left(ka_inv, dmat["b_a"][:pa].T[None] + _each(dmat["K_a"][:pa], a0))
+    inner = (dmat["b_w"][:pw].T[None] + _each(dmat["G_w"][:pw], a0)
+             + _each(dmat["K_w"][:pw], w0))
+    inner[:, :, :pa] += _left(m0["G_w"], da)
     dw = -_left(kw_inv, inner)
     dm = None
     if mag0 is not None:
-        dm = -_left(np.linalg.inv(m0["D_m"]), dmat["o_m"].T[None] + _each(dmat["D_m"], mag0))
+        dm = -_left(np.linalg.inv(m0["D_m"]),
+                    dmat["o_m"][pw:].T[None] + _each(dmat["D_m"][pw:], mag0))
     return (a0, w0, mag0), (da, dw, dm)
+
+
+def _counts(free: np.ndarray) -> tuple[int, int]:
+    """(free accelerometer parameters, free accelerometer and gyro parameters)."""
+    return int(free[list(jm.ACC_PARAMS)].sum()), int(free[:jm.MAG_PARAMS.start].sum())
+
+
+def _widen(arr: np.ndarray, lo: int, p: int) -> np.ndarray:
+    """``arr`` (..., k) as the columns lo .. lo+k−1 of a (..., p) array of zeros."""
+    out = np.zeros(arr.shape[:-1] + (p,))
+    out[..., lo:lo + arr.shape[-1]] = arr
+    return out
 
 
 def unit_derivative(v: np.ndarray, dv: np.ndarray):
@@ -137,18 +155,19 @@ def jacobian(x: np.ndarray, d, families, rows, free: np.ndarray) -> dict[str, np
     """
     (a, w, mc), (da, dw, dm) = sample_derivatives(x, d, free)
     mats, cols = jm.matrices(x), np.flatnonzero(free)
-    p = da.shape[2]
+    p = len(cols)
+    pa, pw = _counts(free)
     step_rot = so3_exp(_rows_with_pad(midpoint(w) * d.dt[:, None]))
     phi = _rows_with_pad(midpoint(dw) * d.dt[:, None, None])   # δω_k·Δt_k per parameter
     out = {}
     bm = d.block_mean
     a_blk = bm @ a
-    da_blk = (bm @ da.reshape(len(a), -1)).reshape(-1, 3, p)
+    da_blk = (bm @ da.reshape(len(a), -1)).reshape(-1, 3, pa)
     if "acc_norm" in families:
         u = a_blk / np.linalg.norm(a_blk, axis=1, keepdims=True)
-        out["acc_norm"] = np.einsum("ci,cip->cp", u, da_blk)[:, None, :]
+        out["acc_norm"] = _widen(np.einsum("ci,cip->cp", u, da_blk)[:, None, :], 0, p)
     if "zaru" in families:
-        out["zaru"] = (bm @ dw.reshape(len(w), -1)).reshape(-1, 3, p)
+        out["zaru"] = _widen((bm @ dw.reshape(len(w), -1)).reshape(-1, 3, pw), 0, p)
     if d.intervals and ("level" in families or "zupt" in families):
         i = np.array([iv[0] for iv in d.intervals])
         j = np.array([iv[1] for iv in d.intervals])
@@ -160,20 +179,21 @@ def jacobian(x: np.ndarray, d, families, rows, free: np.ndarray) -> dict[str, np
             duj, _ = unit_derivative(a_blk[j], da_blk[j])
             rui = np.einsum("wji,wj->wi", dr, ui)
             dtheta = np.einsum("wji,wjp->wip", dr, sphi.sum(axis=1))
-            out["level"] = np.einsum("wia,wip->wap", d.level_basis,
-                                     duj - hat(rui) @ dtheta
-                                     - np.einsum("wji,wjp->wip", dr, dui))
+            lv = -hat(rui) @ dtheta
+            lv[..., :pa] += duj - np.einsum("wji,wjp->wip", dr, dui)
+            out["level"] = _widen(np.einsum("wia,wip->wap", d.level_basis, lv), 0, p)
         if "zupt" in families:
             f = _rows_with_pad(a * d.dt[:, None])[rows[:, :-1]]          # (I, K, 3)
-            df = _rows_with_pad(da * d.dt[:, None, None])[rows[:, :-1]]  # (I, K, 3, p)
+            df = _rows_with_pad(da * d.dt[:, None, None])[rows[:, :-1]]  # (I, K, 3, p_a)
             eye = np.broadcast_to(np.eye(3), (len(rows), 1, 3, 3))
             pk = np.concatenate([eye, s[:, :-1]], axis=1)              # P_k = S_{k−1}
             c = np.cumsum(sphi, axis=1) - sphi                          # Σ_{l<k} S_l·φ_l
             pf = np.einsum("wkij,wkj->wki", pk, f)
             span = np.array([d.t[k1] - d.t[k0] for _, _, k0, k1 in d.intervals])
-            out["zupt"] = (-np.einsum("wkij,wkjp->wip", hat(pf), c)
-                           + np.einsum("wkij,wkjp->wip", pk, df)
-                           - da_blk[i] * span[:, None, None])
+            zv = -np.einsum("wkij,wkjp->wip", hat(pf), c)
+            zv[..., :pa] += (np.einsum("wkij,wkjp->wip", pk, df)
+                             - da_blk[i] * span[:, None, None])
+            out["zupt"] = _widen(zv, 0, p)
     if mc is not None and "mag" in families:
         parts = []
         for idx in d.windows:
@@ -183,17 +203,20 @@ def jacobian(x: np.ndarray, d, families, rows, free: np.ndarray) -> dict[str, np
             dtheta = np.einsum("wji,wjp->wip", dr, sphi)
             rms = np.einsum("wji,wj->wi", dr, mc[idx[:, 0]])
             w_cal = mc[idx[:, -1]] - rms
-            dw_cal = (dm[idx[:, -1]] - hat(rms) @ dtheta
-                      - np.einsum("wji,wjp->wip", dr, dm[idx[:, 0]]))
+            # columns: the inertial parameters through the rotation, the magnetometer's own
+            dw_cal = np.concatenate([-hat(rms) @ dtheta,
+                                     dm[idx[:, -1]] - np.einsum("wji,wjp->wip", dr,
+                                                                dm[idx[:, 0]])], axis=2)
             # the condition is D_m·w_cal: product rule, D_m's own entries row-major
-            da = np.einsum("ij,wjp->wip", mats["D_m"], dw_cal)
+            da_m = np.einsum("ij,wjp->wip", mats["D_m"], dw_cal)
             for c, i in enumerate(cols):
                 if i in jm.SLICES_RANGE["D_m"]:
                     row, col = divmod(i - jm.SLICES["D_m"].start, 3)
-                    da[:, row, c] += w_cal[:, col]
-            parts.append(da)
+                    da_m[:, row, c] += w_cal[:, col]
+            parts.append(da_m)
         out["mag"] = np.concatenate(parts)
         if "mag_datum" in families:
             u = mc / np.linalg.norm(mc, axis=1, keepdims=True)
-            out["mag_datum"] = np.einsum("ni,nip->p", u, dm)[None, None, :] / len(mc)
+            out["mag_datum"] = _widen(np.einsum("ni,nip->p", u, dm)[None, None, :] / len(mc),
+                                      pw, p)
     return out

@@ -182,6 +182,17 @@ def _solve(d, x0: np.ndarray, free: np.ndarray, consider=None, start=None) -> di
         xx[free] = xf
         return xx
 
+    memo: dict = {}
+
+    def raw_jacobian(xx, cols):
+        """∂w/∂X at ``xx`` (unwhitened: the same for every Whitener), computed once per point:
+        the end of one pass is the start of the next and the point of the statistics."""
+        key = (xx.tobytes(), cols.tobytes())
+        if key not in memo:
+            memo.clear()
+            memo[key] = jacobian(xx, d, families, rows, cols)
+        return memo[key]
+
     for outer in range(MAX_OUTER):
         white = Whitener(x, d, families, rows, weights, factor)
 
@@ -189,11 +200,15 @@ def _solve(d, x0: np.ndarray, free: np.ndarray, consider=None, start=None) -> di
             return white(misclosures(full(xf), d, families, rows))
 
         def jac(xf, white=white):
-            return white.jacobian(jacobian(full(xf), d, families, rows, free))
+            return white.jacobian(raw_jacobian(full(xf), free))
 
-        # the outer loop re-linearises anyway: a few Gauss-Newton steps per pass suffice
-        res = least_squares(fun, x[free], jac=jac, x_scale="jac", method="lm", xtol=1e-8,
-                            ftol=1e-8, max_nfev=MAX_INNER)
+        # the outer loop re-linearises: within a pass the design matrix of its start serves
+        # every Gauss-Newton step (a chord method; the misclosures are exact, and the last
+        # passes start where they end, so the fixed point is the same to ~1e-3 σ,
+        # benchmarks/joint_speed.py), one Jacobian per pass instead of one per step
+        j0 = jac(x[free])
+        res = least_squares(fun, x[free], jac=lambda xf, j0=j0: j0, x_scale="jac",
+                            method="lm", xtol=1e-8, ftol=1e-8, max_nfev=MAX_INNER)
         step = res.x - x[free]
         x[free] = res.x
         old = dict(factor)
@@ -203,7 +218,7 @@ def _solve(d, x0: np.ndarray, free: np.ndarray, consider=None, start=None) -> di
         if outer > 0 and settled and np.all(np.abs(step) <= 0.05 * np.sqrt(_diag_cov(res.jac))):
             break
     white = Whitener(x, d, families, rows, weights, factor)
-    fit = _statistics(x, free, white.jacobian(jacobian(x, d, families, rows, free)),
+    fit = _statistics(x, free, white.jacobian(raw_jacobian(x, free)),
                       white(misclosures(x, d, families, rows)), weights, factor, families)
     if consider is not None:
         mask, variances = consider

@@ -1,0 +1,135 @@
+"""The joint method's time against the ellipsoid method's on the same hand-held session, and its
+results against the joint solver of an earlier revision.
+
+    python benchmarks/joint_speed.py [--before REV] [--runs 2]
+
+The session: a 250 s hand-held sitl session at 100 Hz with accelerometer, gyro and compass
+(``python -m apmcal_sim.makelog --script handheld --seed 11 --rate 100 --fs 100 --duration 250``,
+made once into ``benchmarks/_data/``). Both methods run in this process on the log read once,
+through ``apmcal.calibration.log.calibrate_log`` (what ``apmcal log FILE --method ellipsoid``
+and ``--method joint`` run after reading; BLAS single-threaded, as ``apmcal log`` runs), best
+of ``--runs`` after a warm-up run of each (imports left out: scipy.optimize's import, ~1 s,
+comes with the joint method's first fit in a process), wall and CPU seconds (the machine may
+be shared: the CPU time does not count other processes' turns). Then the joint
+fit of revision ``--before`` (default: main; its apmcal and simulator exported with
+``git archive``) runs on the same file in a fresh process (best of ``--runs``: the first pays
+the imports), and every parameter both fits
+estimate is compared: the largest change in units of the earlier fit's σ is printed.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT / "benchmarks" / "_data"
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+SESSION = DATA / "joint_speed_handheld.bin"
+SITE = {"lat_deg": 5.6037, "lon_deg": -0.187,          # sitl's default home and the date
+        "date": datetime.date(2026, 5, 28)}            # apmcal_sim.makelog's logs carry
+TARGET_RATIO = 4.0
+
+# run in a fresh process with an exported tree first on the path: time and parameters as JSON
+_CHILD = r"""
+import datetime, json, sys, time
+import numpy, scipy.linalg  # the BLAS libraries loaded, so that the limit below reaches them
+from threadpoolctl import threadpool_limits
+threadpool_limits(1, user_api="blas")
+from apmcal.calibration.log import Options, calibrate_log
+from apmcal.sources import read_log
+site = json.loads(sys.argv[2]); site["date"] = datetime.date.fromisoformat(site["date"])
+contents = read_log(sys.argv[1])
+best = None
+for _ in range(int(sys.argv[3])):
+    w0, c0 = time.perf_counter(), time.process_time()
+    cal, _ = calibrate_log(contents, Options("joint", **site))
+    took = (time.perf_counter() - w0, time.process_time() - c0)
+    best = took if best is None or took[1] < best[1] else best
+print(json.dumps({"wall": best[0], "cpu": best[1], "parameters": cal.report.joint.parameters}))
+"""
+
+
+def make_session() -> Path:
+    if not SESSION.exists():
+        from apmcal_sim.makelog import main as makelog
+        DATA.mkdir(parents=True, exist_ok=True)
+        print(f"simulating {SESSION.name} ...", flush=True)
+        if makelog(["--script", "handheld", "--out", str(SESSION), "--seed", "11", "--rate",
+                    "100", "--fs", "100", "--duration", "250"]) != 0:
+            raise SystemExit("apmcal_sim.makelog failed")
+    return SESSION
+
+
+def timed(contents, method: str, runs: int):
+    """(best wall [s], best CPU [s], the last Calibration) of calibrate_log with ``method``."""
+    from threadpoolctl import threadpool_limits
+
+    from apmcal.calibration.log import Options, calibrate_log
+    threadpool_limits(1, user_api="blas")      # as ``apmcal log`` runs (core/blas_threads.py)
+    best = None
+    for _ in range(runs):
+        w0, c0 = time.perf_counter(), time.process_time()
+        cal, _ = calibrate_log(contents, Options(method, **SITE))
+        took = (time.perf_counter() - w0, time.process_time() - c0)
+        best = took if best is None or took[1] < best[1] else best
+    return best[0], best[1], cal
+
+
+def joint_in(tree: Path, session: Path, runs: int) -> dict:
+    site = dict(SITE, date=SITE["date"].isoformat())      # (its first run includes the imports)
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    done = subprocess.run([sys.executable, "-c", _CHILD, str(session), json.dumps(site),
+                           str(runs)], env=env, cwd=DATA, capture_output=True, text=True,
+                          check=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def main(argv=None) -> int:
+    from end_to_end import export_tree
+
+    from apmcal.sources import read_log
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--before", default="main", help="revision to compare with (default main)")
+    ap.add_argument("--runs", type=int, default=2, help="runs per method, best taken (default 2)")
+    args = ap.parse_args(argv)
+    session = make_session()
+    contents = read_log(session)
+    timed(contents, "ellipsoid", 1)                       # warm-up: imports
+    timed(contents, "joint", 1)
+    e_wall, e_cpu, _ = timed(contents, "ellipsoid", args.runs)
+    j_wall, j_cpu, cal = timed(contents, "joint", args.runs)
+    now = cal.report.joint.parameters
+    print(f"session {session.name}: {len(contents.recordings[0])} IMU samples")
+    print(f"ellipsoid      {e_wall:7.2f} s wall  {e_cpu:7.2f} s CPU")
+    print(f"joint          {j_wall:7.2f} s wall  {j_cpu:7.2f} s CPU")
+    before = joint_in(export_tree(args.before, ("apmcal", "apmcal_sim", "sitl")), session,
+                      args.runs)
+    print(f"joint {args.before:8s} {before['wall']:7.2f} s wall  {before['cpu']:7.2f} s CPU "
+          f"(now {before['cpu'] / j_cpu:.1f}x as fast, CPU)")
+    old = before["parameters"]
+    common = sorted(set(now) & set(old))
+    changes = {n: abs(now[n][0] - old[n][0]) / old[n][1] for n in common if old[n][1] > 0}
+    worst = max(changes, key=changes.get)
+    only = sorted(set(now) ^ set(old))
+    print(f"parameters compared: {len(common)}; estimated in one fit only: {only or 'none'}")
+    print(f"largest change against {args.before}: {changes[worst]:.3f} σ ({worst}); "
+          f"σ ratio new/old {min(now[n][1] / old[n][1] for n in common):.3f}-"
+          f"{max(now[n][1] / old[n][1] for n in common):.3f}")
+    ratio = j_cpu / e_cpu
+    print(f"ratio_joint_vs_ellipsoid_cpu={ratio:.1f} (wall {j_wall / e_wall:.1f}; target ≤ "
+          f"{TARGET_RATIO:g}: {'met' if ratio <= TARGET_RATIO else 'NOT met'})")
+    print(f"max_change_sigma={changes[worst]:.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
