@@ -64,6 +64,9 @@ class SimVehicle:
         Keep the per-sample truth/raw/reported time series (:meth:`history`).
     duration : float, optional
         Script length for stretchable scripts (onepos, warmup, tumble, motors).
+    full_params : bool
+        A real vehicle's full-size parameter table (about 1,350 names,
+        :data:`apmcal_sim.params_store.FULL_SIZE_PARAM_COUNT`), not only those simulated.
     """
 
     #: HIGHRES_IMU magnetic field units per mGauss (FAULTY_HIGHRES_MAG_PER_MGAUSS: the bug)
@@ -72,12 +75,12 @@ class SimVehicle:
     def __init__(self, truth: Truth | None = None, script: str = "onepos", generation: str = "3.2",
                  param_file=None, fs: float = 1000.0, seed: int = 0, record: bool = False,
                  duration: float | None = None, gyro_boot_s: float = 1.0,
-                 start_unix: float | None = None):
+                 start_unix: float | None = None, full_params: bool = False):
         if generation not in firmware.GENERATIONS:
             raise ValueError(f"firmware generation must be one of {firmware.GENERATIONS}")
         self.truth = truth if truth is not None else Truth.random(seed)
         self.generation, self.fs, self.script = generation, float(fs), script
-        self.params = ParamStore(generation, param_file)
+        self.params = ParamStore(generation, param_file, full_params)
         self.motion = motion.build(script, seed, duration)
         self.model = ImuErrorModel(self.truth, fs, seed)
         self.tremor = (motion.Tremor(self.truth.motion_contamination, seed)

@@ -46,6 +46,9 @@ class FakeLink:
     def read_param(self, name):
         return self.params.get(name)
 
+    def attempts(self, minimum=3):
+        return minimum
+
     def set_param(self, name, value, attempts=3):
         """As VehicleLink.set_param: the value once confirmed, else the last value reported;
         one call is one scripted event whatever ``attempts``."""
@@ -468,8 +471,24 @@ def test_set_param_reports_what_the_vehicle_holds_when_never_confirmed():
     vehicle = VectorVehicle(lose=[1, 2, 3])
     link = link_to(vehicle)
     link.answer_timeout_s = 0.05
-    assert link.set_param("FOO_Z", 2.0) == 0.0            # last read-back: the old value
+    assert link.set_param("FOO_Z", 2.0, attempts=3) == 0.0   # last read-back: the old value
     assert vehicle.sets == 3 and vehicle.reads == ["FOO_Z"] * 3
+
+
+def test_set_param_tries_as_often_as_the_loss_seen_calls_for():
+    """By default the tries are sized by the link's loss: 44 % of round trips lost (25 % each
+    way) calls for 17 tries (0.44^17 < 1e-6), so 16 lost sets are survived; a clean link's
+    record calls for few."""
+    vehicle = VectorVehicle(lose=range(1, 17))
+    link = link_to(vehicle)
+    link.answer_timeout_s = 0.02
+    link.round_trips.answered, link.round_trips.lost = 560, 440
+    assert link.attempts() == 17
+    assert link.set_param("FOO_Z", 2.0) == 2.0
+    assert vehicle.sets == 17
+    clean = link_to(VectorVehicle())
+    clean.round_trips.answered = 1000
+    assert clean.attempts() == 3
 
 
 # ----------------------------------------------------------------------------- scope
