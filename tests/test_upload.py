@@ -351,6 +351,52 @@ def test_fetch_params_asks_for_lost_indices_one_by_one():
     assert master.reads == [3, 17, 49]
 
 
+class LatentMaster(FakeMaster):
+    """A FakeMaster whose answers to reads arrive ``latency_s`` after the request, the first
+    request of each index in ``first_read_lost`` going unanswered; notes when each read was
+    sent and how many reads were out before the first answer arrived."""
+
+    def __init__(self, n, lost, first_read_lost, latency_s):
+        super().__init__(n, lost)
+        self.first_read_lost, self.latency_s = set(first_read_lost), latency_s
+        self.pending, self.sent_at = [], {}
+        self.reads_before_first_answer = None
+
+    def param_request_read_send(self, target_system, target_component, param_id, param_index):
+        self.reads.append(param_index)
+        self.sent_at.setdefault(param_index, []).append(time.monotonic())
+        if param_index in self.first_read_lost and self.reads.count(param_index) == 1:
+            return
+        self.pending.append((time.monotonic() + self.latency_s, self._value(param_index)))
+
+    def recv_match(self, blocking=True, timeout=None):
+        due = [p for p in self.pending if p[0] <= time.monotonic()]
+        if due and not self.queue:
+            self.pending.remove(due[0])
+            if self.reads_before_first_answer is None:
+                self.reads_before_first_answer = len(self.reads)
+            return due[0][1]
+        return super().recv_match(blocking, timeout)
+
+
+def test_fetch_params_pipelines_reads_and_asks_again_after_the_measured_round_trip():
+    """Many indices lost from the list: the reads go out READS_IN_FLIGHT at a time (ArduPilot
+    queues at most 20), and a read whose answer is lost is asked again after a wait set by the
+    measured round trip (20 ms here), not after answer_timeout_s (2 s)."""
+    from apmcal.link.params import READS_IN_FLIGHT
+
+    lost = range(0, 300, 2)
+    master = LatentMaster(300, lost, first_read_lost=lost[::5], latency_s=0.02)
+    link = link_to(master)
+    link.answer_timeout_s = 2.0
+    params = link.fetch_params(idle_s=0.05)
+    assert params == {f"P{i}": float(i) for i in range(300)}
+    assert master.reads_before_first_answer == READS_IN_FLIGHT
+    waits = [sent[1] - sent[0] for i, sent in master.sent_at.items() if len(sent) > 1]
+    assert sorted(master.sent_at) == list(lost) and len(waits) == len(lost[::5])
+    assert max(waits) < 0.5, waits
+
+
 def test_fetch_params_refuses_a_partial_set():
     master = FakeMaster(50, lost=[3, 17, 49], never=[17, 49])
     with pytest.raises(ApmcalError, match=r"2 of 50 parameters never arrived \(param_index 17, "
