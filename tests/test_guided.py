@@ -96,6 +96,31 @@ def test_six_good_poses_give_the_six_face_calibration_and_no_accelcal_command(si
     assert accelcal_commands(sim) == []
 
 
+def test_six_poses_alone_do_not_measure_the_compass(tmp_path):
+    """Six still poses, turned between at once (as a SITL attitude is set), the compass's
+    readings whole mGauss and noise-free (as real SITL sends them), at a site whose field the
+    six poses spread in all three axes (Canberra): six compass vectors cannot determine the
+    compass's 9 unknowns. Nothing of it is proposed, the compass line says why and what to do,
+    and the accelerometer's grade is not dragged down by it (before: an internal error)."""
+    site = {"lat": -35.363, "lon": 149.165, "alt": 584.0, "year": 2026.0}
+    sim = ThreadedSim(tmp_path, seed=1, site=site, effects_off=["mag_noise"])
+    try:
+        sim.wait_for_boot()
+        status, result = run_live(sim, tmp_path, SimOperator(sim, move_s=0.05),
+                                  "--lat", str(site["lat"]), "--lon", str(site["lon"]))
+    finally:
+        sim.close()
+    assert status == 0
+    assert_accelerometer_as_injected(result, sim)
+    assert not [n for n in result["params"] if n.startswith("COMPASS_")]
+    assert "mag" not in result
+    verdict = result["verdict"]
+    assert "compass not measured by this session" in verdict["mag"]["reason"]
+    assert "turn the vehicle" in verdict["mag"]["reason"]
+    assert verdict["acc"]["grade"] == "good"
+    assert verdict["overall"]["grade"] != "redo"
+
+
 def test_a_wrong_pose_is_rejected_and_asked_for_again(sim, tmp_path):
     operator = SimOperator(sim, first={"left": ["right"]})
     status, result = run_live(sim, tmp_path, operator)

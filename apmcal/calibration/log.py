@@ -495,7 +495,7 @@ def add_magnetometer(cal: Calibration, prepared: Prepared, opts: Options) -> Non
         With magnetometer samples [mGauss].
     opts : Options
     """
-    from apmcal.solvers.magnetometer import calibrate_magnetometer
+    from apmcal.solvers.magnetometer import CompassNotMeasured, calibrate_magnetometer
 
     try:
         cal.sensors["mag"] = calibrate_magnetometer(prepared.raw.xyz("mag"), opts.lat_deg,
@@ -503,6 +503,8 @@ def add_magnetometer(cal: Calibration, prepared: Prepared, opts: Options) -> Non
     except ApmcalError as err:
         cal.report.warnings.append(err.why)
         cal.report.not_calibrated["mag"] = err.why      # for the verdict
+        if isinstance(err, CompassNotMeasured) and "mag" not in cal.report.not_measured:
+            cal.report.not_measured.append("mag")
         return
     cover = mag_coverage(prepared.raw.xyz("mag"), cal.sensors["mag"])
     field = cal.report.magnetic_field
