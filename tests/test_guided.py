@@ -89,6 +89,8 @@ def test_six_good_poses_give_the_six_face_calibration_and_no_accelcal_command(si
     assert status == 0
     assert operator.asked() == list(enumerate(ORDER, 1))       # each pose asked for once
     assert operator.said("all six poses recorded")
+    held = operator.said("s held")
+    assert held and len(held) == len(set(held)), "a hold's progress line shown twice"
     assert_accelerometer_as_injected(result, sim)
     # the vehicle recorded what it received: the stream requests, and no accel-cal command
     received = {m.command for _, m in sim.vehicle.commands}
@@ -212,6 +214,19 @@ def test_closed_keyboard_input_stops_in_one_line(sim, tmp_path, capsys):
     assert "pose 1 of 6: place the vehicle level" in out.getvalue()
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "keyboard input closed" in err[0]
+
+
+class ClosedKeyboard(SimOperator):
+    """Turns the vehicle as asked, but its keyboard input is closed (a script, ``</dev/null``)."""
+
+    def answer(self, timeout_s):
+        raise EOFError
+
+
+def test_auto_runs_with_keyboard_input_closed(sim, tmp_path):
+    status, result = run_live(sim, tmp_path, ClosedKeyboard(sim, press_enter=False), "--auto")
+    assert status == 0
+    assert_accelerometer_as_injected(result, sim)
 
 
 def test_auto_needs_guide(capsys):
