@@ -422,6 +422,13 @@ def calibrate_log(contents, opts: Options | None = None):
             mag_prepared = prepare(mag_recording, opts.generation)
             cal.report.warnings.extend(f"mag: {w}" for w in mag_prepared.warnings)
             add_magnetometer(cal, mag_prepared, opts)
+    if (mag_recording is not None and not has_live_magnetometer(recording)
+            and has_live_magnetometer(mag_recording)
+            and ("mag" in cal.sensors or "mag" in cal.report.not_calibrated)):
+        # the IMU's record has no compass of its own (none, or one in impossible units
+        # dropped, e.g. HIGHRES_IMU's mGauss×1000): say where the compass came from
+        cal.report.recording += (f"; compass from {mag_recording.message} "
+                                 f"(instance {mag_recording.instance})")
     if not cal.sensors:
         raise ApmcalError("nothing could be calibrated: "
                           + "; ".join(cal.report.warnings), contents.path)
