@@ -71,6 +71,10 @@ class SimVehicle:
 
     #: HIGHRES_IMU magnetic field units per mGauss (FAULTY_HIGHRES_MAG_PER_MGAUSS: the bug)
     highres_mag_per_mgauss = HIGHRES_GAUSS_PER_MGAUSS
+    #: True: the compass's raw readings are rounded to whole mGauss before the firmware's
+    #: correction, as a real ArduPilot SITL's are (every message then carries whole mGauss
+    #: while the corrections are neutral)
+    whole_mgauss_compass = False
 
     def __init__(self, truth: Truth | None = None, script: str = "onepos", generation: str = "3.2",
                  param_file=None, fs: float = 1000.0, seed: int = 0, record: bool = False,
@@ -189,6 +193,8 @@ class SimVehicle:
         raw_acc = self.model.accel(t, f_acc_body @ to_board)
         raw_gyr = self.model.gyro(t, w_body @ to_board, f_body @ to_board)
         raw_mag = self.model.mag(b_body @ self.compass_rot, thr)
+        if self.whole_mgauss_compass:
+            raw_mag = np.round(raw_mag)
         return {"t": t, "rot": rot, "rate": rate, "w_body": w_body, "f_body": f_body,
                 "b_body": b_body, "segment": idx, "throttle": thr,
                 "temp": self.model.temperature(t),

@@ -17,6 +17,7 @@ from apmcal.core.options import Options
 from apmcal.core.recording import SENSOR_COLUMNS, Recording
 from apmcal.preprocessing.resolution import (
     INT16_TELEMETRY,
+    integer_valued_steps,
     resolution_limited,
     telemetry_steps,
     undo_truncation,
@@ -71,7 +72,7 @@ def prepare(recording: Recording, generation: str | None = None) -> Prepared:
     recording, warnings = drop_non_finite(recording)
     recording, time_warnings = monotonic(recording)
     warnings += time_warnings
-    steps = telemetry_steps(recording)
+    steps = telemetry_steps(recording) or integer_valued_steps(recording)
     floor_steps = resolution_limited(recording, steps)
     recording = undo_truncation(recording)
     if recording.corrected or recording.frame == "body":
@@ -506,7 +507,8 @@ def add_magnetometer(cal: Calibration, prepared: Prepared, opts: Options) -> Non
 
     try:
         cal.sensors["mag"] = calibrate_magnetometer(prepared.raw.xyz("mag"), opts.lat_deg,
-                                                    opts.lon_deg, cal.report, opts.date)
+                                                    opts.lon_deg, cal.report, opts.date,
+                                                    prepared.steps.get("mag"))
     except ApmcalError as err:
         cal.report.warnings.append(err.why)
         cal.report.not_calibrated["mag"] = err.why      # for the verdict

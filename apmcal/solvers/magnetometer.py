@@ -104,8 +104,8 @@ def check_coverage(mag: np.ndarray, min_spread: float = 0.25) -> None:
 
 @single_threaded_blas
 def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: float | None,
-                           report: CalibrationReport, when: datetime.date | None = None
-                           ) -> SensorCalibration:
+                           report: CalibrationReport, when: datetime.date | None = None,
+                           resolution_mgauss: float | None = None) -> SensorCalibration:
     """Robust ellipsoid fit of raw sensor-frame samples [mGauss]; the field used and the fit's
     quality go into ``report`` (``magnetic_field``, ``ellipsoids["mag"]``, warnings).
 
@@ -124,6 +124,9 @@ def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: floa
         Filled in place.
     when : datetime.date, optional
         Recording date.
+    resolution_mgauss : float, optional
+        The readings' quantization step [mGauss] (int16 telemetry, or whole-mGauss floats):
+        rounding is modelled as such, not taken for outliers.
 
     Returns
     -------
@@ -153,7 +156,8 @@ def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: floa
     else:
         radius, origin = sphere[1], "sphere fit (no --lat/--lon)"
     info: dict = {}
-    fitted = fit_ellipsoid_robust(mag, radius, info=info, sphere=sphere)
+    fitted = fit_ellipsoid_robust(mag, radius, info=info, sphere=sphere,
+                                  resolution=resolution_mgauss)
     cal, bias = debiased(warm_refit(fitted, radius, info), mag[info["inliers"]], fitted, radius)
     fit = fit_report(mag, cal, radius, info)
     fit.debias = bias
