@@ -411,6 +411,21 @@ def test_fetch_params_sends_an_unanswered_list_request_again():
     assert master.lists == 3
 
 
+def test_list_requests_are_sent_as_often_as_the_downlink_loss_calls_for():
+    """A quarter of the vehicle's packets missing (pymavlink's sequence-number count): the
+    way up is taken to lose as many, so the list request is tried 10 times (0.25^10 < 1e-6),
+    and five lost ones are survived; on a clean link three tries are all."""
+    master = FakeMaster(5, lists_ignored=5)
+    master.mav_loss, master.mav_count = 25, 75
+    assert len(link_to(master).fetch_params(idle_s=0.02)) == 5
+    assert master.lists == 6
+    clean = FakeMaster(5, lists_ignored=99)
+    clean.mav_loss, clean.mav_count = 0, 1000
+    with pytest.raises(ApmcalError, match="vehicle sent no parameters"):
+        link_to(clean).fetch_params(idle_s=0.02)
+    assert clean.lists == 3
+
+
 def test_fetch_params_from_a_silent_vehicle_is_one_clear_error():
     master = FakeMaster(5, lists_ignored=99)
     with pytest.raises(ApmcalError, match="vehicle sent no parameters"):

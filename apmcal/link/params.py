@@ -128,13 +128,23 @@ class ParamProtocol:
         (:func:`attempts_for`), at least ``minimum``."""
         return attempts_for(self.round_trips.loss(), minimum)
 
+    def downlink_loss(self) -> float:
+        """The share of the vehicle's packets lost on the way here, from the gaps in their
+        MAVLink sequence numbers (pymavlink's ``mav_loss`` / ``mav_count``), on the side of
+        caution as :meth:`RoundTrips.loss` (one half before anything is seen)."""
+        lost = int(getattr(self.master, "mav_loss", 0) or 0)
+        count = int(getattr(self.master, "mav_count", 0) or 0)
+        return (lost + 1) / (count + lost + 2)
+
     def fetch_params(self, timeout_s: float = 20.0, idle_s: float | None = None,
-                     retries: int = 2, reads_per_index: int | None = None
+                     retries: int | None = None, reads_per_index: int | None = None
                      ) -> dict[str, float]:
         """All parameters: PARAM_REQUEST_LIST, then each lost index asked for by itself.
 
         PARAM_VALUE travels unacknowledged, so some may be lost: an unanswered list request is
-        sent again (up to ``retries`` times), and the missing indices are asked for with
+        sent again (up to ``retries`` times; by default as often as the loss seen on the
+        vehicle's packets calls for, :meth:`downlink_loss`, the way up assumed as lossy), and
+        the missing indices are asked for with
         PARAM_REQUEST_READ (by param_index), READS_IN_FLIGHT at a time, each asked again when
         its answer is later than the round trips measured allow, ``reads_per_index`` times
         (default: as often as the loss seen calls for, :meth:`attempts`). ``idle_s`` (default twice
@@ -152,7 +162,7 @@ class ParamProtocol:
         idle_s : float, optional
             Silence [s] that ends the wait for the list.
         retries : int, optional
-            List requests sent again when unanswered.
+            List requests sent again when unanswered (default: by the loss seen, at least 2).
         reads_per_index : int, optional
             PARAM_REQUEST_READs sent per missing index at most (default: by the loss seen, at
             least MIN_READS_PER_INDEX).
@@ -169,11 +179,15 @@ class ParamProtocol:
         """
         idle_s = idle_s or 2 * self.answer_timeout_s
         got = _ParamList()
-        started = time.monotonic()
-        for _ in range(1 + retries):      # the request itself may be lost, or the vehicle busy
+        started, sent = time.monotonic(), 0
+        while True:          # the request itself may be lost, or the vehicle busy
             self.master.mav.param_request_list_send(self.target_system, self.target_component)
-            self._receive_params(got, started + timeout_s, idle_s)
-            if got.params:
+            sent += 1
+            self._receive_params(got, max(started + timeout_s, time.monotonic() + idle_s),
+                                 idle_s)
+            allowed = (1 + retries if retries is not None
+                       else attempts_for(self.downlink_loss(), minimum=3))
+            if got.params or sent >= allowed:
                 break
         if not got.params:
             raise ApmcalError("vehicle sent no parameters (PARAM_REQUEST_LIST unanswered)",
