@@ -6,6 +6,7 @@
 """
 from __future__ import annotations
 
+import collections
 import re
 import time
 
@@ -75,6 +76,10 @@ class SimVehicle:
     #: correction, as a real ArduPilot SITL's are (every message then carries whole mGauss
     #: while the corrections are neutral)
     whole_mgauss_compass = False
+    #: PARAM_VALUEs per simulated second of the answer to PARAM_REQUEST_LIST; None: all at
+    #: once (in-process use). ArduPilot paces the list to its link (at most 30 % of the
+    #: bandwidth, GCS_MAVLINK::queued_param_send): the network endpoint sets a rate
+    param_list_rate_hz: float | None = None
 
     def __init__(self, truth: Truth | None = None, script: str = "onepos", generation: str = "3.2",
                  param_file=None, fs: float = 1000.0, seed: int = 0, record: bool = False,
@@ -113,6 +118,8 @@ class SimVehicle:
         self.commands: list = []              # (time [s], COMMAND_LONG) received, for tests
         self.last: dict = {}
         self._next_1hz = 0.0
+        self._param_stream: collections.deque = collections.deque()   # list still to send
+        self._param_tokens = 0.0
         self._count_boot()
         sr = self.params["SR0_RAW_SENS"]
         if sr > 0:
@@ -152,6 +159,7 @@ class SimVehicle:
             self._hist.append(s)
         self._emit(t, s)
         self.tick += n
+        self._stream_params(n / self.fs)
         self._flush_stats()
 
     # ---- running counters -----------------------------------------------------------------
@@ -359,8 +367,11 @@ class SimVehicle:
         kind = msg.get_type()
         if kind == "PARAM_REQUEST_LIST":
             self.send_text(VERSION_TEXT[self.generation])
-            for name in self.params.names:
-                self._param_value(name)
+            if self.param_list_rate_hz is None:
+                for name in self.params.names:
+                    self._param_value(name)
+            else:       # a new request restarts the list, as the firmware's does
+                self._param_stream = collections.deque(self.params.names)
         elif kind == "PARAM_REQUEST_READ":
             name = msg.param_id if msg.param_index < 0 else (
                 self.params.names[msg.param_index] if msg.param_index < len(self.params) else None)
@@ -375,6 +386,16 @@ class SimVehicle:
         elif kind == "COMMAND_LONG":
             self.commands.append((self.t, msg))
             self._command(msg)
+
+    def _stream_params(self, dt: float) -> None:
+        """Send the list's next PARAM_VALUEs, ``param_list_rate_hz`` per simulated second."""
+        if not self._param_stream:
+            self._param_tokens = 0.0
+            return
+        self._param_tokens += dt * self.param_list_rate_hz
+        while self._param_stream and self._param_tokens >= 1.0:
+            self._param_value(self._param_stream.popleft())
+            self._param_tokens -= 1.0
 
     def _param_value(self, name: str) -> None:
         self.queue(self.t, mavlink.MAVLink_param_value_message(
