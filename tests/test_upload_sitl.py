@@ -133,8 +133,7 @@ def test_upload_and_restore_of_a_full_size_vehicle_through_a_lossy_link(tmp_path
         before = served.params.as_dict()
         assert len(before) == 1349
         backup = tmp_path / "backup.param"
-        with VehicleLink(connection) as link:
-            link.answer_timeout_s = ANSWER_TIMEOUT_S
+        with VehicleLink(connection) as link:     # its default waits: the measured RTT's
             try:
                 uploaded = upload_params(link, NEW, backup)
             except ApmcalError as err:
