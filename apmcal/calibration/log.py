@@ -318,6 +318,8 @@ def with_own_compass_fit(cal: Calibration, prepared: Prepared, mag_prepared: Pre
     elif joint_mag is not None:
         cal.sensors["mag"] = joint_mag
         cal.report.not_calibrated.pop("mag", None)
+        if "mag" in cal.report.not_measured:     # the joint fit measured it after all
+            cal.report.not_measured.remove("mag")
     return cal
 
 
