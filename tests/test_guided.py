@@ -287,3 +287,33 @@ def test_command_line_prompts_on_stdout_and_reads_enter_from_stdin(sim, tmp_path
     assert prompts == ORDER
     assert json.loads(out.read_text())["method"] == "ferraris"
     assert accelcal_commands(sim) == []
+
+
+def test_command_line_auto_with_stdin_from_dev_null_completes(sim, tmp_path):
+    """`python -m apmcal live --guide ardupilot6 --auto </dev/null`: no keyboard at all (a
+    script); the vehicle is turned when each prompt is read, and the run completes (before:
+    "keyboard input closed" at pose 1, exit 2)."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = tmp_path / "guided.json"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "apmcal", "live", sim.connection, "--guide", "ardupilot6",
+         "--auto", "--hold", "3", "--rate", "50", "--face-timeout", "60",
+         "--save-log", str(tmp_path / "g.tlog"),
+         "--json", str(out)],
+        cwd=tmp_path, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True)
+    prompts = []
+    try:
+        for line in proc.stdout:
+            if line.startswith("pose ") and "place the vehicle" in line:
+                face = next(f for f in FACES if f"place the vehicle {f.words}," in line)
+                if face.name not in prompts:
+                    prompts.append(face.name)
+                    sim.act(lambda v, name=face.name: v.goto_pose(name))
+        status = proc.wait(timeout=120)
+    finally:
+        proc.kill()
+        proc.wait(timeout=10)
+    assert status == 0, proc.stderr.read()
+    assert prompts == ORDER
+    assert json.loads(out.read_text())["method"] == "ferraris"
