@@ -31,6 +31,10 @@ MIN_ANSWER_WAIT_S = 0.05    # shortest wait for an answer, even on a loopback li
 READ_BUDGET_FACTOR = 3.0
 # the list's losses count as this many round trips in the first estimate of the loss
 LIST_PRIOR_WEIGHT = 50
+# the loss of the last this many round trips counts too (when worse): a radio that starts
+# losing packets after the download is believed at once, not after the clean record fades
+RECENT_TRIPS = 20
+MIN_RECENT_TRIPS = 5
 # the list may take ``timeout_s`` or this long per parameter, whichever is longer [s] (a
 # 57,600 baud radio carries a few hundred PARAM_VALUEs a second, less beside other streams)
 LIST_S_PER_PARAM = 0.03
@@ -63,17 +67,20 @@ def attempts_for(loss: float, minimum: int = 1, target: float = NEVER_CONFIRMED_
 class RoundTrips:
     """What the link's round trips (a request and its answer) have shown: the smoothed round
     trip and its variation (RFC 6298 §2, the TCP retransmission timer; a re-sent request's
-    answer is not timed, Karn's rule) and how many were answered or lost."""
+    answer is not timed, Karn's rule), how many were answered or lost, and the last
+    RECENT_TRIPS of them."""
 
     def __init__(self):
         self.srtt_s: float | None = None
         self.rttvar_s = 0.0
         self.answered = 0
         self.lost = 0
+        self.recent: collections.deque = collections.deque(maxlen=RECENT_TRIPS)  # True: lost
 
     def answer(self, rtt_s: float | None) -> None:
         """A request answered, after ``rtt_s`` [s] (None: a re-sent one, not timed)."""
         self.answered += 1
+        self.recent.append(False)
         if rtt_s is None:
             return
         if self.srtt_s is None:
@@ -85,6 +92,7 @@ class RoundTrips:
     def lose(self) -> None:
         """A request never answered within the wait."""
         self.lost += 1
+        self.recent.append(True)
 
     def wait_s(self, cap_s: float) -> float:
         """How long to wait for an answer [s]: srtt + 4·rttvar, within [MIN_ANSWER_WAIT_S,
@@ -95,8 +103,12 @@ class RoundTrips:
 
     def loss(self) -> float:
         """The share of round trips lost, estimated on the side of caution: (lost + 1) /
-        (tried + 2) (Laplace's rule: one half before any is seen, never 0)."""
-        return (self.lost + 1) / (self.answered + self.lost + 2)
+        (tried + 2) (Laplace's rule: one half before any is seen, never 0), over all of them
+        or over the recent ones (at least MIN_RECENT_TRIPS), whichever is worse."""
+        overall = (self.lost + 1) / (self.answered + self.lost + 2)
+        if len(self.recent) < MIN_RECENT_TRIPS:
+            return overall
+        return max(overall, (sum(self.recent) + 1) / (len(self.recent) + 2))
 
 
 class ParamProtocol:
