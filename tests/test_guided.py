@@ -108,8 +108,11 @@ def test_six_poses_alone_do_not_measure_the_compass(tmp_path):
     sim = ThreadedSim(tmp_path, seed=1, site=site, effects_off=["mag_noise"])
     try:
         sim.wait_for_boot()
+        # holds of 3 s: a 2 s hold (= --min-still) can come out just too short for the
+        # calibration's own hold finder when the turns are instant
         status, result = run_live(sim, tmp_path, SimOperator(sim, move_s=0.05),
-                                  "--lat", str(site["lat"]), "--lon", str(site["lon"]))
+                                  "--lat", str(site["lat"]), "--lon", str(site["lon"]),
+                                  "--hold", "3")
     finally:
         sim.close()
     assert status == 0
@@ -248,7 +251,8 @@ class ClosedKeyboard(SimOperator):
 
 
 def test_auto_runs_with_keyboard_input_closed(sim, tmp_path):
-    status, result = run_live(sim, tmp_path, ClosedKeyboard(sim, press_enter=False), "--auto")
+    status, result = run_live(sim, tmp_path, ClosedKeyboard(sim, press_enter=False), "--auto",
+                              "--hold", "3")     # --auto's holds end as soon as they are long enough
     assert status == 0
     assert_accelerometer_as_injected(result, sim)
 
