@@ -24,6 +24,9 @@ def parse_args(argv=None):
     ap.add_argument("--param-file", default="sitl-params.json",
                     help="parameter persistence file (JSON), kept across restarts")
     ap.add_argument("--tlog", help="also record the session to this .tlog")
+    ap.add_argument("--full-params", action="store_true",
+                    help="a real vehicle's full-size parameter table (about 1,350 names), as a "
+                         "ground station downloads it over a slow or lossy link")
     add_truth_args(ap)
     add_firmware_args(ap)
     return ap.parse_args(argv)
@@ -39,7 +42,8 @@ def main(argv=None) -> int:
         if args.write_truth:
             truth.save(args.write_truth)
         vehicle = SimVehicle(truth, args.script, args.firmware, args.param_file, seed=args.seed,
-                             duration=args.duration if args.script != "operator" else None)
+                             duration=args.duration if args.script != "operator" else None,
+                             full_params=args.full_params)
         apply_firmware_args(vehicle, args)
         endpoint = MavlinkVehicle(vehicle, args.connection, args.speedup, args.tlog)
         if hasattr(endpoint.conn, "device"):        # a pty: say where the serial port is

@@ -44,6 +44,10 @@ def add_firmware_args(ap) -> None:
     ap.add_argument("--highres-mag-bug", action="store_true",
                     help="send HIGHRES_IMU's magnetic field in mGauss×1000 instead of gauss, as "
                          "ArduPilot firmware of about May 2024 - Feb 2026 did")
+    ap.add_argument("--whole-mgauss-compass", action="store_true",
+                    help="round the compass's raw readings to whole mGauss, as a real "
+                         "ArduPilot SITL's are (use with --disable mag_noise for its "
+                         "noise-free compass)")
 
 
 def apply_firmware_args(vehicle, args) -> None:
@@ -52,3 +56,4 @@ def apply_firmware_args(vehicle, args) -> None:
 
     if args.highres_mag_bug:
         vehicle.highres_mag_per_mgauss = FAULTY_HIGHRES_MAG_PER_MGAUSS
+    vehicle.whole_mgauss_compass = bool(getattr(args, "whole_mgauss_compass", False))

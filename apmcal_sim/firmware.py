@@ -15,7 +15,11 @@ Generations
 Compass, every generation, body frame, offset ADDED (ardupilot-facts.md; DIA/ODI only on 3.3+)::
 
     3.2:  mag = R_mag·raw + COMPASS_OFS + MOT·d
-    3.3:  mag = M(DIA, ODI)·(R_mag·raw + COMPASS_OFS + MOT·d)
+    3.3:  mag = M(DIA, ODI)·(SCALE·(R_mag·raw + COMPASS_OFS) + MOT·d)
+
+SCALE is COMPASS_SCALE (the "3.3" table stands for 3.3 and newer, which have it), applied only
+within [0.85, 1.4] and else 1 (its default 0 included), after the offsets and before the matrix
+(ardupilot-facts.md, current ``correct_field``).
 
 d = throttle (0..1, COMPASS_MOTCT=1) or current [A] (MOTCT=2), MOT·d applied only when MOTCT≠0
 and d≠0. R is the AHRS_ORIENTATION rotation (board frame → vehicle body frame). The facts file
@@ -167,6 +171,17 @@ def compass_rotation(params: dict, generation: str) -> np.ndarray:
     return orient if external else ahrs
 
 
+# COMPASS_SCALE applies only within these bounds (ardupilot-facts.md "How the firmware applies
+# the parameters": Compass::have_scale_factor, CompassCalibrator.h)
+SCALE_FACTOR_RANGE = (0.85, 1.4)
+
+
+def compass_scale_factor(params: dict) -> float:
+    """COMPASS_SCALE when within SCALE_FACTOR_RANGE, else 1 (none)."""
+    value = float(params.get("COMPASS_SCALE", 0.0))
+    return value if SCALE_FACTOR_RANGE[0] <= value <= SCALE_FACTOR_RANGE[1] else 1.0
+
+
 def compass_motor_offset(params: dict, throttle: np.ndarray | float = 0.0,
                          current_a: np.ndarray | float = 0.0, n: int | None = None
                          ) -> np.ndarray:
@@ -202,8 +217,9 @@ def apply_compass(raw: np.ndarray, params: dict, generation: str,
     rot = compass_rotation(params, generation)
     ofs = _vec(params, "COMPASS_OFS_{}", 0.0)
     m = soft_iron_matrix(params, generation)
-    # ardupilot-facts.md: compass offsets are ADDED, in the body frame, then DIA/ODI
-    body = raw @ rot.T + ofs
+    # ardupilot-facts.md: compass offsets are ADDED, in the body frame, then the scale factor
+    # (SCALE_FACTOR_RANGE), then DIA/ODI
+    body = (raw @ rot.T + ofs) * compass_scale_factor(params)
     if int(params.get("COMPASS_MOTCT", 0)) in (1, 2):
         body = body + compass_motor_offset(params, throttle, current_a, len(raw))
     return body @ m.T

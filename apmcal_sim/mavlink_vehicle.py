@@ -19,6 +19,10 @@ from apmcal_sim.logwriter import TlogWriter
 from apmcal_sim.vehicle import SimVehicle
 
 PTY = "pty"        # the connection string for a pseudo-terminal: a simulated serial cable
+# PARAM_VALUEs per simulated second of the parameter list on a network link: ArduPilot spends at
+# most 30 % of a link's bandwidth on it (GCS_MAVLINK::queued_param_send); a burst of 1,349 at
+# once would overflow a ground station's UDP receive buffer, which no real vehicle does
+PARAM_LIST_RATE_HZ = 1000.0
 
 
 class PtyLink:
@@ -78,6 +82,8 @@ class MavlinkVehicle:
     def __init__(self, vehicle: SimVehicle, connection: str = "udpout:127.0.0.1:14550",
                  speedup: float = 1.0, tlog=None, step_s: float = 0.02):
         self.vehicle, self.speedup = vehicle, float(speedup)
+        if vehicle.param_list_rate_hz is None:
+            vehicle.param_list_rate_hz = PARAM_LIST_RATE_HZ
         self.step_s = float(step_s)      # simulated seconds per step (messages sent after each)
         self.conn = (PtyLink() if connection == PTY else
                      mavutil.mavlink_connection(connection, source_system=1, source_component=1))

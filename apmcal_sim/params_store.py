@@ -15,6 +15,14 @@ ROTATION_PARAMS = ("AHRS_ORIENTATION", "COMPASS_ORIENT")
 # ArduPilot's AP_Stats (Copter 3.5 and newer, here on the "3.3" table that stands for 3.3 and
 # newer): counters the firmware keeps itself, read-only on newer firmware
 STAT_PARAMS = ("STAT_BOOTCNT", "STAT_FLTTIME", "STAT_RUNTIME", "STAT_RESET")
+# A real vehicle's table: ArduCopter 4.7.0-dev SITL sent 1,349 parameters (observed;
+# ardupilot-facts.md "Writing parameters"). The full-size table fills up to this count with
+# parameters standing for the rest (flight control, EKF, servos ...) that no calibration uses.
+FULL_SIZE_PARAM_COUNT = 1349
+_FILLER_GROUPS = ("ATC_", "PSC_", "WPNAV_", "LOIT_", "EK3_", "EK2_", "GPS_", "BATT_", "SERIAL",
+                  "FENCE_", "MNT1_", "LOG_", "BRD_", "ARMING_", "FS_", "PILOT_", "RTL_", "LAND_",
+                  "TERRAIN_", "AVOID_", "PRX1_", "RNGFND1_", "OSD1_", "NTF_", "CAN_P1_", "SCR_",
+                  "MOT_", "SERVO", "RC", "FLOW_")
 
 
 def rotation_is_simulated(value: float) -> bool:
@@ -28,8 +36,22 @@ def _xyz(prefix: str, value: float) -> dict:
     return {f"{prefix}_{a}": value for a in "XYZ"}
 
 
-def default_params(generation: str) -> dict[str, float]:
-    """Parameter names and defaults of the simulated firmware (neutral corrections)."""
+def filler_params(count: int, taken) -> dict[str, float]:
+    """``count`` parameters (value 0) named like the rest of a real table ("EK3_P07"), none
+    in ``taken``."""
+    out: dict[str, float] = {}
+    k = 0
+    while len(out) < count:
+        name = f"{_FILLER_GROUPS[k % len(_FILLER_GROUPS)]}P{k // len(_FILLER_GROUPS):02d}"
+        if name not in taken:
+            out[name] = 0.0
+        k += 1
+    return out
+
+
+def default_params(generation: str, full_size: bool = False) -> dict[str, float]:
+    """Parameter names and defaults of the simulated firmware (neutral corrections); with
+    ``full_size``, filled up to FULL_SIZE_PARAM_COUNT names (:func:`filler_params`)."""
     p: dict[str, float] = {"SYSID_THISMAV": 1, "SYSID_SW_TYPE": 10, "AHRS_ORIENTATION": 0,
                            "INS_GYR_CAL": 1, "INS_PRODUCT_ID": 88}
     p.update(_xyz("INS_ACCOFFS", 0.0))
@@ -54,10 +76,15 @@ def default_params(generation: str) -> dict[str, float]:
         p.update(_xyz("INS_ACC3SCAL", 1.0))
         p.update(_xyz("INS_GYR3OFFS", 0.0))
         p.update({"INS_ACCEL_FILTER": 20.0, "INS_GYRO_FILTER": 20.0, "COMPASS_OFFS_MAX": 1800})
+        # per-instance compass scale, default 0 = none (ardupilot-facts.md "How the firmware
+        # applies the parameters"); the "3.3" table stands for 3.3 and newer
+        p.update({"COMPASS_SCALE": 0.0, "COMPASS_SCALE2": 0.0, "COMPASS_SCALE3": 0.0})
         p.update({name: 0 for name in STAT_PARAMS})
         p.update(tcal_defaults())
     else:
         p["INS_MPU6K_FILTER"] = 20.0
+    if full_size:
+        p.update(filler_params(FULL_SIZE_PARAM_COUNT - len(p), p))
     return {k: float(np.float32(v)) for k, v in p.items()}
 
 
@@ -82,11 +109,15 @@ class ParamStore:
     generation : "3.2" or "3.3"
     path : str or Path, optional
         JSON file {name: value}; loaded at start when present, rewritten on every accepted set.
+    full_size : bool
+        A real vehicle's number of parameters (FULL_SIZE_PARAM_COUNT), not just those the
+        simulation uses.
     """
 
-    def __init__(self, generation: str, path: str | Path | None = None):
+    def __init__(self, generation: str, path: str | Path | None = None,
+                 full_size: bool = False):
         self.generation = generation
-        self._values = default_params(generation)
+        self._values = default_params(generation, full_size)
         self.names = sorted(self._values)
         self.path = None if path is None else Path(path)
         if self.path is not None and self.path.exists():

@@ -6,6 +6,7 @@
 """
 from __future__ import annotations
 
+import collections
 import re
 import time
 
@@ -64,20 +65,31 @@ class SimVehicle:
         Keep the per-sample truth/raw/reported time series (:meth:`history`).
     duration : float, optional
         Script length for stretchable scripts (onepos, warmup, tumble, motors).
+    full_params : bool
+        A real vehicle's full-size parameter table (about 1,350 names,
+        :data:`apmcal_sim.params_store.FULL_SIZE_PARAM_COUNT`), not only those simulated.
     """
 
     #: HIGHRES_IMU magnetic field units per mGauss (FAULTY_HIGHRES_MAG_PER_MGAUSS: the bug)
     highres_mag_per_mgauss = HIGHRES_GAUSS_PER_MGAUSS
+    #: True: the compass's raw readings are rounded to whole mGauss before the firmware's
+    #: correction, as a real ArduPilot SITL's are (every message then carries whole mGauss
+    #: while the corrections are neutral)
+    whole_mgauss_compass = False
+    #: PARAM_VALUEs per simulated second of the answer to PARAM_REQUEST_LIST; None: all at
+    #: once (in-process use). ArduPilot paces the list to its link (at most 30 % of the
+    #: bandwidth, GCS_MAVLINK::queued_param_send): the network endpoint sets a rate
+    param_list_rate_hz: float | None = None
 
     def __init__(self, truth: Truth | None = None, script: str = "onepos", generation: str = "3.2",
                  param_file=None, fs: float = 1000.0, seed: int = 0, record: bool = False,
                  duration: float | None = None, gyro_boot_s: float = 1.0,
-                 start_unix: float | None = None):
+                 start_unix: float | None = None, full_params: bool = False):
         if generation not in firmware.GENERATIONS:
             raise ValueError(f"firmware generation must be one of {firmware.GENERATIONS}")
         self.truth = truth if truth is not None else Truth.random(seed)
         self.generation, self.fs, self.script = generation, float(fs), script
-        self.params = ParamStore(generation, param_file)
+        self.params = ParamStore(generation, param_file, full_params)
         self.motion = motion.build(script, seed, duration)
         self.model = ImuErrorModel(self.truth, fs, seed)
         self.tremor = (motion.Tremor(self.truth.motion_contamination, seed)
@@ -106,6 +118,8 @@ class SimVehicle:
         self.commands: list = []              # (time [s], COMMAND_LONG) received, for tests
         self.last: dict = {}
         self._next_1hz = 0.0
+        self._param_stream: collections.deque = collections.deque()   # list still to send
+        self._param_tokens = 0.0
         self._count_boot()
         sr = self.params["SR0_RAW_SENS"]
         if sr > 0:
@@ -145,6 +159,7 @@ class SimVehicle:
             self._hist.append(s)
         self._emit(t, s)
         self.tick += n
+        self._stream_params(n / self.fs)
         self._flush_stats()
 
     # ---- running counters -----------------------------------------------------------------
@@ -186,6 +201,8 @@ class SimVehicle:
         raw_acc = self.model.accel(t, f_acc_body @ to_board)
         raw_gyr = self.model.gyro(t, w_body @ to_board, f_body @ to_board)
         raw_mag = self.model.mag(b_body @ self.compass_rot, thr)
+        if self.whole_mgauss_compass:
+            raw_mag = np.round(raw_mag)
         return {"t": t, "rot": rot, "rate": rate, "w_body": w_body, "f_body": f_body,
                 "b_body": b_body, "segment": idx, "throttle": thr,
                 "temp": self.model.temperature(t),
@@ -350,8 +367,11 @@ class SimVehicle:
         kind = msg.get_type()
         if kind == "PARAM_REQUEST_LIST":
             self.send_text(VERSION_TEXT[self.generation])
-            for name in self.params.names:
-                self._param_value(name)
+            if self.param_list_rate_hz is None:
+                for name in self.params.names:
+                    self._param_value(name)
+            else:       # a new request restarts the list, as the firmware's does
+                self._param_stream = collections.deque(self.params.names)
         elif kind == "PARAM_REQUEST_READ":
             name = msg.param_id if msg.param_index < 0 else (
                 self.params.names[msg.param_index] if msg.param_index < len(self.params) else None)
@@ -366,6 +386,16 @@ class SimVehicle:
         elif kind == "COMMAND_LONG":
             self.commands.append((self.t, msg))
             self._command(msg)
+
+    def _stream_params(self, dt: float) -> None:
+        """Send the list's next PARAM_VALUEs, ``param_list_rate_hz`` per simulated second."""
+        if not self._param_stream:
+            self._param_tokens = 0.0
+            return
+        self._param_tokens += dt * self.param_list_rate_hz
+        while self._param_stream and self._param_tokens >= 1.0:
+            self._param_value(self._param_stream.popleft())
+            self._param_tokens -= 1.0
 
     def _param_value(self, name: str) -> None:
         self.queue(self.t, mavlink.MAVLink_param_value_message(

@@ -123,11 +123,13 @@ class LossyUdpProxy:
 class ServedVehicle:
     """A 3.3 :class:`SimVehicle` served on ``connection`` from a thread (boot gyro calibration
     off, so that only the ground station changes its calibration parameters). Every PARAM_SET
-    it receives is kept in :attr:`sets` as (name, value)."""
+    it receives is kept in :attr:`sets` as (name, value); ``full_params``: a real vehicle's
+    full-size parameter table."""
 
-    def __init__(self, connection: str, param_file=None, fs: float = 200.0):
+    def __init__(self, connection: str, param_file=None, fs: float = 200.0,
+                 full_params: bool = False):
         self.vehicle = SimVehicle(only("acc_noise"), "onepos", "3.3", param_file=param_file,
-                                  fs=fs, duration=3600.0)
+                                  fs=fs, duration=3600.0, full_params=full_params)
         self.vehicle.params.set("INS_GYR_CAL", 0, save=False)
         self.vehicle._boot_gyro = None
         self.sets: list[tuple[str, float]] = []
@@ -162,9 +164,10 @@ class ServedVehicle:
 
 
 @contextmanager
-def vehicle_behind_lossy_link(loss: float, seed: int, param_file=None):
+def vehicle_behind_lossy_link(loss: float, seed: int, param_file=None, full_params=False):
     """(connection string for the ground station, :class:`ServedVehicle`, :class:`LossyUdpProxy`)."""
     gcs_port = free_udp_port()
     with LossyUdpProxy(gcs_port, loss, seed) as proxy, \
-            ServedVehicle(f"udpout:{LOOPBACK}:{proxy.vehicle_port}", param_file) as served:
+            ServedVehicle(f"udpout:{LOOPBACK}:{proxy.vehicle_port}", param_file,
+                          full_params=full_params) as served:
         yield f"udpin:{LOOPBACK}:{gcs_port}", served, proxy

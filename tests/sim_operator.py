@@ -32,9 +32,10 @@ def free_udp_port() -> int:
 class ThreadedSim:
     """An operator-mode SimVehicle on udpout:127.0.0.1:<free port>, served until ``close``."""
 
-    def __init__(self, tmp_path, seed: int = 22, speedup: float = 10.0, generation="3.3"):
+    def __init__(self, tmp_path, seed: int = 22, speedup: float = 10.0, generation="3.3",
+                 site: dict | None = None, effects_off=()):
         self.port = free_udp_port()
-        self.truth = Truth.random(seed).with_effects(disable=UNMODELLED)
+        self.truth = Truth.random(seed, site).with_effects(disable=[*UNMODELLED, *effects_off])
         self.vehicle = SimVehicle(self.truth, "operator", generation,
                                   param_file=tmp_path / "sitl-params.json", seed=seed)
         # 0.1 s steps: a step's cost is mostly per call, and this keeps up with 10x real time
@@ -95,8 +96,10 @@ class SimOperator:
     vehicle rests after the turns (unless ``press_enter`` is False: ``--auto``).
     """
 
-    def __init__(self, sim: ThreadedSim, first: dict | None = None, press_enter: bool = True):
+    def __init__(self, sim: ThreadedSim, first: dict | None = None, press_enter: bool = True,
+                 move_s: float = 3.0):
         self.sim, self.first = sim, {k: list(v) for k, v in (first or {}).items()}
+        self.move_s = move_s        # how long a turn to a pose takes [s simulated]
         self.press_enter = press_enter
         self.lines: list[str] = []
         self.requests: list = []
@@ -131,7 +134,7 @@ class SimOperator:
     # -- what the operator does with the vehicle (in the serving thread) --------------------
     def _do(self, v: SimVehicle, action, face: str) -> None:
         if isinstance(action, str):
-            v.goto_pose(action)
+            v.goto_pose(action, self.move_s)
         elif action[0] == "via":
             v.goto_pose(action[1], label="via")
             v.stay(action[2])

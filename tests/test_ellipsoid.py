@@ -353,3 +353,26 @@ def test_magnetometer_reports_the_papers_figure_of_merit_on_held_out_blocks():
     assert report.ellipsoids["mag"].held_out.raw == pytest.approx(raw, rel=1e-2)
     failed = held_out_score(s[:, :1] * [1, 0, 0], R, "symmetric")
     assert failed.failed and "no held-out score" in score_line("mag", failed)
+
+
+def test_distinct_directions_counts_poses_not_samples():
+    """Six still poses, however long, are six directions (plus a share for the few readings
+    passed on quick turns); a slow turn through space is many. Hard iron does not matter."""
+    from apmcal.solvers.magnetometer import (
+        CompassNotMeasured,
+        check_distinct_directions,
+        distinct_directions,
+    )
+
+    field, offset = 450.0, np.array([120.0, -80.0, 40.0])
+    faces = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1.0]])
+    still = np.repeat(faces @ np.diag([0.6, 0.5, 0.62]) * field, 200, axis=0) + offset
+    passing = np.array([[0.7, 0.7, 0.0], [0.0, 0.7, 0.7]]) * field + offset   # one each
+    six = np.round(np.vstack([still, passing]))
+    assert distinct_directions(six) == pytest.approx(6 + 2 / 3)
+    with pytest.raises(CompassNotMeasured, match="only 7 distinct directions"):
+        check_distinct_directions(six)
+    t = np.linspace(0, 2 * np.pi, 3000)
+    turn = np.column_stack([np.cos(t), np.sin(t) * np.cos(3 * t), np.sin(t) * np.sin(3 * t)])
+    assert distinct_directions(turn * field + offset) >= 12
+    check_distinct_directions(turn * field + offset)

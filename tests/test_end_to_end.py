@@ -138,3 +138,28 @@ def test_one_position_session_withholds_accelerometer_offsets(tmp_path):
                 + np.asarray(effects["g_sensitivity"]) @ specific_force + earth_rate_body)
     err = np.abs(np.subtract(est["gyr"]["offset"], expected))
     assert np.all(err < K_SIGMA * np.asarray(est["gyr"]["sigma"]["offset"]) + 1e-4), err
+
+
+def test_compass_scale_in_force_is_undone_and_written_consistently(tmp_path):
+    """A 3.3+ vehicle with COMPASS_SCALE 1.2 (and offsets) in force: the firmware reports
+    M·1.2·(raw + OFS) (ardupilot-facts.md "How the firmware applies the parameters"); undone,
+    the compass offsets land within σ of the injected truth, COMPASS_OFS proposed is minus
+    them, and COMPASS_SCALE is set to 0 since the proposed DIA/ODI hold the whole gain.
+    Ignoring the scale would miss by 0.2 × (hard iron + OFS), tens of mGauss."""
+    log, truth = tmp_path / "scaled.tlog", tmp_path / "scaled.truth.json"
+    subprocess.run([sys.executable, "-m", "apmcal_sim.makelog", "--script", "tumble",
+                    "--out", str(log), "--seed", "12", "--truth-out", str(truth),
+                    "--rate", "50", "--firmware", "3.3", "--disable", UNMODELLED,
+                    "--set", "COMPASS_SCALE=1.2", "--set", "COMPASS_OFS_X=60",
+                    "--set", "COMPASS_OFS_Y=-45", "--set", "COMPASS_OFS_Z=30"],
+                   check=True, cwd=ROOT, capture_output=True, timeout=300)
+    truth = json.loads(truth.read_text())
+    assert truth["params"]["COMPASS_SCALE"] == pytest.approx(1.2)
+    est = calibrate(log, tmp_path, *SITE)
+    assert_within_sigma(est["mag"]["offset"], truth["mag"]["offset"],
+                        est["mag"]["sigma"]["offset"], "mag offset")
+    proposed = [est["params"][f"COMPASS_OFS_{a}"] for a in "XYZ"]
+    assert_within_sigma(proposed, -np.asarray(truth["mag"]["offset"]),
+                        est["mag"]["sigma"]["offset"], "COMPASS_OFS proposed")
+    assert est["params"]["COMPASS_SCALE"] == 0.0
+    assert np.abs(np.subtract(est["mag"]["matrix"], truth["mag"]["matrix"])).max() < 0.01

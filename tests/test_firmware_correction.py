@@ -123,6 +123,37 @@ def test_mag_hand_worked():
                                [[100, 200, 300]], atol=1e-9)
 
 
+def test_mag_scale_multiplies_after_the_offsets_and_only_within_its_bounds():
+    """ardupilot-facts.md, current correct_field: mag = M·SCALE·(raw + OFS), SCALE applied only
+    within [0.85, 1.4] (the default 0 and any value outside mean none)."""
+    # raw + OFS = (90, 220, 305); ×1.2 = (108, 264, 366); M rows (1.1, 0.1, 0), (0.1, 0.9, 0)
+    scaled = _mag_params(COMPASS_SCALE=1.2)
+    out = fw.correct_mag([[100.0, 200.0, 300.0]], scaled, "3.3+")
+    np.testing.assert_allclose(out, [[145.2, 248.4, 366.0]], atol=1e-9)
+    np.testing.assert_allclose(fw.uncorrect_mag(out, scaled, "3.3+"), [[100, 200, 300]],
+                               atol=1e-9)
+    for none in (0.0, 0.5, 1.5):
+        np.testing.assert_allclose(
+            fw.correct_mag([[100.0, 200.0, 300.0]], _mag_params(COMPASS_SCALE=none), "3.3+"),
+            [[121.0, 207.0, 305.0]], atol=1e-9)
+    second = {k.replace("OFS_", "OFS2_").replace("DIA_", "DIA2_").replace("ODI_", "ODI2_"): v
+              for k, v in _mag_params().items()}           # the second compass's names
+    second |= {"COMPASS_SCALE2": 1.2, "COMPASS_SCALE": 1.0, "COMPASS_EXTERN2": 0}
+    np.testing.assert_allclose(fw.correct_mag([[100.0, 200.0, 300.0]], second, "3.3+", 1),
+                               [[145.2, 248.4, 366.0]], atol=1e-9)
+    assert "COMPASS_SCALE2" in fw.correction_param_names("mag", 1)
+
+
+def test_simulator_and_apmcal_apply_compass_scale_alike():
+    from apmcal_sim.firmware import apply_compass
+
+    raw = np.array([[100.0, -200.0, 300.0], [-50.0, 80.0, 410.0]])
+    for scale in (0.0, 0.9, 1.2, 1.5):
+        p = _mag_params(COMPASS_SCALE=scale, COMPASS_ORIENT=0, COMPASS_EXTERNAL=0)
+        np.testing.assert_allclose(apply_compass(raw, p, "3.3"), fw.correct_mag(raw, p, "3.3+"),
+                                   atol=1e-9)
+
+
 def test_mag_absent_diagonals_mean_identity_and_zero_diagonals_mean_ones():
     base = {k: v for k, v in _mag_params().items() if "DIA" not in k and "ODI" not in k}
     np.testing.assert_allclose(fw.correct_mag([[100.0, 200.0, 300.0]], base, "3.2"),

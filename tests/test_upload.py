@@ -46,6 +46,9 @@ class FakeLink:
     def read_param(self, name):
         return self.params.get(name)
 
+    def attempts(self, minimum=3):
+        return minimum
+
     def set_param(self, name, value, attempts=3):
         """As VehicleLink.set_param: the value once confirmed, else the last value reported;
         one call is one scripted event whatever ``attempts``."""
@@ -348,6 +351,52 @@ def test_fetch_params_asks_for_lost_indices_one_by_one():
     assert master.reads == [3, 17, 49]
 
 
+class LatentMaster(FakeMaster):
+    """A FakeMaster whose answers to reads arrive ``latency_s`` after the request, the first
+    request of each index in ``first_read_lost`` going unanswered; notes when each read was
+    sent and how many reads were out before the first answer arrived."""
+
+    def __init__(self, n, lost, first_read_lost, latency_s):
+        super().__init__(n, lost)
+        self.first_read_lost, self.latency_s = set(first_read_lost), latency_s
+        self.pending, self.sent_at = [], {}
+        self.reads_before_first_answer = None
+
+    def param_request_read_send(self, target_system, target_component, param_id, param_index):
+        self.reads.append(param_index)
+        self.sent_at.setdefault(param_index, []).append(time.monotonic())
+        if param_index in self.first_read_lost and self.reads.count(param_index) == 1:
+            return
+        self.pending.append((time.monotonic() + self.latency_s, self._value(param_index)))
+
+    def recv_match(self, blocking=True, timeout=None):
+        due = [p for p in self.pending if p[0] <= time.monotonic()]
+        if due and not self.queue:
+            self.pending.remove(due[0])
+            if self.reads_before_first_answer is None:
+                self.reads_before_first_answer = len(self.reads)
+            return due[0][1]
+        return super().recv_match(blocking, timeout)
+
+
+def test_fetch_params_pipelines_reads_and_asks_again_after_the_measured_round_trip():
+    """Many indices lost from the list: the reads go out READS_IN_FLIGHT at a time (ArduPilot
+    queues at most 20), and a read whose answer is lost is asked again after a wait set by the
+    measured round trip (20 ms here), not after answer_timeout_s (2 s)."""
+    from apmcal.link.params import READS_IN_FLIGHT
+
+    lost = range(0, 300, 2)
+    master = LatentMaster(300, lost, first_read_lost=lost[::5], latency_s=0.02)
+    link = link_to(master)
+    link.answer_timeout_s = 2.0
+    params = link.fetch_params(idle_s=0.05)
+    assert params == {f"P{i}": float(i) for i in range(300)}
+    assert master.reads_before_first_answer == READS_IN_FLIGHT
+    waits = [sent[1] - sent[0] for i, sent in master.sent_at.items() if len(sent) > 1]
+    assert sorted(master.sent_at) == list(lost) and len(waits) == len(lost[::5])
+    assert max(waits) < 0.5, waits
+
+
 def test_fetch_params_refuses_a_partial_set():
     master = FakeMaster(50, lost=[3, 17, 49], never=[17, 49])
     with pytest.raises(ApmcalError, match=r"2 of 50 parameters never arrived \(param_index 17, "
@@ -360,6 +409,21 @@ def test_fetch_params_sends_an_unanswered_list_request_again():
     master = FakeMaster(5, lists_ignored=2)
     assert len(link_to(master).fetch_params(idle_s=0.05, retries=2)) == 5
     assert master.lists == 3
+
+
+def test_list_requests_are_sent_as_often_as_the_downlink_loss_calls_for():
+    """A quarter of the vehicle's packets missing (pymavlink's sequence-number count): the
+    way up is taken to lose as many, so the list request is tried 10 times (0.25^10 < 1e-6),
+    and five lost ones are survived; on a clean link three tries are all."""
+    master = FakeMaster(5, lists_ignored=5)
+    master.mav_loss, master.mav_count = 25, 75
+    assert len(link_to(master).fetch_params(idle_s=0.02)) == 5
+    assert master.lists == 6
+    clean = FakeMaster(5, lists_ignored=99)
+    clean.mav_loss, clean.mav_count = 0, 1000
+    with pytest.raises(ApmcalError, match="vehicle sent no parameters"):
+        link_to(clean).fetch_params(idle_s=0.02)
+    assert clean.lists == 3
 
 
 def test_fetch_params_from_a_silent_vehicle_is_one_clear_error():
@@ -468,8 +532,24 @@ def test_set_param_reports_what_the_vehicle_holds_when_never_confirmed():
     vehicle = VectorVehicle(lose=[1, 2, 3])
     link = link_to(vehicle)
     link.answer_timeout_s = 0.05
-    assert link.set_param("FOO_Z", 2.0) == 0.0            # last read-back: the old value
+    assert link.set_param("FOO_Z", 2.0, attempts=3) == 0.0   # last read-back: the old value
     assert vehicle.sets == 3 and vehicle.reads == ["FOO_Z"] * 3
+
+
+def test_set_param_tries_as_often_as_the_loss_seen_calls_for():
+    """By default the tries are sized by the link's loss: 44 % of round trips lost (25 % each
+    way) calls for 17 tries (0.44^17 < 1e-6), so 16 lost sets are survived; a clean link's
+    record calls for few."""
+    vehicle = VectorVehicle(lose=range(1, 17))
+    link = link_to(vehicle)
+    link.answer_timeout_s = 0.02
+    link.round_trips.answered, link.round_trips.lost = 560, 440
+    assert link.attempts() == 17
+    assert link.set_param("FOO_Z", 2.0) == 2.0
+    assert vehicle.sets == 17
+    clean = link_to(VectorVehicle())
+    clean.round_trips.answered = 1000
+    assert clean.attempts() == 3
 
 
 # ----------------------------------------------------------------------------- scope

@@ -15,10 +15,10 @@ import pytest
 from lossy_udp import ServedVehicle, free_udp_port, vehicle_behind_lossy_link
 from sitl_helpers import only
 
-from apmcal.ardupilot.paramfile import write_param_file
+from apmcal.ardupilot.paramfile import read_param_file, write_param_file
 from apmcal.cli import main
 from apmcal.core.errors import ApmcalError
-from apmcal.link.upload import UploadReport, upload_params
+from apmcal.link.upload import UploadReport, restore_params, upload_params
 from apmcal.sources.live import VehicleLink
 from apmcal_sim.vehicle import SimVehicle
 
@@ -121,6 +121,63 @@ def test_refused_write_through_lossy_link_rolls_back_everything(tmp_path):
     assert {n for n, _ in sets} >= set(values)
     check_all_or_nothing(outcome, before, after, values)
     assert after["AHRS_ORIENTATION"] == before["AHRS_ORIENTATION"]
+
+
+@pytest.mark.parametrize("seed", [11, 12])
+def test_upload_and_restore_of_a_full_size_vehicle_through_a_lossy_link(tmp_path, seed):
+    """A real vehicle's 1,349 parameters, a quarter of the packets lost each way: the download
+    (twice: upload's backup, restore's comparison) no longer runs out of time, so upload and
+    restore both complete, each value verified on the vehicle itself; were either to fail, no
+    value may be left half-written."""
+    with vehicle_behind_lossy_link(LOSS, seed, full_params=True) as (connection, served, proxy):
+        before = served.params.as_dict()
+        assert len(before) == 1349
+        backup = tmp_path / "backup.param"
+        with VehicleLink(connection) as link:     # its default waits: the measured RTT's
+            try:
+                uploaded = upload_params(link, NEW, backup)
+            except ApmcalError as err:
+                uploaded = err
+            time.sleep(SETTLE_S)
+            after_upload = served.params.as_dict()
+            check_all_or_nothing(uploaded, before, after_upload, NEW)
+            assert isinstance(uploaded, UploadReport), f"upload did not complete: {uploaded}"
+            assert as_stored(read_param_file(backup)) == before     # complete, and right
+            restored = restore_params(link, backup)
+        time.sleep(SETTLE_S)
+        after = served.params.as_dict()
+    assert restored.written == {n: before[n] for n in NEW}
+    assert after == {**before, "STAT_RUNTIME": after["STAT_RUNTIME"]}
+    for direction in (proxy.up, proxy.down):
+        assert 0.18 < direction.dropped / (direction.dropped + direction.passed) < 0.32
+
+
+WRITTEN = {**NEW, "INS_GYROFFS_X": 0.01, "INS_GYROFFS_Y": -0.02, "INS_GYROFFS_Z": 0.015,
+           "INS_ACCSCAL_X": 1.01, "INS_ACCSCAL_Y": 0.99, "INS_ACCSCAL_Z": 1.002}
+
+
+def test_a_link_that_turns_lossy_after_the_download_is_believed_at_once(tmp_path):
+    """A clean download, then a quarter of the packets lost each way while writing (a radio
+    at the edge of its range): the tries per write follow the loss of the recent round
+    trips, not the clean record, so all of 4 uploads of 12 values complete, each verified on
+    the vehicle (with 3 tries per write, as before, 2 of the 4 were rolled back)."""
+    completed = []
+    for seed in range(4):
+        with vehicle_behind_lossy_link(0.0, seed) as (connection, served, proxy):
+            before = served.params.as_dict()
+            with VehicleLink(connection) as link:
+                params = link.fetch_params()
+                proxy.up.loss = proxy.down.loss = LOSS
+                try:
+                    outcome = upload_params(link, WRITTEN, tmp_path / f"b{seed}.param",
+                                            vehicle_params=params)
+                except ApmcalError as err:
+                    outcome = err
+            time.sleep(SETTLE_S)
+            after = served.params.as_dict()
+        check_all_or_nothing(outcome, before, after, WRITTEN)
+        completed.append(isinstance(outcome, UploadReport) or str(outcome))
+    assert completed == [True] * 4, completed
 
 
 # ----------------------------------------------------------------------------- restore

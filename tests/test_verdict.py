@@ -50,6 +50,21 @@ def test_compass_not_turned_is_redo():
     assert v["mag"].grade == "redo" and "full turn about each axis" in v["mag"].next_step
 
 
+def test_a_compass_the_session_did_not_measure_does_not_grade_the_session():
+    """A compass not measured (too few directions) is redo on its own line, with what to do;
+    the overall grade is the accelerometer's. A compass that failed otherwise still counts."""
+    acc = SensorCalibration(sigma={"offset": [0.01] * 3, "matrix": np.full((3, 3), 1e-3)})
+    why = "compass not measured by this session: ...: turn the vehicle slowly through every"
+    cal = Calibration("ferraris", {"acc": acc})
+    cal.report.not_calibrated["mag"] = why
+    cal.report.not_measured.append("mag")
+    v = judge(cal)
+    assert v["mag"].grade == "redo" and "turn the vehicle" in v["mag"].reason
+    assert v["overall"].grade == "good" and v["overall"].reason.startswith("accelerometer")
+    cal.report.not_measured.clear()           # a failure of the data: it counts
+    assert judge(cal)["overall"].grade == "redo"
+
+
 @pytest.mark.parametrize("cover, grade", [({"min_eig": 0.02, "fraction": 0.4}, "redo"),
                                           ({"min_eig": 0.2, "fraction": 0.3}, "usable"),
                                           ({"min_eig": 0.6, "fraction": 0.9}, "good")])

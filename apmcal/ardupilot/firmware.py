@@ -14,9 +14,10 @@ R = rotation of AHRS_ORIENTATION, see :mod:`apmcal.ardupilot.orientation`):
       acc_body = INS_ACCSCAL ⊙ (R · raw) − INS_ACCOFFS
       gyr_body = R · raw − INS_GYROFFS
 
-* compass, every generation, body frame, offset ADDED::
+* compass, every generation, body frame, offset ADDED, then COMPASS_SCALE (newer firmware;
+  a factor only within [COMPASS_MIN_SCALE_FACTOR, COMPASS_MAX_SCALE_FACTOR], else none: s = 1)::
 
-      mag_body = M(DIA, ODI) · (R_mag · raw + COMPASS_OFS)       [mGauss]
+      mag_body = M(DIA, ODI) · s · (R_mag · raw + COMPASS_OFS)   [mGauss]
 
   M = [[DIA_X, ODI_X, ODI_Y], [ODI_X, DIA_Y, ODI_Z], [ODI_Y, ODI_Z, DIA_Z]]; identity when the
   DIA/ODI parameters are absent (3.2, builds without them) or DIA is all zero (the firmware's
@@ -46,6 +47,10 @@ from apmcal.core.recording import SENSOR_COLUMNS, Recording
 
 GENERATIONS = ("3.2", "3.3+")
 AXES = ("X", "Y", "Z")
+# COMPASS_SCALE is applied only within these bounds, else not at all (ardupilot-facts.md "How
+# the firmware applies the parameters": Compass::have_scale_factor; CompassCalibrator.h)
+COMPASS_MIN_SCALE_FACTOR = 0.85
+COMPASS_MAX_SCALE_FACTOR = 1.4
 
 
 # ----------------------------------------------------------------------------- parameter names
@@ -68,11 +73,13 @@ def gyr_param_names(instance: int = 0) -> list[str]:
 
 
 def mag_param_names(instance: int = 0) -> dict[str, list[str] | str]:
-    """Names of the compass parameters of one instance: ofs, dia, odi lists; orient, external."""
+    """Names of the compass parameters of one instance: ofs, dia, odi lists; scale
+    (COMPASS_SCALE, COMPASS_SCALE2, COMPASS_SCALE3), orient, external."""
     s = _suffix(instance)
     return {"ofs": [f"COMPASS_OFS{s}_{a}" for a in AXES],
             "dia": [f"COMPASS_DIA{s}_{a}" for a in AXES],
             "odi": [f"COMPASS_ODI{s}_{a}" for a in AXES],
+            "scale": f"COMPASS_SCALE{s}",
             "orient": f"COMPASS_ORIENT{s}",
             "external": "COMPASS_EXTERNAL" if instance == 0 else f"COMPASS_EXTERN{s}"}
 
@@ -88,7 +95,8 @@ def correction_param_names(sensor: str, instance: int = 0) -> set[str]:
         names = set(gyr_param_names(instance))
     else:
         m, s = mag_param_names(instance), _suffix(instance)
-        names = {*m["ofs"], *m["dia"], *m["odi"], m["orient"], m["external"], "COMPASS_MOTCT",
+        names = {*m["ofs"], *m["dia"], *m["odi"], m["scale"], m["orient"], m["external"],
+                 "COMPASS_MOTCT",
                  *(f"COMPASS_MOT{s}_{a}" for a in AXES)}
     return names | {"AHRS_ORIENTATION"}
 
@@ -351,6 +359,18 @@ def compass_matrix(params: dict[str, float], instance: int = 0) -> np.ndarray:
                      [odi[1], odi[2], dia[2]]])
 
 
+def compass_scale(params: dict[str, float], instance: int = 0) -> float:
+    """The factor COMPASS_SCALE{,2,3} applies: its value when within
+    [COMPASS_MIN_SCALE_FACTOR, COMPASS_MAX_SCALE_FACTOR], else 1 (the default 0, a value out of
+    bounds, or firmware without the parameter: no scaling)."""
+    name = mag_param_names(instance)["scale"]
+    value = float(params.get(name, 0.0))
+    if not math.isfinite(value):
+        raise ApmcalError(f"parameter is {value!r}, cannot undo/apply the firmware correction",
+                          where=f"param {name}")
+    return value if COMPASS_MIN_SCALE_FACTOR <= value <= COMPASS_MAX_SCALE_FACTOR else 1.0
+
+
 def compass_rotation(params: dict[str, float], generation: str, instance: int = 0) -> np.ndarray:
     """Sensor → body rotation the firmware applies to compass ``instance`` (see module doc).
 
@@ -407,8 +427,8 @@ def correct_mag(raw: np.ndarray, params: dict[str, float], generation: str,
     """
     ofs = _vector(params, mag_param_names(instance)["ofs"])
     r = compass_rotation(params, generation, instance)
-    m = compass_matrix(params, instance)
-    # ardupilot-facts.md: mag = M(DIA,ODI)·(raw + COMPASS_OFS), offset ADDED, body frame.
+    m = compass_matrix(params, instance) * compass_scale(params, instance)
+    # ardupilot-facts.md: mag = M(DIA,ODI)·SCALE·(raw + COMPASS_OFS), offset ADDED, body frame.
     return (np.asarray(raw, dtype=float) @ r.T + ofs) @ m.T
 
 
@@ -440,7 +460,7 @@ def uncorrect_mag(mag_body: np.ndarray, params: dict[str, float], generation: st
     """
     ofs = _vector(params, mag_param_names(instance)["ofs"])
     r = compass_rotation(params, generation, instance)
-    m = compass_matrix(params, instance)
+    m = compass_matrix(params, instance) * compass_scale(params, instance)   # SCALE undone too
     if abs(np.linalg.det(m)) < 1e-9:
         raise ApmcalError("compass matrix from COMPASS_DIA/ODI is singular, cannot undo it",
                           where=f"param {mag_param_names(instance)['dia'][0]}")

@@ -18,6 +18,9 @@ same calibration seen in body frame), ``R A (raw − o) = B (R raw − o_b)``.
   be symmetric, so the symmetric positive factor P of the polar decomposition B_m = U P is used
   (|P x| = |B_m x|: field magnitudes are kept exactly; the dropped U is a pure rotation, reported
   in degrees). 3.2 has no DIA/ODI: only OFS.
+  Newer firmware multiplies by COMPASS_SCALE between the two: ``M·SCALE·(R_m raw + OFS)``.
+  OFS does not depend on it; with DIA/ODI proposed, a SCALE in force is set to 0 (none) so that
+  M = B_m holds the whole gain; with offsets only, it is kept.
 
 Per-axis parameters cannot hold cross-axis terms; :func:`cost_of_diagonal_only` gives the
 worst-case error that costs.
@@ -33,6 +36,7 @@ from apmcal.ardupilot.firmware import (
     GENERATIONS,
     acc_param_names,
     compass_rotation,
+    compass_scale,
     gyr_param_names,
     mag_param_names,
 )
@@ -299,6 +303,12 @@ def _compass(cal, params, generation, instance, prop: ParamProposal, field_mgaus
                           f"rotation is {angle:.3f}° (magnitudes unchanged)")
         values |= dict(zip(names["dia"], np.diag(p)))
         values |= dict(zip(names["odi"], (p[0, 1], p[0, 2], p[1, 2])))
+        scale = compass_scale(params, instance)
+        if scale != 1.0 and names["scale"] in params:
+            # the firmware would multiply DIA/ODI by it: none, the matrix holds the gain
+            values[names["scale"]] = 0.0
+            prop.notes.append(f"compass: {names['scale']} {scale:g} in force is set to 0 (no "
+                              f"scaling): the proposed DIA/ODI hold the whole gain")
     else:
         cost = cost_of_approximation(b, np.eye(3), field_mgauss)
         prop.costs["mag_matrix_dropped_mgauss"] = cost
@@ -306,6 +316,9 @@ def _compass(cal, params, generation, instance, prop: ParamProposal, field_mgaus
         prop.notes.append(f"compass: {why} no COMPASS_DIA/ODI, only offsets are proposed; the "
                           f"dropped soft-iron matrix costs up to {cost:.1f} mGauss at "
                           f"{field_mgauss:g} mGauss")
+        if compass_scale(params, instance) != 1.0:
+            prop.notes.append(f"compass: {names['scale']} {compass_scale(params, instance):g} "
+                              f"in force is kept (the offsets do not depend on it)")
     reasons = offset_violations([values[n] for n in names["ofs"]], names["ofs"], params,
                                 generation)
     _accept_or_withhold(prop, values, reasons | soft_iron_violations(values, names), "compass")

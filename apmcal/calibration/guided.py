@@ -333,10 +333,13 @@ class FaceSession:
         return f"pose {self.index} of 6 ({self.face.words})"
 
     def check_keys(self) -> str | None:
-        """A line typed since the last look; raises GuideAborted on q or closed input."""
+        """A line typed since the last look; raises GuideAborted on q, or on closed input
+        unless --auto (which needs no keyboard: a script, ``</dev/null``)."""
         try:
             line = self.operator.answer(0.0)
         except EOFError:
+            if self.options.auto:
+                return None
             raise self.stopped("keyboard input closed") from None
         if line is not None and line.strip().lower() in ABORT_WORDS:
             raise self.stopped("stopped by the operator")
@@ -387,9 +390,9 @@ class FaceSession:
                     held = held or list(window.samples)[:-1]
                     held.append(s)
                     seconds = held[-1].t - held[0].t
-                    if int(seconds) != shown:
+                    if int(seconds) != shown:     # whole seconds, each shown once
                         shown = int(seconds)
-                        self.operator.progress(f"{self.where()}: {seconds:.0f} of "
+                        self.operator.progress(f"{self.where()}: {shown} of "
                                                f"{self.options.hold_s:g} s held")
                     if seconds >= self.options.hold_s:
                         return Hold(self.face, held[0].t, held[-1].t,

@@ -347,6 +347,14 @@ def calibrate_log(contents, opts: Options | None = None):
             cal = with_compass(with_parts(cal, warnings=[f"mag: {w}" for w in
                                                           mag_prepared.warnings]),
                                compass_part(mag_prepared, opts))
+    if (mag_recording is not None and not has_live_magnetometer(recording)
+            and has_live_magnetometer(mag_recording)
+            and ("mag" in cal.sensors or "mag" in cal.report.not_calibrated)):
+        # the IMU's record has no compass of its own (none, or one in impossible units
+        # dropped, e.g. HIGHRES_IMU's mGauss×1000): say where the compass came from
+        cal = with_parts(cal, recording=f"{cal.report.recording}; compass from "
+                                        f"{mag_recording.message} (instance "
+                                        f"{mag_recording.instance})")
     if not cal.sensors:
         raise ApmcalError("nothing could be calibrated: "
                           + "; ".join(cal.report.warnings), contents.path)
@@ -374,6 +382,9 @@ class CompassPart:
         The fit's warnings, or why it was not possible.
     not_calibrated : str or None
         Why not, for the verdict.
+    not_measured : bool
+        Not because the session did not turn the compass enough (nothing wrong with it): the
+        compass stays out of the overall verdict.
     """
 
     sensor: object = None
@@ -381,6 +392,7 @@ class CompassPart:
     magnetic_field: object = None
     warnings: list[str] = field(default_factory=list)
     not_calibrated: str | None = None
+    not_measured: bool = False
 
 
 def compass_part(prepared: Prepared, opts: Options) -> CompassPart:
@@ -397,13 +409,15 @@ def compass_part(prepared: Prepared, opts: Options) -> CompassPart:
     -------
     CompassPart
     """
-    from apmcal.solvers.magnetometer import calibrate_magnetometer
+    from apmcal.solvers.magnetometer import CompassNotMeasured, calibrate_magnetometer
 
     mag = prepared.raw.xyz("mag")
     try:
-        fit = calibrate_magnetometer(mag, opts.lat_deg, opts.lon_deg, opts.date)
+        fit = calibrate_magnetometer(mag, opts.lat_deg, opts.lon_deg, opts.date,
+                                     prepared.steps.get("mag"))
     except ApmcalError as err:
-        return CompassPart(warnings=[err.why], not_calibrated=err.why)
+        return CompassPart(warnings=[err.why], not_calibrated=err.why,
+                           not_measured=isinstance(err, CompassNotMeasured))
     cover = mag_coverage(mag, fit.sensor)
     magnetic_field = replace(fit.magnetic_field, coverage_fraction=cover["fraction"],
                              coverage_min_eig=cover["min_eig"])
@@ -429,8 +443,11 @@ def with_compass(cal: Calibration, part: CompassPart, **report_fields) -> Calibr
     """
     if part.sensor is None:
         not_calibrated = {**cal.report.not_calibrated, "mag": part.not_calibrated}
+        not_measured = list(cal.report.not_measured)
+        if part.not_measured and "mag" not in not_measured:
+            not_measured.append("mag")
         return with_parts(cal, warnings=part.warnings, not_calibrated=not_calibrated,
-                          **report_fields)
+                          not_measured=not_measured, **report_fields)
     sensors = {name: sc for name, sc in cal.sensors.items() if name != "mag"}
     sensors["mag"] = part.sensor
     return with_parts(cal, warnings=part.warnings, sensors=sensors,

@@ -23,7 +23,9 @@ from apmcal.core.errors import ApmcalError
 from apmcal.link.params import ParamProtocol, same_float32
 
 INSTANCES = range(3)        # IMU / compass instances 1..3 (suffix "", "2", "3")
-ROLLBACK_ATTEMPTS = 5       # a put-back matters more than a write: more tries before giving up
+# a put-back matters more than a write: at least this many tries before giving up (more when
+# the loss seen on the link calls for them, ParamProtocol.attempts)
+ROLLBACK_ATTEMPTS = 5
 
 @dataclass
 class UploadReport:
@@ -224,8 +226,9 @@ def _is_held(reported: float | None, value: float) -> bool:
 
 def _put_back(link: ParamProtocol, name: str, value: float) -> float | None:
     """What the vehicle last reported for ``name`` after being set back to ``value`` (that
-    value once confirmed); None when it never answered."""
-    return link.set_param(name, value, attempts=ROLLBACK_ATTEMPTS)
+    value once confirmed); None when it never answered. Tried as often as the link's loss
+    calls for (:meth:`ParamProtocol.attempts`), at least ROLLBACK_ATTEMPTS times."""
+    return link.set_param(name, value, attempts=link.attempts(ROLLBACK_ATTEMPTS))
 
 
 # ----------------------------------------------------------------------------- restore

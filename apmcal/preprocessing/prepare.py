@@ -19,6 +19,7 @@ from apmcal.core.errors import ApmcalError
 from apmcal.core.recording import SENSOR_COLUMNS, Recording
 from apmcal.preprocessing.resolution import (
     INT16_TELEMETRY,
+    integer_valued_steps,
     resolution_limited,
     telemetry_steps,
     undo_truncation,
@@ -66,7 +67,7 @@ def prepare(recording: Recording, generation: str | None = None) -> Prepared:
     recording, warnings = drop_non_finite(recording)
     recording, time_warnings = monotonic(recording)
     warnings += time_warnings
-    steps = telemetry_steps(recording)
+    steps = telemetry_steps(recording) or integer_valued_steps(recording)
     floor_steps = resolution_limited(recording, steps)
     recording = undo_truncation(recording)
     if recording.corrected or recording.frame == "body":

@@ -40,6 +40,31 @@ def telemetry_steps(recording: Recording) -> dict[str, float]:
     return {s: STEP_SI[s] for s in recording.sensors}
 
 
+# a floating-point compass whose every reading is within this of a whole mGauss is quantized
+WHOLE_UNIT_TOLERANCE = 1e-3
+
+
+def integer_valued_steps(recording: Recording) -> dict[str, float]:
+    """{"mag": 1.0} when a floating-point source's compass readings are all whole mGauss (a
+    real ArduPilot SITL's are, in HIGHRES_IMU and dataflash MAG alike: its compass is
+    quantized before it is sent), else {}. Rounded, not truncated: nothing to undo, but the
+    step is the readings' resolution.
+
+    Returns
+    -------
+    dict of str to float
+        Sensor → step [mGauss].
+    """
+    if "mag" not in recording.sensors:
+        return {}
+    x = recording.xyz("mag")
+    x = x[np.isfinite(x).all(axis=1)]
+    if len(x) == 0 or not np.any(x):
+        return {}
+    whole = np.max(np.abs(x - np.round(x))) <= WHOLE_UNIT_TOLERANCE
+    return {"mag": STEP_SI["mag"]} if whole else {}
+
+
 def noise_std(x: np.ndarray) -> float:
     """Robust per-sample noise [units of x]: MAD of successive differences / (0.6745·√2).
 

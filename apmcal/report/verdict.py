@@ -23,6 +23,9 @@ Thresholds, and why (1σ values, as reported):
   field (a 0.6° heading error at most), usable ≤ 5 % (3°), else redo.
 * A sensor the method could not determine, or could not calibrate at all, or whose parameters
   the firmware would refuse, is redo.
+* The overall grade is the worst of the sensors the session measured: a compass the session
+  did not turn through enough directions (``report.not_measured``: six still poses, one
+  position) is redo on its own line, but does not drag an accelerometer calibration down.
 """
 from __future__ import annotations
 
@@ -241,7 +244,8 @@ def judge(calibration, proposal=None) -> dict[str, Verdict]:
         out[name] = Verdict("redo", "the firmware would refuse its parameters (listed below)",
                             "check the mounting and the data, then calibrate again")
     if out:
-        first = worst(list(out.values()))
+        measured = [v for n, v in out.items() if n not in report.not_measured]
+        first = worst(measured or list(out.values()))
         who = next(NAMES[n] for n, v in out.items() if v is first)
         out["overall"] = Verdict(first.grade, f"{who}: {first.reason}", first.next_step)
     return out

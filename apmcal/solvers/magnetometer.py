@@ -15,6 +15,64 @@ from apmcal.solvers.ellipsoid.fit import fit_ellipsoid_robust, fit_report, relat
 from apmcal.solvers.report_types import EllipsoidFit, MagneticField, MseScore
 from apmcal.solvers.result import SensorCalibration
 
+# An ellipsoid with the field's radius known has 9 unknowns (offset 3, symmetric matrix 6):
+# the readings must come from at least this many distinct directions, each one more point on
+# it. Six still poses give six, whatever the number of samples: not enough
+MIN_DISTINCT_DIRECTIONS = 12
+# readings closer than this angle (seen from the field's size) count as one direction [deg]
+DISTINCT_DIRECTION_DEG = 10.0
+# a direction seen in fewer samples counts as its share of one
+SAMPLES_PER_DIRECTION = 3
+NOT_MEASURED = "compass not measured by this session"
+
+
+class CompassNotMeasured(ApmcalError):
+    """The session did not turn the compass through enough directions to determine it: nothing
+    wrong with the data, the session was not meant for (or did not reach) the compass."""
+
+
+def distinct_directions(mag: np.ndarray, angle_deg: float = DISTINCT_DIRECTION_DEG,
+                        enough: int = 4 * MIN_DISTINCT_DIRECTIONS) -> float:
+    """How many distinct readings the samples [mGauss] hold: greedy groups of readings within
+    2·sin(angle/2)·|median reading| of a group's first one, each counted as one direction when
+    it has SAMPLES_PER_DIRECTION samples or more, else as its share (a reading passed once on
+    a quick turn between poses is a third of one); counted up to ``enough``.
+
+    Centre-free: a hard-iron offset moves every reading alike, so two readings that differ by
+    less than that chord are one direction of the field seen twice (a still pose, however
+    long, is one).
+    """
+    mag = np.asarray(mag, dtype=float)
+    if len(mag) == 0:
+        return 0.0
+    chord = 2 * np.sin(np.radians(angle_deg) / 2) * float(np.median(np.linalg.norm(mag, axis=1)))
+    sample = mag[::max(1, len(mag) // 20_000)]
+    unassigned = np.ones(len(sample), dtype=bool)
+    count = 0.0
+    while unassigned.any() and count < enough:
+        near = unassigned & (np.linalg.norm(sample - sample[np.argmax(unassigned)], axis=1)
+                             <= chord)
+        count += min(1.0, near.sum() / SAMPLES_PER_DIRECTION)
+        unassigned &= ~near
+    return count
+
+
+def check_distinct_directions(mag: np.ndarray) -> None:
+    """Refuse a compass seen from fewer than MIN_DISTINCT_DIRECTIONS directions.
+
+    Raises
+    ------
+    CompassNotMeasured
+        Saying how many there were and what to do.
+    """
+    count = distinct_directions(mag)
+    if count < MIN_DISTINCT_DIRECTIONS:
+        raise CompassNotMeasured(
+            f"{NOT_MEASURED}: its readings come from only {count:.0f} distinct directions "
+            f"({DISTINCT_DIRECTION_DEG:g}° apart; the compass's 9 unknowns need at least "
+            f"{MIN_DISTINCT_DIRECTIONS}): turn the vehicle slowly through every direction, "
+            f"nose up and down, each side down, upside down, and a full turn about each axis")
+
 
 def check_coverage(mag: np.ndarray, min_spread: float = 0.25) -> None:
     """Refuse a fit on samples [mGauss] that do not turn through space.
@@ -32,16 +90,17 @@ def check_coverage(mag: np.ndarray, min_spread: float = 0.25) -> None:
 
     Raises
     ------
-    ApmcalError
+    CompassNotMeasured
         When the samples do not spread enough along their flattest direction.
     """
     spread = np.sqrt(np.clip(np.linalg.eigvalsh(np.cov(mag.T)), 0, None))
     scale = float(np.median(np.linalg.norm(mag, axis=1)))
     if scale <= 0 or spread[0] < min_spread * scale:
-        raise ApmcalError(f"magnetometer not calibrated: samples span only "
-                          f"{spread[0] / max(scale, 1e-9):.2f} of the field along their flattest "
-                          f"direction (need {min_spread}); rotate the vehicle through all "
-                          f"orientations")
+        raise CompassNotMeasured(
+            f"{NOT_MEASURED}: its readings span only {spread[0] / max(scale, 1e-9):.2f} of "
+            f"the field along their flattest direction (need {min_spread}): turn the vehicle "
+            f"slowly through every direction, nose up and down, each side down, upside down, "
+            f"and a full turn about each axis")
 
 
 @dataclass
@@ -68,7 +127,8 @@ class CompassFit:
 
 @single_threaded_blas
 def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: float | None,
-                           when: datetime.date | None = None) -> CompassFit:
+                           when: datetime.date | None = None,
+                           resolution_mgauss: float | None = None) -> CompassFit:
     """Robust ellipsoid fit of raw sensor-frame samples [mGauss], with the field used and the
     fit's quality.
 
@@ -85,6 +145,9 @@ def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: floa
         Site [deg], for the World Magnetic Model.
     when : datetime.date, optional
         Recording date.
+    resolution_mgauss : float, optional
+        The readings' quantization step [mGauss] (int16 telemetry, or whole-mGauss floats):
+        rounding is modelled as such, not taken for outliers.
 
     Returns
     -------
@@ -94,10 +157,14 @@ def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: floa
 
     Raises
     ------
+    CompassNotMeasured
+        When the samples do not turn through space (:func:`check_coverage`) or come from too
+        few directions (:func:`check_distinct_directions`).
     ApmcalError
-        When the samples do not turn through space (:func:`check_coverage`) or the fit fails.
+        When the fit fails.
     """
     check_coverage(mag)
+    check_distinct_directions(mag)
     warnings: list[str] = []
     sphere = sphere_fit(mag)           # [Niespodziany] step 1: the field check and the fit's box
     if lat_deg is not None and lon_deg is not None:
@@ -112,7 +179,8 @@ def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: floa
     else:
         radius, origin = sphere[1], "sphere fit (no --lat/--lon)"
     info: dict = {}
-    fitted = fit_ellipsoid_robust(mag, radius, info=info, sphere=sphere)
+    fitted = fit_ellipsoid_robust(mag, radius, info=info, sphere=sphere,
+                                  resolution=resolution_mgauss)
     cal, bias = debiased(warm_refit(fitted, radius, info), mag[info["inliers"]], fitted, radius)
     fit = fit_report(mag, cal, radius, info)
     fit.debias = bias

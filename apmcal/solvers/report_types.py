@@ -351,6 +351,9 @@ class CalibrationReport:
         sensor → why its values cannot be trusted (never sent to a vehicle).
     not_calibrated : dict
         sensor → why it was not calibrated at all.
+    not_measured : list of str
+        Sensors among ``not_calibrated`` that the session did not turn through enough
+        directions to measure (not a fault of the data): the overall verdict is the others'.
     holds : Holds
     rotations : dict
         The still periods and full turns used (rotations: axis → :class:`Turn`).
@@ -372,6 +375,7 @@ class CalibrationReport:
     warnings: list[str] = field(default_factory=list)
     undetermined: dict[str, str] = field(default_factory=dict)
     not_calibrated: dict[str, str] = field(default_factory=dict)
+    not_measured: list[str] = field(default_factory=list)
     holds: Holds = field(default_factory=Holds)
     rotations: dict[str, Turn] = field(default_factory=dict)
     six_face: SixFaceFit | None = None

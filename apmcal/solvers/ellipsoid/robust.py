@@ -144,6 +144,10 @@ def _bounds(o_sph, S_sph, radius, entries) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
+HUBER_K = 1.345                          # Huber's 95 %-efficiency constant
+ONE_SIGMA_OF_UNIFORM = 1.0 / np.sqrt(12.0)   # σ of a rounding error, per step
+
+
 def _default_f_scale(s, radius, o0, M0, entries) -> float:
     """1.345 × the MAD noise of the start's residuals [radius units] (Huber's 95 %-efficiency
     constant), at least 1e-9."""
@@ -172,7 +176,7 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
                          parameterisation: str = "symmetric", n_bootstrap: int = 0,
                          rng=None, prior_sigma: float | None = 0.3,
                          reject_sigma: float | None = 4.0, start: SensorCalibration | None = None,
-                         sphere: tuple | None = None,
+                         sphere: tuple | None = None, resolution: float | None = None,
                          info: dict | None = None) -> SensorCalibration:
     """Robust geometric ellipsoid fit: offset (3) + symmetric/upper-triangular M (6).
 
@@ -211,6 +215,11 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
     sphere : tuple, optional
         (offset (3,), radius) of :func:`sphere_fit` on the same ``samples``,
         when the caller has it already (it sets the box and the prior).
+    resolution : float, optional
+        Quantization step of the samples [sensor units] (whole mGauss: 1). A sample's radial
+        error from rounding is at most step·√3/2, its σ step/√12: the robust scale and the
+        outlier test never go below that σ, so rounding is not called an outlier (noise-free
+        whole-unit readings otherwise have a MAD near 0).
     info : dict, optional
         Filled with rms, cond, rank, start, parameterisation, coverage, notes, cov.
 
@@ -239,8 +248,9 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
         o0, M0, start_name = start.offset, start.matrix, "given"
     if mode == "diagonal":
         M0 = np.diag(np.abs(np.diag(M0)))
-    f_scale_n = (_default_f_scale(s, radius, o0, M0, ENTRIES[mode]) if f_scale is None
-                 else float(f_scale) / radius)
+    quant_n = (float(resolution) * ONE_SIGMA_OF_UNIFORM / radius) if resolution else 0.0
+    f_scale_n = (max(_default_f_scale(s, radius, o0, M0, ENTRIES[mode]), HUBER_K * quant_n)
+                 if f_scale is None else float(f_scale) / radius)
     fit = _Fit(s, w, radius, o_sph, S_sph, f_scale_n, prior_sigma)
     finish_ls = loss != "linear" and bool(reject_sigma)
     x, r, J, cond, mode = _robust_stage(fit, o0, M0, mode, loss, finish_ls,
@@ -248,7 +258,8 @@ def fit_ellipsoid_robust(samples, radius: float, *, loss: str = "huber",
     entries = ENTRIES[mode]
     keep = np.ones(len(s), dtype=bool)
     if finish_ls:
-        x, r, J, cond, keep = _inlier_stage(fit, x, r, entries, loss, reject_sigma, notes)
+        x, r, J, cond, keep = _inlier_stage(fit, x, r, entries, loss, reject_sigma, notes,
+                                            quant_n)
     notes += _edge_notes(x, fit.bounds(entries), entries)
     lw = "linear" if reject_sigma else loss
     irls = loss_weights(r * np.sqrt(w[keep]), f_scale_n, lw) * w[keep]
@@ -358,12 +369,14 @@ def _robust_stage(fit: _Fit, o0, M0, mode: str, loss: str, finish_ls: bool, *, p
     return x, r, J, cond, mode
 
 
-def _inlier_stage(fit: _Fit, x, r, entries, loss: str, reject_sigma: float, notes: list[str]):
-    """Plain LS on the samples the robust fit calls inliers (within ``reject_sigma`` robust σ):
-    the ML fit's Gaussian efficiency (Huber alone: ≈ 0.95) without the pull of gross outliers.
+def _inlier_stage(fit: _Fit, x, r, entries, loss: str, reject_sigma: float, notes: list[str],
+                  quant_sigma: float = 0.0):
+    """Plain LS on the samples the robust fit calls inliers (within ``reject_sigma`` robust σ,
+    the MAD's but never below ``quant_sigma``, the rounding's σ): the ML fit's Gaussian
+    efficiency (Huber alone: ≈ 0.95) without the pull of gross outliers.
     Returns (x, r, J, condition number, inlier mask)."""
     dev = np.abs(r - np.median(r))
-    keep = dev <= reject_sigma * max(1.4826 * np.median(dev), 1e-12)
+    keep = dev <= reject_sigma * max(1.4826 * np.median(dev), quant_sigma, 1e-12)
     x, r, J = fit.solve(keep, x[:3] * fit.radius, params_to_matrix(x[3:], entries), entries,
                         "linear")
     if not keep.all():
