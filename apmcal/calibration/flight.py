@@ -33,7 +33,13 @@ from pathlib import Path
 
 import numpy as np
 
-from apmcal.ardupilot.firmware import compass_matrix, compass_rotation, firmware_generation, mag_param_names
+from apmcal.ardupilot.firmware import (
+    compass_matrix,
+    compass_rotation,
+    compass_scale,
+    firmware_generation,
+    mag_param_names,
+)
 from apmcal.ardupilot.orientation import ROTATIONS, rotation_matrix, rotation_name
 from apmcal.core import geomag
 from apmcal.core.errors import ApmcalError
@@ -58,10 +64,6 @@ MANOEUVRE = {"iron": "two full yaw turns (720°) in the hover",
              "motor": "a climb at full throttle (and a slow descent), turning as it climbs"}
 
 
-def _scale_name(instance: int) -> str:
-    return "COMPASS_SCALE" if instance == 0 else f"COMPASS_SCALE{instance + 1}"
-
-
 def _mot_names(instance: int) -> list[str]:
     s = "" if instance == 0 else str(instance + 1)
     return [f"COMPASS_MOT{s}_{a}" for a in "XYZ"]
@@ -75,13 +77,6 @@ def param_names(instance: int) -> dict[str, str]:
     out.update(zip(PARAMS[6:9], n["odi"]))
     out.update(zip(PARAMS[9:12], _mot_names(instance)))
     return out
-
-
-def applied_scale(params: dict, instance: int) -> float:
-    """COMPASS_SCALEn as the firmware applies it: only inside its accepted range, else 1
-    (ardupilot-facts.md: 0, the default, means no scaling)."""
-    s = float(params.get(_scale_name(instance), 0.0) or 0.0)
-    return s if 0.5 <= s <= 2.0 else 1.0
 
 
 def motor_after_matrix(firmware: str | None) -> bool:
@@ -106,7 +101,7 @@ def undo(mag: MagSeries, params: dict, instance: int, after: bool,
     values are used, else (offsets learnt in flight, another motor
     model) the logged ones.
     """
-    m = compass_matrix(params, instance) * applied_scale(params, instance)
+    m = compass_matrix(params, instance) * compass_scale(params, instance)
     if abs(np.linalg.det(m)) < 1e-9:
         raise ApmcalError("compass matrix from COMPASS_DIA/ODI is singular, cannot undo it",
                           where=f"compass {instance}")
@@ -451,7 +446,7 @@ def _fit_compass(fd, mag, params, generation, after, b_h, b_d, field_ned, decl,
         held = np.array([params.get(n, 0.0) for n in names]) if same else np.zeros(3)
         fit = fit_flight(raw, roll, pitch, x, bh, bd, fit_motor=False, motor_fixed=held)
     names = param_names(inst)
-    s0 = applied_scale(params, inst)
+    s0 = compass_scale(params, inst)
     values = fit.x.copy()
     sig = fit.sigma.copy()
     values[3:9] /= s0
@@ -476,7 +471,7 @@ def _fit_compass(fd, mag, params, generation, after, b_h, b_d, field_ned, decl,
     h_old = heading.heading_health(mag.t, mag.field, roll, pitch, ref, field_ned, decl)
     h_new = heading.heading_health(mag.t, b_new, roll, pitch, ref, field_ned, decl)
     unid = _unidentified(fit, span_deg, kind, span, fit_motor)
-    s_name = _scale_name(inst)
+    s_name = mag_param_names(inst)["scale"]
     if s_name in params:
         in_force[s_name] = float(params[s_name])
         proposed[s_name] = float(params[s_name])     # kept: M absorbs any scale (module doc)
