@@ -60,16 +60,27 @@ def summarise_and_calibrate(contents, args):
     console = console_for(args)
     require_plausible_units(contents)       # a sensor in impossible units is not data
     report = SessionReport.build(contents)
-    report.print_summary(console)           # before the work: what the file holds
     param_error = None
-    if not getattr(args, "summary_only", False):
+    if getattr(args, "summary_only", False):
+        report.print_summary(console)
+    else:
         from apmcal.calibration.log import calibrate_log
         from apmcal.core.options import Options
 
         report = report.with_calibration(*calibrate_log(contents, Options(
             args.method, args.lat, args.lon, args.min_still, args.instance, args.firmware)))
-        report.print_calibration(console, args.verbose)
-        param_error = write_params(report, args.param_file, console)
+        param_error = write_params(report, args.param_file, None)
+        # the verdict first, then how to apply it, the proposal, the numbers; what the file
+        # holds last
+        report.print_calibration(console, args.verbose, getattr(args, "connection", None))
+        console.print()
+        report.print_summary(console, args.verbose)
+        if args.param_file and param_error is None:
+            console.print(f"wrote {args.param_file}")
+    if getattr(args, "report", None) and report.calibration is not None:
+        from apmcal.report.html import write_session_html
+
+        console.print(f"wrote {write_session_html(report, contents, args.report)}")
     if args.json:
         report.save(args.json)
         console.print(f"wrote {args.json}")
@@ -87,5 +98,6 @@ def write_params(report, path, console) -> ApmcalError | None:
         report.write_params(path)
     except ApmcalError as err:
         return err
-    console.print(f"wrote {path}")
+    if console is not None:
+        console.print(f"wrote {path}")
     return None

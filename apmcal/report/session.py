@@ -65,14 +65,17 @@ class SessionReport:
         """Exit status: 1 when the firmware would reject some proposed value, else 0."""
         return 0 if self.proposal is None or not self.proposal.rejected else 1
 
-    def print_summary(self, console) -> None:
+    def print_summary(self, console, verbose: bool = True) -> None:
         """What the file holds (:func:`apmcal.report.text.print_summary`)."""
-        print_summary(self.summary, console)
+        print_summary(self.summary, console, verbose)
 
-    def print_calibration(self, console, verbose: bool = False) -> None:
-        """The verdict, the numbers and the proposal (:func:`apmcal.report.text.print_calibration`)."""
+    def print_calibration(self, console, verbose: bool = False, link: str | None = None) -> None:
+        """The verdict, how to apply it, the proposal beside the values in force, the numbers
+        (:func:`apmcal.report.text.print_calibration`); ``link``: the vehicle's connection."""
         if self.calibration is not None:
-            print_calibration(self.calibration, self.proposal, console, verbose)
+            print_calibration(self.calibration, self.proposal, console, verbose,
+                              summary=self.summary, link=link,
+                              param_file=self.outputs.get("param_file"))
 
     def to_dict(self) -> dict:
         """This report's own top-level JSON fields (the calibration's are added by :meth:`save`)."""
