@@ -9,7 +9,7 @@ from apmcal.core.errors import ApmcalError
 def add_parser(sub) -> None:
     """The ``log`` sub-command and its options."""
     log = sub.add_parser("log", help="summarise and calibrate from a .tlog, .bin, .log or .csv file")
-    log.add_argument("file")
+    log.add_argument("file", help="the log: .tlog, dataflash .bin or .log, or .csv")
     add_calibration_options(log)
     log.add_argument("--summary-only", action="store_true", help="only print what the file holds")
     log.add_argument("--layout", default="auto",
@@ -69,7 +69,8 @@ def summarise_and_calibrate(contents, args):
 
         report = report.with_calibration(*calibrate_log(contents, Options(
             args.method, args.lat, args.lon, args.min_still, args.instance, args.firmware)))
-        param_error = write_params(report, args.param_file, None)
+        param_error = write_params(report, args.param_file, None,
+                                   getattr(args, "param_format", "param"))
         # the verdict first, then how to apply it, the proposal, the numbers; what the file
         # holds last
         report.print_calibration(console, args.verbose, getattr(args, "connection", None))
@@ -89,13 +90,13 @@ def summarise_and_calibrate(contents, args):
     return report
 
 
-def write_params(report, path, console) -> ApmcalError | None:
+def write_params(report, path, console, fmt: str = "param") -> ApmcalError | None:
     """``--param-file``: the proposal written (and said), or the error that stopped it, to be
-    raised once the JSON file is written too."""
+    raised once the JSON file is written too (``fmt``: "param" or "qgc")."""
     if not path:
         return None
     try:
-        report.write_params(path)
+        report.write_params(path, fmt)
     except ApmcalError as err:
         return err
     if console is not None:

@@ -6,6 +6,7 @@ from apmcal.cli.common import (
     POSITIVE_SECONDS,
     add_baud_option,
     check_writable,
+    check_writable_dir,
     console_for,
     default_backup_name,
     upload_values,
@@ -30,8 +31,10 @@ def add_parser(sub) -> None:
     tcal.add_argument("--backup", default=None, help="backup file with --upload "
                                                      "(default apmcal-backup-<time>.param)")
     add_baud_option(tcal)
-    tcal.add_argument("--json", default=None, help="write the fit as JSON")
-    tcal.add_argument("--quiet", action="store_true")
+    tcal.add_argument("--json", default=None, metavar="FILE", help="write the fit as JSON")
+    tcal.add_argument("--report", default=None, metavar="DIR",
+                      help="write an HTML report with the drift figures to DIR/index.html")
+    tcal.add_argument("--quiet", action="store_true", help="print nothing but errors")
 
 
 def run(args) -> int:
@@ -43,6 +46,7 @@ def run(args) -> int:
 
     check_writable(args.param_file, "parameter file")
     check_writable(args.json, "JSON file")
+    check_writable_dir(args.report, "the report")
     if args.upload:
         check_writable(args.backup or default_backup_name(), "backup file")
 

@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import contextlib
 import io
+import socket
 import struct
+import sys
 import time
 from pathlib import Path
 
@@ -44,6 +46,9 @@ class Connection:
         self._mavutil = mavutil
         self.master = open_connection(connection, baud)
         self._tlog = None
+        # said at once (stderr: the report goes to stdout), so a silent wait is never a hang
+        print(f"waiting for a heartbeat from {connection} ({timeout_s:g} s) …", file=sys.stderr,
+              flush=True)
         try:
             heartbeat = self.wait_heartbeat(timeout_s)
         except ApmcalError:
@@ -153,6 +158,7 @@ def open_connection(connection: str, baud: int = DEFAULT_BAUD):
         # pymavlink would read a file as a log (and hang at its end) or run it as a program
         raise ApmcalError("a file, not a connection (a serial port, udp:, tcp:): to calibrate "
                           f"a log use `apmcal log {connection}`", connection)
+    check_host(connection)
     chatter = io.StringIO()
     try:
         with contextlib.redirect_stdout(chatter):
@@ -170,3 +176,28 @@ def open_connection(connection: str, baud: int = DEFAULT_BAUD):
     except Exception as exc:  # pymavlink raises many types for a bad connection string
         why = " ".join(str(exc).split()) or type(exc).__name__
         raise ApmcalError(f"cannot open connection ({why})", connection) from None
+
+
+NETWORK_PREFIXES = ("udp:", "udpin:", "udpout:", "udpbcast:", "tcp:", "tcpin:")
+
+
+def check_host(connection: str) -> None:
+    """An unresolvable host of a network connection ("udp:HOST:PORT", "tcp:HOST:PORT") said at
+    once, instead of a wait for a heartbeat that cannot come.
+
+    Raises
+    ------
+    ApmcalError
+        When the host name does not resolve.
+    """
+    if not connection.lower().startswith(NETWORK_PREFIXES):
+        return
+    parts = connection.split(":")
+    if len(parts) < 3 or not parts[1]:
+        return                                   # pymavlink's own message says what is missing
+    host = parts[1]
+    try:
+        socket.getaddrinfo(host, None)
+    except (socket.gaierror, UnicodeError):
+        raise ApmcalError(f"cannot resolve host {host!r}: check the name (or use its IP "
+                          "address)", connection) from None

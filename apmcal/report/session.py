@@ -94,8 +94,9 @@ class SessionReport:
         else:
             self.calibration.save(path, extra=self.to_dict())     # schema, units, report + ours
 
-    def write_params(self, path) -> None:
-        """The proposed parameters as a .param file; the outcome is kept for the JSON file
+    def write_params(self, path, fmt: str = "param") -> None:
+        """The proposed parameters as a .param file (QGroundControl's .params with
+        ``fmt="qgc"``); the outcome is kept for the JSON file
         ("param_file", or "param_file_error" with the reason) and an error raised again.
 
         Raises
@@ -109,7 +110,7 @@ class SessionReport:
                                   "parameters for: add --firmware 3.2 or --firmware 3.3+",
                                   self.path)
             self.proposal.write(path, f"apmcal {self.calibration.method} calibration of "
-                                      f"{self.path}")
+                                      f"{self.path}", fmt)
         except ApmcalError as err:
             self.outputs["param_file_error"] = str(err)
             raise
