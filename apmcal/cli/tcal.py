@@ -59,12 +59,23 @@ def run(args) -> int:
     values = tcal.params()
     if args.json:
         tcal.save(args.json)
+    if getattr(args, "report", None):
+        from apmcal.report.html import write_tcal_html
+
+        console.print(f"wrote {write_tcal_html(tcal, args.file, args.report)}")
+    withheld = [r.withheld for r in tcal.results if r.withheld]
     if args.param_file:
         from apmcal.ardupilot.paramfile import write_param_file
 
-        write_param_file(args.param_file, values, f"apmcal tcal of {args.file}")
-        console.print(f"wrote {args.param_file}")
-    if args.upload:
+        # a file whose every instance is withheld holds only the reason: loading it changes
+        # nothing on the vehicle
+        write_param_file(args.param_file, values, "\n".join([f"apmcal tcal of {args.file}",
+                                                              *withheld]))
+        console.print(f"wrote {args.param_file}" + ("" if values else
+                                                    " (no parameter: nothing to enable)"))
+    if args.upload and not values:
+        console.print("nothing uploaded: no temperature calibration is significant")
+    elif args.upload:
         upload_values(args.upload, values, args.backup, None, console, args.baud)
         # AP_InertialSensor_tempcal.cpp: INS_TCALn_ENABLE is @RebootRequired
         console.print("INS_TCALn_ENABLE takes effect at the vehicle's next reboot")
