@@ -43,6 +43,9 @@ class TcalResult:
         Total still time fitted [s]; None for TCLR records.
     notes : list of str
         What was undone, and caveats of the fit.
+    blocks : dict or None
+        The data fitted, for figures (not saved): "acc" / "gyr" → (temp_c (m,) [°C],
+        values (m, 3) [m/s² or rad/s], group (m,) int: one constant per group).
     """
 
     instance: int
@@ -52,6 +55,7 @@ class TcalResult:
     tmax_c: float
     still_s: float | None = None
     notes: list[str] = field(default_factory=list)
+    blocks: dict | None = field(default=None, repr=False, compare=False)
 
     @property
     def significant(self) -> bool:
@@ -186,7 +190,9 @@ def _from_tclr(instance: int, data: dict, path: str) -> TcalResult:
                                t_s=data[s]["t_s"])
         except ApmcalError as err:
             raise ApmcalError(f"IMU instance {instance} {s}: {err.why}", path) from None
-    return TcalResult(instance, "TCLR", fits, tmin, tmax)
+    blocks = {s: (np.asarray(data[s]["temp_c"]), np.asarray(data[s]["values"]),
+                  np.zeros(len(data[s]["temp_c"]), dtype=int)) for s in ("acc", "gyr")}
+    return TcalResult(instance, "TCLR", fits, tmin, tmax, blocks=blocks)
 
 
 def _from_samples(recording, contents, min_still_s: float, block_s: float) -> TcalResult:
@@ -249,7 +255,8 @@ def _from_samples(recording, contents, min_still_s: float, block_s: float) -> Tc
     if len(set(blocks.group.tolist())) > 1:
         notes.append(f"{len(set(blocks.group.tolist()))} orientations, one constant each")
     return TcalResult(inst, recording.message, fits, blocks.temp_min_c, blocks.temp_max_c,
-                      still_s, notes)
+                      still_s, notes, {s: (blocks.temp_c, v, blocks.group)
+                                       for s, v in (("acc", blocks.acc), ("gyr", blocks.gyr))})
 
 
 def _tcal_in_force(params, instance, path):
