@@ -241,9 +241,24 @@ def check_outputs(args) -> None:
     check_writable_dir(getattr(args, "report", None), "the report")
 
 
+#: where ``live`` and the uploads put the files the user named no place for (recordings, backups);
+#: the project's .gitignore covers it
+DEFAULT_FOLDER = "apmcal-files"
+
+
+def default_path(name: str) -> str:
+    """``apmcal-files/<name>``, the folder made when missing (a failure is left to the
+    output check, which names it)."""
+    try:
+        Path(DEFAULT_FOLDER).mkdir(exist_ok=True)
+    except OSError:
+        pass
+    return str(Path(DEFAULT_FOLDER) / name)
+
+
 def default_backup_name() -> str:
-    """``apmcal-backup-<local time>.param`` in the current directory."""
-    return f"apmcal-backup-{time.strftime('%Y%m%d-%H%M%S')}.param"
+    """``apmcal-files/apmcal-backup-<local time>.param``."""
+    return default_path(f"apmcal-backup-{time.strftime('%Y%m%d-%H%M%S')}.param")
 
 
 def upload_values(connection, values, backup, vehicle_params, console, baud,

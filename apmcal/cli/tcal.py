@@ -29,7 +29,7 @@ def add_parser(sub) -> None:
     tcal.add_argument("--upload", default=None, metavar="CONNECTION",
                       help="write INS_TCALn_* to the vehicle (backed up, verified)")
     tcal.add_argument("--backup", default=None, help="backup file with --upload "
-                                                     "(default apmcal-backup-<time>.param)")
+                                                     "(default apmcal-files/apmcal-backup-<time>.param)")
     add_baud_option(tcal)
     tcal.add_argument("--json", default=None, metavar="FILE", help="write the fit as JSON")
     tcal.add_argument("--report", default=None, metavar="DIR",
