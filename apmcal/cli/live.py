@@ -30,7 +30,8 @@ def add_parser(sub) -> None:
                       help="seconds to record (default 60)")
     live.add_argument("--rate", type=number_type(int, 1, 1000, what="an integer rate [Hz]"),
                       default=50, help="IMU stream rate [Hz], 1 to 1000 (default 50)")
-    live.add_argument("--save-log", default=None, help="keep the recording as this .tlog (default apmcal-files/apmcal-live-<time>.tlog)")
+    live.add_argument("--save-log", default=None, help="keep the recording as this .tlog "
+                           "(default apmcal-files/apmcal-live-<time>.tlog)")
     live.add_argument("--guide", choices=["ardupilot6"], default=None,
                       help="prompt ArduPilot's six accel-cal poses one by one, check each "
                            "(instead of --duration); Enter confirms a pose")
@@ -44,7 +45,8 @@ def add_parser(sub) -> None:
                            "hold (default 120 s)")
     live.add_argument("--upload", action="store_true",
                       help="write the proposed parameters to the vehicle (backed up, verified)")
-    live.add_argument("--backup", default=None, help="backup file (default apmcal-files/apmcal-backup-<time>.param)")
+    live.add_argument("--backup", default=None,
+                      help="backup file (default apmcal-files/apmcal-backup-<time>.param)")
     add_calibration_options(live)
 
 
