@@ -292,8 +292,8 @@ def with_sigma(values, sigma) -> str:
 DEFAULT_NOTES = ("withheld", "re-measured", "COMPASS_OFS is minus", "INS_ACCOFFS = INS_ACCSCAL",
                  "unknown: assumed")
 
-MISSION_PLANNER = "Mission Planner: Config > Full Parameter List > Load from file, then Write Params"
-QGROUNDCONTROL = "QGroundControl: Vehicle Setup > Parameters > Tools > Load from file"
+MISSION_PLANNER = "Mission Planner (Config > Full Parameter List > Load from file)"
+QGROUNDCONTROL = "QGroundControl (Vehicle Setup > Parameters > Tools > Load from file)"
 
 
 def _notes(proposal, verbose: bool) -> list[str]:
@@ -342,16 +342,17 @@ def print_apply(proposal, verdicts: dict, console, link: str | None = None,
                      "boot (unless INS_GYR_CAL=0): applying them changes nothing you will notice",
             "  ")
     link = link or "LINK"
-    target = param_file or "FILE.param"
+    target = param_file or "cal.param"
     if not param_file:
-        say(console, "1. write the file: run this command again with --param-file FILE.param",
-            "  ")
-    say(console, f"{'2' if not param_file else '1'}. apmcal upload {link} {target}   "
-                 "(saves a backup .param first and names it)", "  ")
-    say(console, f"   or load {target} in {MISSION_PLANNER}", "  ")
-    say(console, f"   or in {QGROUNDCONTROL}", "  ")
-    say(console, f"undo: apmcal restore {link} BACKUP.param   (LINK: e.g. /dev/ttyACM0 or "
-                 "udp:127.0.0.1:14550)", "  ")
+        say(console, f"write the file: add --param-file {target} to this command, then", "  ")
+    say(console, f"apmcal upload {link} {target}   (backs up the vehicle's parameters first)",
+        "  ")
+    say(console, f"or load {target} in {MISSION_PLANNER}", "  ")
+    say(console, f"or in {QGROUNDCONTROL}", "  ")
+    say(console, f"undo: apmcal restore {link} BACKUP.param   (the backup the upload names)",
+        "  ")
+    if link == "LINK":
+        say(console, "LINK: the vehicle, e.g. /dev/ttyACM0 (USB) or udp:127.0.0.1:14550", "  ")
 
 
 def print_proposal(proposal, console, in_force: dict | None = None,

@@ -52,8 +52,8 @@ GYR_OFFSET_PLAUSIBLE_RAD_S = 0.35     # 20 °/s: beyond any MEMS gyro's zero-rat
 
 SIX_FACES = ("hold the vehicle still on each of its six faces (level, on its back, each side, "
              "nose up, nose down) for 10 s or more")
-SIX_FACE_SESSION = ("a six-face session measures it (apmcal live LINK --guide, or a log of the "
-                    "vehicle held still on each of its six faces)")
+SIX_FACE_SESSION = ("a six-face session measures it (apmcal live LINK --guide ardupilot6, or a "
+                    "log of the vehicle held still on each of its six faces)")
 COMPASS_SESSION = ("a compass session measures it: turn the vehicle slowly through every "
                    "direction while logging")
 TURN_COMPASS = ("turn the vehicle slowly through every direction: nose up and down, each side "
