@@ -13,7 +13,13 @@ from dataclasses import dataclass, field, replace
 
 from apmcal.core.errors import ApmcalError
 from apmcal.core.json_file import write_json
-from apmcal.report.text import print_calibration, print_summary, summarize, verdict_dict
+from apmcal.report.text import (
+    print_calibration,
+    print_summary,
+    raw_count_sensors,
+    summarize,
+    verdict_dict,
+)
 
 
 @dataclass
@@ -58,7 +64,7 @@ class SessionReport:
             return {}
         from apmcal.report.verdict import judge
 
-        return judge(self.calibration, self.proposal)
+        return judge(self.calibration, self.proposal, raw_count_sensors(self.summary))
 
     @property
     def status(self) -> int:
@@ -81,7 +87,8 @@ class SessionReport:
         """This report's own top-level JSON fields (the calibration's are added by :meth:`save`)."""
         out = {"summary": self.summary}
         if self.calibration is not None:
-            out["verdict"] = verdict_dict(self.calibration, self.proposal)
+            out["verdict"] = verdict_dict(self.calibration, self.proposal,
+                                          raw_count_sensors(self.summary))
             if self.proposal is not None:       # its values are the calibration's own "params"
                 out["rejected_params"] = dict(self.proposal.rejected)
         out.update(self.outputs)

@@ -130,10 +130,14 @@ def print_summary(summary: dict, console, verbose: bool = True) -> None:
     from rich import box
     from rich.table import Table
 
-    console.print(Text.assemble((str(summary["file"]), "bold"),
-                                f" ({summary['format']}); vehicle: "
-                                f"{summary['vehicle'] or 'unknown'}; firmware: "
-                                f"{summary['firmware'] or 'unknown'}"))
+    head = Text.assemble((str(summary["file"]), "bold"), f" ({summary['format']})")
+    what = (f"vehicle: {summary['vehicle'] or 'unknown'}; firmware: "
+            f"{summary['firmware'] or 'unknown'}")
+    if len(head.plain) + len(what) + 2 <= MAX_WIDTH:       # one line when it fits
+        console.print(head + Text(f"; {what}"))
+    else:
+        console.print(head)
+        console.print(Text(what))
     if summary.get("recorded_utc"):
         console.print(Text(f"recorded: {summary['recorded_utc']} ({summary['recorded_by']})"))
     # compact (no borders, one space between columns): fits 80 columns, so a piped run neither
@@ -244,7 +248,13 @@ def print_verdict(verdicts: dict, console, session_note: str = "") -> None:
             say(console, f"next: {v.next_step}", "    ")
 
 
-def verdict_dict(calibration, proposal) -> dict:
+def raw_count_sensors(summary: dict | None) -> list[str]:
+    """Sensors the reader kept in raw counts (its "<sensor>: raw sensor counts" notes)."""
+    return [n.split(":")[0] for n in (summary or {}).get("notes", [])
+            if "raw sensor counts" in n and n.split(":")[0] in ("acc", "gyr", "mag")]
+
+
+def verdict_dict(calibration, proposal, raw_counts=()) -> dict:
     """The verdicts as plain dicts, for the JSON output.
 
     Parameters
@@ -260,7 +270,7 @@ def verdict_dict(calibration, proposal) -> dict:
     """
     from apmcal.report.verdict import judge
 
-    return {name: v.to_dict() for name, v in judge(calibration, proposal).items()}
+    return {name: v.to_dict() for name, v in judge(calibration, proposal, raw_counts).items()}
 
 
 def _vector(values, fmt: str) -> str:
@@ -424,7 +434,7 @@ def print_calibration(calibration, proposal, console, verbose: bool = False, *,
     """
     from apmcal.report.verdict import judge, plain
 
-    verdicts = judge(calibration, proposal)
+    verdicts = judge(calibration, proposal, raw_count_sensors(summary))
     print_verdict(verdicts, console, session_note(calibration, summary))
     print_apply(proposal, verdicts, console, link, param_file)
     print_proposal(proposal, console, (summary or {}).get("calibration_params_in_force"),

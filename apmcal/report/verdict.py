@@ -255,16 +255,19 @@ def compass(cal, report: CalibrationReport) -> Verdict:
 JUDGES = {"acc": accelerometer, "gyr": gyroscope, "mag": compass}
 
 
-def judge(calibration, proposal=None) -> dict[str, Verdict]:
+def judge(calibration, proposal=None, raw_counts=()) -> dict[str, Verdict]:
     """Per-sensor verdicts and an "overall" one (the worst), in report order.
 
     ``proposal`` (ParamProposal or None): a sensor whose parameters the firmware would refuse
-    is redo whatever its numbers.
+    is redo whatever its numbers. ``raw_counts``: sensors whose data are raw counts of no known
+    unit (a CSV layout without a scale): their σ cannot be graded against thresholds in m/s² or
+    rad/s, so they are "not measured" with the way to declare the unit.
 
     Parameters
     ----------
     calibration : Calibration
     proposal : ParamProposal, optional
+    raw_counts : iterable of str, optional
 
     Returns
     -------
@@ -278,6 +281,12 @@ def judge(calibration, proposal=None) -> dict[str, Verdict]:
     for name, why in report.not_calibrated.items():
         out[name] = not_measured(why.removeprefix("magnetometer not calibrated: "),
                                  COMPASS_SESSION if name == "mag" else SIX_FACE_SESSION)
+    for name in raw_counts:
+        if name in out:
+            out[name] = Verdict(NOT_MEASURED, "the data are raw counts of no known unit, so its "
+                                              "offsets cannot be graded in physical units",
+                                "declare the unit (a CSV header such as acc_x[g] or "
+                                "gyr_x[deg/s]) to have it graded")
     for name in _refused(proposal):
         out[name] = Verdict("redo", "the firmware would refuse its parameters (listed below)",
                             "check the mounting and the data, then calibrate again")
