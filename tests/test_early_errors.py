@@ -59,6 +59,7 @@ def test_every_argument_has_help():
     for name, sub in parser.subcommands.items():
         for action in sub._actions:
             assert action.help, f"apmcal {name}: {action.dest} has no help"
+        assert "``" not in sub.format_help() and ":mod:" not in sub.format_help()
     assert "``" not in parser.format_help()
 
 
