@@ -97,3 +97,14 @@ def test_log_writes_qgc_params(tmp_path, capsys):
                  "--quiet"]) == 0
     assert "INS_ACCOFFS_X" in read_param_file(out)
     assert "\t9" in out.read_text()
+
+
+def test_the_heartbeat_wait_is_announced():
+    """The wait for a vehicle is said before it starts, with the link and how long."""
+    from apmcal.core.errors import ApmcalError
+    from apmcal.link.connection import Connection
+
+    said = []
+    with pytest.raises(ApmcalError, match="no autopilot HEARTBEAT"):
+        Connection("udpin:127.0.0.1:0", timeout_s=0.3, announce=said.append)
+    assert said == ["waiting for a heartbeat from udpin:127.0.0.1:0 (0.3 s) …"]

@@ -291,7 +291,7 @@ def upload_values(connection, values, backup, vehicle_params, console, baud,
 
     backup = backup or default_backup_name()
     check_writable(backup, "backup file")
-    with VehicleLink(connection, baud=baud) as link:
+    with VehicleLink(connection, baud=baud, announce=console.print) as link:
         result = upload_params(link, values, backup, vehicle_params, all_params)
     console.print(f"wrote and verified {len(result.written)} parameters; backup in {backup} "
                   f"(undo: apmcal restore {connection} {backup})")

@@ -63,7 +63,8 @@ def run(args) -> int:
     if args.upload:     # the default backup goes to the current directory: check that too
         check_writable(args.backup or default_backup_name(), "backup file")
     try:
-        link = VehicleLink(args.connection, record_to=log_path, baud=args.baud)
+        link = VehicleLink(args.connection, record_to=log_path, baud=args.baud,
+                           announce=console.print)
     except OSError as exc:
         if exc.filename is None or Path(exc.filename) != Path(log_path):
             raise

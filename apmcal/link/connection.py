@@ -8,7 +8,6 @@ import contextlib
 import io
 import socket
 import struct
-import sys
 import time
 from pathlib import Path
 
@@ -36,19 +35,22 @@ class Connection:
         Every received message is appended there as a .tlog record.
     baud : int
         Serial links only (ignored by network links, as in MAVProxy).
+    announce : callable, optional
+        Told (one str) that the heartbeat is awaited, and for how long, so that the wait is
+        never a silent hang (the command line passes its console's print).
     """
 
     def __init__(self, connection: str, timeout_s: float = 10.0,
-                 record_to: str | Path | None = None, baud: int = DEFAULT_BAUD):
+                 record_to: str | Path | None = None, baud: int = DEFAULT_BAUD,
+                 announce=None):
         from pymavlink import mavutil
 
         self.connection = connection
         self._mavutil = mavutil
         self.master = open_connection(connection, baud)
         self._tlog = None
-        # said at once (stderr: the report goes to stdout), so a silent wait is never a hang
-        print(f"waiting for a heartbeat from {connection} ({timeout_s:g} s) …", file=sys.stderr,
-              flush=True)
+        if announce is not None:
+            announce(f"waiting for a heartbeat from {connection} ({timeout_s:g} s) …")
         try:
             heartbeat = self.wait_heartbeat(timeout_s)
         except ApmcalError:
