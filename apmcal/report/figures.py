@@ -63,7 +63,8 @@ def accelerometer_figure(means_raw: np.ndarray, means_cal: np.ndarray, gravity: 
     hold's residual |a| − g before/after."""
     if len(means_raw) == 0:
         return None
-    fig = _figure(10, 4.2)
+    fig = _figure(11, 4.2)
+    fig.subplots_adjust(wspace=0.4)         # room for the 3-D axis's z label
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     _sphere(ax, gravity)
     for pts, color, name in ((means_raw, BEFORE, "before"), (means_cal, AFTER, "after")):
@@ -94,7 +95,8 @@ def compass_figure(t: np.ndarray, raw: np.ndarray, cal: np.ndarray, field_mgauss
     if len(raw) == 0 or not np.isfinite(field_mgauss):
         return None
     step = max(1, len(raw) // MAX_POINTS)
-    fig = _figure(10, 4.2)
+    fig = _figure(11, 4.2)
+    fig.subplots_adjust(wspace=0.4)
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     _sphere(ax, field_mgauss)
     for pts, color, name in ((raw[::step], BEFORE, "before"), (cal[::step], AFTER, "after")):
