@@ -22,7 +22,8 @@ def parse_args(argv=None):
     ap.add_argument("--firmware", default="3.2", choices=("3.2", "3.3"))
     ap.add_argument("--duration", type=float, help="stop after this many simulated seconds")
     ap.add_argument("--param-file", default="sitl-params.json",
-                    help="parameter persistence file (JSON), kept across restarts")
+                    help="parameter persistence file (JSON), kept across restarts (default "
+                         "sitl-params.json here; .gitignore covers it)")
     ap.add_argument("--tlog", help="also record the session to this .tlog")
     ap.add_argument("--full-params", action="store_true",
                     help="a real vehicle's full-size parameter table (about 1,350 names), as a "

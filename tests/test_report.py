@@ -68,7 +68,7 @@ def test_file_name_and_units_are_literal_even_on_a_markup_console():
         "acc": SensorCalibration(offset=[0.1, 0.2, 0.3], sigma={"offset": [0.01] * 3}),
         "gyr": SensorCalibration(drift=[1e-6, 0, 0])})
     out = render(report.print_calibration, cal, None)
-    assert "acc: offset [m/s²] = (+0.1, +0.2, +0.3)" in out
+    assert "acc: offset [m/s²] = (+0.100, +0.200, +0.300) ± (0.01, 0.01, 0.01)" in out
     assert "gyr: offset [rad/s]" in out and "drift [rad/s/s]" in out
 
 
@@ -142,7 +142,7 @@ def test_verdict_comes_before_the_numbers():
         offset=[0.3, 0, 0], sigma={"offset": [0.01] * 3, "matrix": np.full((3, 3), 1e-3)})})
     out = render(report.print_calibration, cal, None)
     assert out.index("verdict: GOOD (accelerometer good)") < out.index("acc: offset")
-    assert "accelerometer: good — offsets known to ±0.010 m/s²" in out
+    assert "accelerometer: good — offsets known to ±0.01 m/s² (a level error of 0.058°)" in out
 
 
 def test_recording_date_and_its_source_are_shown():

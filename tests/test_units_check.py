@@ -9,6 +9,7 @@ import pandas as pd
 import pytest
 
 from apmcal.cli import main
+from apmcal.core.errors import ApmcalError
 from apmcal.core.recording import LogContents, Recording
 from apmcal.sensor_model.truth import Truth
 from apmcal_sim import motion
@@ -119,12 +120,17 @@ def test_a_log_with_nothing_plausible_is_refused_with_the_reason():
 
 
 def test_csv_units_are_the_users_to_declare():
+    """Raw counts declared (the reader's note) are allowed; undeclared, they are refused."""
     from apmcal.sources.units import require_plausible_units
 
-    counts = recording("csv", acc_m_s2=[0, 0, -16384.0])          # raw counts are allowed
-    out = LogContents(path="x.csv", format="csv", recordings=[counts])
+    counts = recording("csv", acc_m_s2=[0, 0, -16384.0])
+    out = LogContents(path="x.csv", format="csv", recordings=[counts],
+                      messages=["acc: raw sensor counts, not SI units (no scale known)"])
     require_plausible_units(out)
     assert out.recordings[0].sensors == ["acc"]
+    undeclared = LogContents(path="x.csv", format="csv", recordings=[counts])
+    with pytest.raises(ApmcalError, match=r"acc_x\[counts\]"):
+        require_plausible_units(undeclared)
 
 
 def test_gap_drops_the_faulty_compass_too(tmp_path, capsys):

@@ -36,36 +36,59 @@ def test_every_effect_on_is_usable_because_the_model_does_not_fit():
     assert "warm up" in v["acc"].next_step and v["overall"].grade == "usable"
 
 
-def test_one_pose_cannot_determine_the_accelerometer_redo():
+def test_one_pose_does_not_measure_the_accelerometer_and_grades_what_it_measured():
+    """One still pose cannot tell the accelerometer's offset from a tilt: "not measured by this
+    session" with the session that would (six faces), and the overall grade is the gyro's."""
     _, cal, _ = calibrated(2, *CLEAN, method="static", script="onepos")
     v = judge(cal)
-    assert v["acc"].grade == "redo" and "six faces" in v["acc"].next_step
-    assert v["overall"].grade == "redo"
+    assert v["acc"].grade == "not measured" and "six faces" in v["acc"].next_step
+    assert not v["acc"].measured
+    assert v["overall"].grade == v["gyr"].grade == "good"
 
 
-def test_compass_not_turned_is_redo():
+def test_compass_not_turned_is_not_measured():
     _, cal, _ = calibrated(2, *CLEAN, method="static", script="onepos", mag=True)
     assert "mag" not in cal.sensors                   # refused: samples do not turn
     v = judge(cal)
-    assert v["mag"].grade == "redo" and "full turn about each axis" in v["mag"].next_step
+    assert v["mag"].grade == "not measured" and "turn the vehicle" in v["mag"].next_step
+    assert v["overall"].grade == "good"
 
 
 def test_a_compass_the_session_did_not_measure_does_not_grade_the_session():
-    """A compass not measured (too few directions) is redo on its own line, with what to do;
-    the overall grade is the accelerometer's. A compass that failed otherwise still counts."""
+    """A compass not measured (too few directions) is "not measured" on its own line, with what
+    to do; the overall grade is the accelerometer's. A compass that failed otherwise counts."""
     acc = SensorCalibration(sigma={"offset": [0.01] * 3, "matrix": np.full((3, 3), 1e-3)})
     why = "compass not measured by this session: ...: turn the vehicle slowly through every"
     cal = Calibration("ferraris", {"acc": acc})
     cal.report.not_calibrated["mag"] = why
     cal.report.not_measured.append("mag")
     v = judge(cal)
-    assert v["mag"].grade == "redo" and "turn the vehicle" in v["mag"].reason
+    assert v["mag"].grade == "not measured" and "turn the vehicle" in v["mag"].reason
     assert v["overall"].grade == "good" and v["overall"].reason.startswith("accelerometer")
     cal.report.not_measured.clear()           # a failure of the data: it counts
     assert judge(cal)["overall"].grade == "redo"
 
 
-@pytest.mark.parametrize("cover, grade", [({"min_eig": 0.02, "fraction": 0.4}, "redo"),
+def test_gyro_offset_beyond_physics_is_redo_whatever_its_sigma():
+    """49 °/s read at rest is no gyro bias (turning, a faulty gyro, or deg/s): redo, even with
+    a σ of zero."""
+    cal = Calibration("static", {"gyr": SensorCalibration(offset=np.radians([49.0, 0, 0]),
+                                                          sigma={"offset": [0.0] * 3})})
+    v = judge(cal)
+    assert v["gyr"].grade == "redo" and "49 °/s" in v["gyr"].reason, v
+    ok = Calibration("static", {"gyr": SensorCalibration(offset=[0.01, 0, 0],
+                                                         sigma={"offset": [0.0] * 3})})
+    assert "±0.0000" not in judge(ok)["gyr"].reason
+
+
+def test_nothing_measured_is_said_so():
+    from apmcal.report.verdict import not_measured, overall
+
+    v = overall({"acc": not_measured("one pose", "six faces")})
+    assert v.grade == "not measured" and v.next_step == "six faces"
+
+
+@pytest.mark.parametrize("cover, grade", [({"min_eig": 0.02, "fraction": 0.4}, "not measured"),
                                           ({"min_eig": 0.2, "fraction": 0.3}, "usable"),
                                           ({"min_eig": 0.6, "fraction": 0.9}, "good")])
 def test_compass_coverage_rules(cover, grade):

@@ -1,7 +1,11 @@
-"""Parameter files as MAVProxy and Mission Planner read and write them.
+"""Parameter files as MAVProxy, Mission Planner and QGroundControl read and write them.
 
-ardupilot-facts.md "Writing parameters": one ``NAME VALUE`` (or ``NAME,VALUE``) per line, ``#``
-comments. Values are written with 9 significant digits ("%.9g"), enough for any float32 to
+ardupilot-facts.md "Writing parameters": one ``NAME VALUE`` (or Mission Planner's ``NAME,VALUE``)
+per line, ``#`` comments. QGroundControl's ``.params`` (``fmt="qgc"``): tab-separated
+``VEHICLE_ID COMPONENT_ID NAME VALUE TYPE`` lines under ``#`` header lines, TYPE 9 =
+MAV_PARAM_TYPE_REAL32 (QGroundControl's ParameterManager::writeParametersToStream; the type every
+ArduPilot parameter apmcal writes has on the vehicle); all three are read.
+Values are written with 9 significant digits ("%.9g"), enough for any float32 to
 survive the text round trip exactly (the vehicle stores REAL32).
 """
 from __future__ import annotations
@@ -28,8 +32,12 @@ def format_value(value: float) -> str:
     return "%.9g" % float(np.float32(value))
 
 
+QGC_HEADER = "# Vehicle-Id Component-Id Name Value Type"
+MAV_PARAM_TYPE_REAL32 = 9
+
+
 def write_param_file(path: str | Path, values: dict[str, float], header_comment: str = "",
-                     *, comment_non_finite: bool = False) -> None:
+                     *, comment_non_finite: bool = False, fmt: str = "param") -> None:
     """Write ``values`` as sorted ``NAME VALUE`` lines, ``header_comment`` as ``#`` lines first.
 
     ``comment_non_finite`` (for backups of what a vehicle holds): a NaN/inf value becomes the
@@ -44,6 +52,9 @@ def write_param_file(path: str | Path, values: dict[str, float], header_comment:
         Text for the leading ``#`` lines.
     comment_non_finite : bool, optional
         See above.
+    fmt : {"param", "qgc"}
+        ``NAME VALUE`` lines, or QGroundControl's tab-separated ``.params`` (vehicle 1,
+        component 1, type REAL32).
 
     Raises
     ------
@@ -51,13 +62,19 @@ def write_param_file(path: str | Path, values: dict[str, float], header_comment:
         For a name that is not a valid parameter name or a value that is not finite (the
         vehicle would drop it silently), or when the file cannot be written.
     """
+    if fmt not in ("param", "qgc"):
+        raise ApmcalError(f"unknown parameter file format {fmt!r} (param or qgc)", path)
     lines = [f"# {line}".rstrip() for line in header_comment.splitlines()]
+    if fmt == "qgc":
+        lines.append(QGC_HEADER)
     for name in sorted(values):
         value = float(values[name])
         if not _NAME.match(name):
             raise ApmcalError("not a valid parameter name (letters, digits, _; ≤ 16)", path,
                               f"param {name!r}")
-        if math.isfinite(value):
+        if math.isfinite(value) and fmt == "qgc":
+            lines.append(f"1\t1\t{name}\t{format_value(value)}\t{MAV_PARAM_TYPE_REAL32}")
+        elif math.isfinite(value):
             lines.append(f"{name} {format_value(value)}")
         elif comment_non_finite:
             lines.append(f"# {name} {value!r} ({NOT_RESTORABLE})")
@@ -70,8 +87,9 @@ def write_param_file(path: str | Path, values: dict[str, float], header_comment:
 
 
 def read_param_file(path: str | Path) -> dict[str, float]:
-    """Read ``NAME VALUE`` / ``NAME,VALUE`` / ``NAME<TAB>VALUE`` lines; ``#`` comments and blank
-    lines are skipped. A later line for the same name wins (as when the GCS loads the file).
+    """Read ``NAME VALUE`` / ``NAME,VALUE`` / ``NAME<TAB>VALUE`` lines, or QGroundControl's
+    ``VEHICLE COMPONENT NAME VALUE TYPE`` lines; ``#`` comments and blank lines are skipped. A later line for
+    the same name wins (as when the GCS loads the file).
 
     Raises
     ------
@@ -92,6 +110,9 @@ def read_param_file(path: str | Path) -> dict[str, float]:
             continue
         fields = [f for f in re.split(r"[,\s]+", body) if f]
         where = f"line {number}"
+        if len(fields) == 5 and fields[0].isdigit() and fields[1].isdigit() \
+                and fields[4].isdigit():
+            fields = fields[2:4]                 # QGroundControl: vehicle, component, .., type
         if len(fields) != 2:
             raise ApmcalError(f"expected 'NAME VALUE', got {body!r}", path, where)
         name, text_value = fields

@@ -82,8 +82,9 @@ class ParamProposal:
     generation: str = "3.3+"
     costs: dict[str, float] = field(default_factory=dict)
 
-    def write(self, path, header_comment: str = "") -> None:
-        """The proposed values as a .param file (:func:`apmcal.ardupilot.paramfile.write_param_file`).
+    def write(self, path, header_comment: str = "", fmt: str = "param") -> None:
+        """The proposed values as a .param file, or QGroundControl's .params with ``fmt="qgc"``
+        (:func:`apmcal.ardupilot.paramfile.write_param_file`).
 
         Raises
         ------
@@ -93,7 +94,7 @@ class ParamProposal:
         from apmcal.ardupilot.paramfile import write_param_file
 
         try:
-            write_param_file(path, self.values, header_comment)
+            write_param_file(path, self.values, header_comment, fmt=fmt)
         except OSError as exc:     # write_param_file wraps its own; this is belt and braces
             raise ApmcalError(f"cannot write parameter file ({exc.strerror or exc})",
                               str(path)) from None

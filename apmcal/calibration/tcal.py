@@ -20,6 +20,7 @@ from apmcal.preprocessing.resolution import INT16_TELEMETRY
 from apmcal.solvers.tcal import TcalFit, fit_tcal
 
 RECORDS = ("auto", "imu", "tclr")
+SIGNIFICANT_SIGMAS = 2.0    # a linear drift coefficient c1 beyond 2σ of zero: a drift was seen
 
 
 @dataclass
@@ -42,6 +43,9 @@ class TcalResult:
         Total still time fitted [s]; None for TCLR records.
     notes : list of str
         What was undone, and caveats of the fit.
+    blocks : dict or None
+        The data fitted, for figures (not saved): "acc" / "gyr" → (temp_c (m,) [°C],
+        values (m, 3) [m/s² or rad/s], group (m,) int: one constant per group).
     """
 
     instance: int
@@ -51,10 +55,35 @@ class TcalResult:
     tmax_c: float
     still_s: float | None = None
     notes: list[str] = field(default_factory=list)
+    blocks: dict | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def significant(self) -> bool:
+        """True when some linear coefficient c1 (any sensor, any axis) lies beyond
+        SIGNIFICANT_SIGMAS σ of zero: the data show a drift. Without one, the fit is noise and
+        enabling it would apply noise as a calibration."""
+        for fit in self.fits.values():
+            c1, s1 = np.asarray(fit.coeffs)[0], np.asarray(fit.sigma)[0]
+            if np.any(np.abs(c1) > SIGNIFICANT_SIGMAS * s1):
+                return True
+        return False
+
+    @property
+    def withheld(self) -> str:
+        """Why this result's parameters are not proposed ("" when they are)."""
+        if self.significant:
+            return ""
+        return (f"INS_TCAL{self.instance + 1}_* not proposed: no drift coefficient is "
+                f"significant (every c1 within {SIGNIFICANT_SIGMAS:g}σ of zero), so over "
+                f"{self.tmin_c:.1f}-{self.tmax_c:.1f} °C the drift is below the noise; "
+                "enabling it would apply noise as a calibration")
 
     def params(self) -> dict[str, float]:
         """The INS_TCALn_* parameter values of this result
-        (:func:`apmcal.ardupilot.tcal_params.tcal_param_values`)."""
+        (:func:`apmcal.ardupilot.tcal_params.tcal_param_values`); empty when no coefficient is
+        significant (:attr:`withheld` says so)."""
+        if not self.significant:
+            return {}
         return tcal_param_values(self.instance, {s: f.coeffs for s, f in self.fits.items()},
                                  self.tmin_c, self.tmax_c)
 
@@ -62,6 +91,7 @@ class TcalResult:
         """The result as plain data (JSON report)."""
         return {"instance": self.instance, "source": self.source, "tmin_c": self.tmin_c,
                 "tmax_c": self.tmax_c, "still_s": self.still_s, "notes": self.notes,
+                "significant": self.significant, "withheld": self.withheld,
                 **{s: f.to_dict() for s, f in self.fits.items()}}
 
 
@@ -160,7 +190,9 @@ def _from_tclr(instance: int, data: dict, path: str) -> TcalResult:
                                t_s=data[s]["t_s"])
         except ApmcalError as err:
             raise ApmcalError(f"IMU instance {instance} {s}: {err.why}", path) from None
-    return TcalResult(instance, "TCLR", fits, tmin, tmax)
+    blocks = {s: (np.asarray(data[s]["temp_c"]), np.asarray(data[s]["values"]),
+                  np.zeros(len(data[s]["temp_c"]), dtype=int)) for s in ("acc", "gyr")}
+    return TcalResult(instance, "TCLR", fits, tmin, tmax, blocks=blocks)
 
 
 def _from_samples(recording, contents, min_still_s: float, block_s: float) -> TcalResult:
@@ -223,7 +255,8 @@ def _from_samples(recording, contents, min_still_s: float, block_s: float) -> Tc
     if len(set(blocks.group.tolist())) > 1:
         notes.append(f"{len(set(blocks.group.tolist()))} orientations, one constant each")
     return TcalResult(inst, recording.message, fits, blocks.temp_min_c, blocks.temp_max_c,
-                      still_s, notes)
+                      still_s, notes, {s: (blocks.temp_c, v, blocks.group)
+                                       for s, v in (("acc", blocks.acc), ("gyr", blocks.gyr))})
 
 
 def _tcal_in_force(params, instance, path):

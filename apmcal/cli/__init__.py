@@ -51,6 +51,7 @@ def build_parser():
     sub = parser.add_subparsers(dest="command", required=True)
     for module in COMMANDS.values():
         module.add_parser(sub)
+    parser.subcommands = sub.choices        # an unknown option is the sub-command's error
     return parser
 
 
@@ -100,7 +101,9 @@ def entry() -> None:
 def run(argv: list[str] | None, operator=None) -> int:
     """:func:`main` without the Ctrl-C handling: parse, check, run the command; exit status."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:           # said by the sub-command's parser: "see apmcal gap --help"
+        parser.subcommands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
     args.guide_operator = operator
     if args.command == "log":
         one_blas_thread_from_start()        # before numpy loads (see apmcal.core.blas_threads)

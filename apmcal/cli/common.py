@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
 import time
 from pathlib import Path
@@ -128,10 +127,16 @@ def add_calibration_options(p: argparse.ArgumentParser) -> None:
                    default=None, help="longitude [deg], -180 to 180 (needs --lat): only for the "
                                       "magnetometer's field magnitude (WMM)")
     add_session_options(p)
-    p.add_argument("--param-file", default=None, help="write proposed parameters (.param)")
-    p.add_argument("--json", default=None,
+    p.add_argument("--param-file", default=None, metavar="FILE",
+                   help="write the proposed parameters to FILE (Mission Planner/MAVProxy .param; "
+                        "QGroundControl's .params with --param-format qgc)")
+    p.add_argument("--param-format", choices=["param", "qgc"], default="param",
+                   help="format of --param-file: param (default) or qgc (tab-separated .params)")
+    p.add_argument("--json", default=None, metavar="FILE",
                    help="write summary and calibration as JSON (also when --param-file fails)")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--report", default=None, metavar="DIR",
+                   help="write an HTML report with figures to DIR/index.html")
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     p.add_argument("--verbose", action="store_true",
                    help="also print the specialist's lines (fit internals, paper references, "
                         "the model's misfit); the --json output always has them")
@@ -150,7 +155,9 @@ def console_for(args):
 
 
 def check_writable(path, what: str) -> None:
-    """Refuse, before any work, an output path that cannot be written (without creating it).
+    """Refuse, before any work, an output path that cannot be written: tried by creating it
+    (and removing it again when it did not exist), so that /proc, a read-only mount or a full
+    disk is found now and not after the work.
 
     Parameters
     ----------
@@ -162,7 +169,7 @@ def check_writable(path, what: str) -> None:
     Raises
     ------
     ApmcalError
-        When the path is a directory, its directory is missing or not writable.
+        When the path is a directory, its directory is missing, or it cannot be created.
     """
     if path is None:
         return
@@ -174,12 +181,54 @@ def check_writable(path, what: str) -> None:
         why = f"directory {parent} does not exist"
     elif not parent.is_dir():
         why = f"{parent} is not a directory"
-    elif not os.access(p if p.exists() else parent, os.W_OK):
-        why = "permission denied"
     else:
-        return
+        why = _try_create(p)
+        if why is None:
+            return
     # refused before reading or recording anything: no other output (--json included) is
     # written either, so the user fixes the path and loses nothing
+    raise ApmcalError(f"cannot write {what}: {why}; stopped before any work, nothing written",
+                      str(path))
+
+
+def _try_create(p: Path) -> str | None:
+    """Open ``p`` for appending (created if missing, then removed); why not, or None."""
+    existed = p.exists()
+    try:
+        with open(p, "a"):
+            pass
+    except OSError as err:
+        return (err.strerror or str(err)).lower()
+    if not existed:
+        try:
+            p.unlink()
+        except OSError:
+            pass
+    return None
+
+
+def check_writable_dir(path, what: str) -> None:
+    """Refuse, before any work, an output directory that cannot be made or written into
+    (made now when missing; a probe file created in it and removed).
+
+    Raises
+    ------
+    ApmcalError
+        When the path is a file, cannot be made, or a file cannot be created in it.
+    """
+    if path is None:
+        return
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        why = "not a directory"
+    else:
+        try:
+            p.mkdir(parents=True, exist_ok=True)
+            why = _try_create(p / ".apmcal-write-check")
+        except OSError as err:
+            why = (err.strerror or str(err)).lower()
+        if why is None:
+            return
     raise ApmcalError(f"cannot write {what}: {why}; stopped before any work, nothing written",
                       str(path))
 
@@ -189,11 +238,27 @@ def check_outputs(args) -> None:
     if not getattr(args, "summary_only", False):
         check_writable(args.param_file, "parameter file")
     check_writable(args.json, "JSON file")
+    check_writable_dir(getattr(args, "report", None), "the report")
+
+
+#: where ``live`` and the uploads put the files the user named no place for (recordings, backups);
+#: the project's .gitignore covers it
+DEFAULT_FOLDER = "apmcal-files"
+
+
+def default_path(name: str) -> str:
+    """``apmcal-files/<name>``, the folder made when missing (a failure is left to the
+    output check, which names it)."""
+    try:
+        Path(DEFAULT_FOLDER).mkdir(exist_ok=True)
+    except OSError:
+        pass
+    return str(Path(DEFAULT_FOLDER) / name)
 
 
 def default_backup_name() -> str:
-    """``apmcal-backup-<local time>.param`` in the current directory."""
-    return f"apmcal-backup-{time.strftime('%Y%m%d-%H%M%S')}.param"
+    """``apmcal-files/apmcal-backup-<local time>.param``."""
+    return default_path(f"apmcal-backup-{time.strftime('%Y%m%d-%H%M%S')}.param")
 
 
 def upload_values(connection, values, backup, vehicle_params, console, baud,
@@ -226,7 +291,7 @@ def upload_values(connection, values, backup, vehicle_params, console, baud,
 
     backup = backup or default_backup_name()
     check_writable(backup, "backup file")
-    with VehicleLink(connection, baud=baud) as link:
+    with VehicleLink(connection, baud=baud, announce=console.print) as link:
         result = upload_params(link, values, backup, vehicle_params, all_params)
     console.print(f"wrote and verified {len(result.written)} parameters; backup in {backup} "
                   f"(undo: apmcal restore {connection} {backup})")

@@ -2,9 +2,13 @@
 unmodelled effect causes it (:mod:`apmcal.diagnosis`); summary and files out."""
 from __future__ import annotations
 
-from pathlib import Path
-
-from apmcal.cli.common import add_session_options, check_writable, console_for, number_type
+from apmcal.cli.common import (
+    add_session_options,
+    check_writable,
+    check_writable_dir,
+    console_for,
+    number_type,
+)
 from apmcal.core.errors import ApmcalError
 
 
@@ -30,7 +34,7 @@ def add_parser(sub) -> None:
                      help="write the selected effects as a simulator configuration "
                           "(python -m apmcal_sim --twin TWIN.json), or with .parm/.param as "
                           "ArduPilot SITL parameters (docs/sitl-twin.md)")
-    gap.add_argument("--quiet", action="store_true")
+    gap.add_argument("--quiet", action="store_true", help="print nothing but errors")
 
 
 def run(args) -> int:
@@ -79,13 +83,7 @@ def check_outputs(args) -> None:
     """
     check_writable(args.json, "JSON file")
     check_writable(args.write_twin, "twin file")
-    if args.report is not None:
-        report = Path(args.report)
-        if report.exists() and not report.is_dir():
-            raise ApmcalError("cannot write the report: not a directory", str(report))
-        if not report.exists() and not report.parent.is_dir():
-            raise ApmcalError(f"cannot write the report: {report.parent} does not exist",
-                              str(report))
+    check_writable_dir(args.report, "the report")
 
 
 def run_gap(args, console) -> int:

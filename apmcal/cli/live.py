@@ -13,6 +13,7 @@ from apmcal.cli.common import (
     check_writable,
     console_for,
     default_backup_name,
+    default_path,
     number_type,
     upload_values,
 )
@@ -29,7 +30,8 @@ def add_parser(sub) -> None:
                       help="seconds to record (default 60)")
     live.add_argument("--rate", type=number_type(int, 1, 1000, what="an integer rate [Hz]"),
                       default=50, help="IMU stream rate [Hz], 1 to 1000 (default 50)")
-    live.add_argument("--save-log", default=None, help="keep the recording as this .tlog")
+    live.add_argument("--save-log", default=None, help="keep the recording as this .tlog "
+                           "(default apmcal-files/apmcal-live-<time>.tlog)")
     live.add_argument("--guide", choices=["ardupilot6"], default=None,
                       help="prompt ArduPilot's six accel-cal poses one by one, check each "
                            "(instead of --duration); Enter confirms a pose")
@@ -43,7 +45,8 @@ def add_parser(sub) -> None:
                            "hold (default 120 s)")
     live.add_argument("--upload", action="store_true",
                       help="write the proposed parameters to the vehicle (backed up, verified)")
-    live.add_argument("--backup", default=None, help="backup file (default apmcal-backup-<time>.param)")
+    live.add_argument("--backup", default=None,
+                      help="backup file (default apmcal-files/apmcal-backup-<time>.param)")
     add_calibration_options(live)
 
 
@@ -53,14 +56,15 @@ def run(args) -> int:
     from apmcal.sources.live import VehicleLink
 
     console = console_for(args)
-    log_path = args.save_log or f"apmcal-live-{time.strftime('%Y%m%d-%H%M%S')}.tlog"
+    log_path = args.save_log or default_path(f"apmcal-live-{time.strftime('%Y%m%d-%H%M%S')}.tlog")
     # every output checked before connecting: no minute of recording lost to a typo
     check_writable(log_path, "recording")
     check_outputs(args)
     if args.upload:     # the default backup goes to the current directory: check that too
         check_writable(args.backup or default_backup_name(), "backup file")
     try:
-        link = VehicleLink(args.connection, record_to=log_path, baud=args.baud)
+        link = VehicleLink(args.connection, record_to=log_path, baud=args.baud,
+                           announce=console.print)
     except OSError as exc:
         if exc.filename is None or Path(exc.filename) != Path(log_path):
             raise

@@ -9,7 +9,7 @@ from apmcal.core.errors import ApmcalError
 def add_parser(sub) -> None:
     """The ``log`` sub-command and its options."""
     log = sub.add_parser("log", help="summarise and calibrate from a .tlog, .bin, .log or .csv file")
-    log.add_argument("file")
+    log.add_argument("file", help="the log: .tlog, dataflash .bin or .log, or .csv")
     add_calibration_options(log)
     log.add_argument("--summary-only", action="store_true", help="only print what the file holds")
     log.add_argument("--layout", default="auto",
@@ -93,16 +93,28 @@ def summarise_and_calibrate(contents, args):
     console = console_for(args)
     require_plausible_units(contents)       # a sensor in impossible units is not data
     report = SessionReport.build(contents)
-    report.print_summary(console)           # before the work: what the file holds
     param_error = None
-    if not getattr(args, "summary_only", False):
+    if getattr(args, "summary_only", False):
+        report.print_summary(console)
+    else:
         from apmcal.calibration.log import calibrate_log
         from apmcal.core.options import Options
 
         report = report.with_calibration(*calibrate_log(contents, Options(
             args.method, args.lat, args.lon, args.min_still, args.instance, args.firmware)))
-        report.print_calibration(console, args.verbose)
-        param_error = write_params(report, args.param_file, console)
+        param_error = write_params(report, args.param_file, None,
+                                   getattr(args, "param_format", "param"))
+        # the verdict first, then how to apply it, the proposal, the numbers; what the file
+        # holds last
+        report.print_calibration(console, args.verbose, getattr(args, "connection", None))
+        console.print()
+        report.print_summary(console, args.verbose)
+        if args.param_file and param_error is None:
+            console.print(f"wrote {args.param_file}")
+    if getattr(args, "report", None) and report.calibration is not None:
+        from apmcal.report.html import write_session_html
+
+        console.print(f"wrote {write_session_html(report, contents, args.report)}")
     if args.json:
         report.save(args.json)
         console.print(f"wrote {args.json}")
@@ -111,14 +123,15 @@ def summarise_and_calibrate(contents, args):
     return report
 
 
-def write_params(report, path, console) -> ApmcalError | None:
+def write_params(report, path, console, fmt: str = "param") -> ApmcalError | None:
     """``--param-file``: the proposal written (and said), or the error that stopped it, to be
-    raised once the JSON file is written too."""
+    raised once the JSON file is written too (``fmt``: "param" or "qgc")."""
     if not path:
         return None
     try:
-        report.write_params(path)
+        report.write_params(path, fmt)
     except ApmcalError as err:
         return err
-    console.print(f"wrote {path}")
+    if console is not None:
+        console.print(f"wrote {path}")
     return None

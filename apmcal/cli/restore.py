@@ -29,9 +29,9 @@ def run(args) -> int:
     from apmcal.sources.live import VehicleLink
 
     read_param_file(args.backup_file)       # a missing or bad file fails before connecting
-    with VehicleLink(args.connection, baud=args.baud) as link:
-        result = restore_params(link, args.backup_file, all_params=args.all_params)
     console = console_for(args)
+    with VehicleLink(args.connection, baud=args.baud, announce=console.print) as link:
+        result = restore_params(link, args.backup_file, all_params=args.all_params)
     console.print(f"restored {len(result.written)} parameters from {args.backup_file}")
     print_skipped(result, console)
     print_left_out(getattr(result, "left_out", []), console, args.all_params)

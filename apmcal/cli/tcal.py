@@ -6,6 +6,7 @@ from apmcal.cli.common import (
     POSITIVE_SECONDS,
     add_baud_option,
     check_writable,
+    check_writable_dir,
     console_for,
     default_backup_name,
     upload_values,
@@ -28,10 +29,12 @@ def add_parser(sub) -> None:
     tcal.add_argument("--upload", default=None, metavar="CONNECTION",
                       help="write INS_TCALn_* to the vehicle (backed up, verified)")
     tcal.add_argument("--backup", default=None, help="backup file with --upload "
-                                                     "(default apmcal-backup-<time>.param)")
+                                                     "(default apmcal-files/apmcal-backup-<time>.param)")
     add_baud_option(tcal)
-    tcal.add_argument("--json", default=None, help="write the fit as JSON")
-    tcal.add_argument("--quiet", action="store_true")
+    tcal.add_argument("--json", default=None, metavar="FILE", help="write the fit as JSON")
+    tcal.add_argument("--report", default=None, metavar="DIR",
+                      help="write an HTML report with the drift figures to DIR/index.html")
+    tcal.add_argument("--quiet", action="store_true", help="print nothing but errors")
 
 
 def run(args) -> int:
@@ -43,6 +46,7 @@ def run(args) -> int:
 
     check_writable(args.param_file, "parameter file")
     check_writable(args.json, "JSON file")
+    check_writable_dir(args.report, "the report")
     if args.upload:
         check_writable(args.backup or default_backup_name(), "backup file")
 
@@ -55,12 +59,23 @@ def run(args) -> int:
     values = tcal.params()
     if args.json:
         tcal.save(args.json)
+    if getattr(args, "report", None):
+        from apmcal.report.html import write_tcal_html
+
+        console.print(f"wrote {write_tcal_html(tcal, args.file, args.report)}")
+    withheld = [r.withheld for r in tcal.results if r.withheld]
     if args.param_file:
         from apmcal.ardupilot.paramfile import write_param_file
 
-        write_param_file(args.param_file, values, f"apmcal tcal of {args.file}")
-        console.print(f"wrote {args.param_file}")
-    if args.upload:
+        # a file whose every instance is withheld holds only the reason: loading it changes
+        # nothing on the vehicle
+        write_param_file(args.param_file, values, "\n".join([f"apmcal tcal of {args.file}",
+                                                              *withheld]))
+        console.print(f"wrote {args.param_file}" + ("" if values else
+                                                    " (no parameter: nothing to enable)"))
+    if args.upload and not values:
+        console.print("nothing uploaded: no temperature calibration is significant")
+    elif args.upload:
         upload_values(args.upload, values, args.backup, None, console, args.baud)
         # AP_InertialSensor_tempcal.cpp: INS_TCALn_ENABLE is @RebootRequired
         console.print("INS_TCALn_ENABLE takes effect at the vehicle's next reboot")

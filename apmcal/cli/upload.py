@@ -25,7 +25,7 @@ def add_parser(sub) -> None:
                                            "udp:127.0.0.1:14550")
     upload.add_argument("param_file", help="the parameters to write (.param: NAME VALUE lines)")
     upload.add_argument("--backup", default=None,
-                        help="backup file (default apmcal-backup-<time>.param)")
+                        help="backup file (default apmcal-files/apmcal-backup-<time>.param)")
     upload.add_argument("--all-params", action="store_true", help=ALL_PARAMS_HELP)
     add_baud_option(upload)
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import socket
 import struct
 import time
 from pathlib import Path
@@ -34,16 +35,22 @@ class Connection:
         Every received message is appended there as a .tlog record.
     baud : int
         Serial links only (ignored by network links, as in MAVProxy).
+    announce : callable, optional
+        Told (one str) that the heartbeat is awaited, and for how long, so that the wait is
+        never a silent hang (the command line passes its console's print).
     """
 
     def __init__(self, connection: str, timeout_s: float = 10.0,
-                 record_to: str | Path | None = None, baud: int = DEFAULT_BAUD):
+                 record_to: str | Path | None = None, baud: int = DEFAULT_BAUD,
+                 announce=None):
         from pymavlink import mavutil
 
         self.connection = connection
         self._mavutil = mavutil
         self.master = open_connection(connection, baud)
         self._tlog = None
+        if announce is not None:
+            announce(f"waiting for a heartbeat from {connection} ({timeout_s:g} s) …")
         try:
             heartbeat = self.wait_heartbeat(timeout_s)
         except ApmcalError:
@@ -153,6 +160,7 @@ def open_connection(connection: str, baud: int = DEFAULT_BAUD):
         # pymavlink would read a file as a log (and hang at its end) or run it as a program
         raise ApmcalError("a file, not a connection (a serial port, udp:, tcp:): to calibrate "
                           f"a log use `apmcal log {connection}`", connection)
+    check_host(connection)
     chatter = io.StringIO()
     try:
         with contextlib.redirect_stdout(chatter):
@@ -170,3 +178,28 @@ def open_connection(connection: str, baud: int = DEFAULT_BAUD):
     except Exception as exc:  # pymavlink raises many types for a bad connection string
         why = " ".join(str(exc).split()) or type(exc).__name__
         raise ApmcalError(f"cannot open connection ({why})", connection) from None
+
+
+NETWORK_PREFIXES = ("udp:", "udpin:", "udpout:", "udpbcast:", "tcp:", "tcpin:")
+
+
+def check_host(connection: str) -> None:
+    """An unresolvable host of a network connection ("udp:HOST:PORT", "tcp:HOST:PORT") said at
+    once, instead of a wait for a heartbeat that cannot come.
+
+    Raises
+    ------
+    ApmcalError
+        When the host name does not resolve.
+    """
+    if not connection.lower().startswith(NETWORK_PREFIXES):
+        return
+    parts = connection.split(":")
+    if len(parts) < 3 or not parts[1]:
+        return                                   # pymavlink's own message says what is missing
+    host = parts[1]
+    try:
+        socket.getaddrinfo(host, None)
+    except (socket.gaierror, UnicodeError):
+        raise ApmcalError(f"cannot resolve host {host!r}: check the name (or use its IP "
+                          "address)", connection) from None

@@ -77,8 +77,15 @@ def prepare(recording: Recording, generation: str | None = None) -> Prepared:
     return Prepared(recording, steps, floor_steps, warnings)
 
 
+ABSURD_FACTOR = 1e4     # a sample this many times the sensor's 95th-percentile magnitude is
+                        # no reading (no sensor's range spans four decades above its typical
+                        # signal); unit-free, so it holds for m/s², rad/s, mGauss and raw counts
+
+
 def drop_non_finite(recording: Recording) -> tuple[Recording, list[str]]:
-    """Rows whose time or sensor values are NaN/inf removed, with a counted warning.
+    """Rows whose time or sensor values are NaN/inf, or absurd (a sensor's magnitude above
+    ABSURD_FACTOR × its 95th percentile, e.g. one 1e308), removed with a counted warning, so
+    that a stray value never changes the stillness detection or the method.
 
     Parameters
     ----------
@@ -92,13 +99,29 @@ def drop_non_finite(recording: Recording) -> tuple[Recording, list[str]]:
         The warning (empty when nothing was dropped).
     """
     cols = ["t"] + [c for s in recording.sensors for c in SENSOR_COLUMNS[s]]
-    finite = np.isfinite(recording.data[cols].to_numpy(dtype=float)).all(axis=1)
-    bad = int(np.count_nonzero(~finite))
+    values = recording.data[cols].to_numpy(dtype=float)
+    finite = np.isfinite(values).all(axis=1)
+    absurd = np.zeros(len(values), dtype=bool)
+    for sensor in recording.sensors:
+        xyz = recording.data[SENSOR_COLUMNS[sensor]].to_numpy(dtype=float)
+        norm = np.max(np.abs(xyz), axis=1)          # the largest axis: no overflow at 1e308
+        ok = np.isfinite(norm)
+        if ok.sum() < 2:
+            continue
+        typical = np.percentile(norm[ok], 95)
+        if typical > 0:
+            absurd |= ok & (norm > ABSURD_FACTOR * typical)
+    keep = finite & ~absurd
+    bad = int(np.count_nonzero(~keep))
     if bad == 0:
         return recording, []
-    kept = recording.data.loc[finite].reset_index(drop=True)
+    kept = recording.data.loc[keep].reset_index(drop=True)
+    why = [f"{int(np.count_nonzero(~finite))} with NaN/inf values"] if not finite.all() else []
+    if absurd.any():
+        why.append(f"{int(np.count_nonzero(absurd & finite))} absurd (over "
+                   f"{ABSURD_FACTOR:.0e} × the sensor's typical magnitude)")
     return (replace(recording, data=kept),
-            [f"{bad} of {len(finite)} samples with NaN/inf values dropped"])
+            [f"{bad} of {len(keep)} samples dropped: " + ", ".join(why)])
 
 def recording_date(contents) -> datetime.date | None:
     """UTC date the source was recorded, when the source carries a wall-clock time.

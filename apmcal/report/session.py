@@ -13,7 +13,13 @@ from dataclasses import dataclass, field, replace
 
 from apmcal.core.errors import ApmcalError
 from apmcal.core.json_file import write_json
-from apmcal.report.text import print_calibration, print_summary, summarize, verdict_dict
+from apmcal.report.text import (
+    print_calibration,
+    print_summary,
+    raw_count_sensors,
+    summarize,
+    verdict_dict,
+)
 
 
 @dataclass
@@ -58,27 +64,31 @@ class SessionReport:
             return {}
         from apmcal.report.verdict import judge
 
-        return judge(self.calibration, self.proposal)
+        return judge(self.calibration, self.proposal, raw_count_sensors(self.summary))
 
     @property
     def status(self) -> int:
         """Exit status: 1 when the firmware would reject some proposed value, else 0."""
         return 0 if self.proposal is None or not self.proposal.rejected else 1
 
-    def print_summary(self, console) -> None:
+    def print_summary(self, console, verbose: bool = True) -> None:
         """What the file holds (:func:`apmcal.report.text.print_summary`)."""
-        print_summary(self.summary, console)
+        print_summary(self.summary, console, verbose)
 
-    def print_calibration(self, console, verbose: bool = False) -> None:
-        """The verdict, the numbers and the proposal (:func:`apmcal.report.text.print_calibration`)."""
+    def print_calibration(self, console, verbose: bool = False, link: str | None = None) -> None:
+        """The verdict, how to apply it, the proposal beside the values in force, the numbers
+        (:func:`apmcal.report.text.print_calibration`); ``link``: the vehicle's connection."""
         if self.calibration is not None:
-            print_calibration(self.calibration, self.proposal, console, verbose)
+            print_calibration(self.calibration, self.proposal, console, verbose,
+                              summary=self.summary, link=link,
+                              param_file=self.outputs.get("param_file"))
 
     def to_dict(self) -> dict:
         """This report's own top-level JSON fields (the calibration's are added by :meth:`save`)."""
         out = {"summary": self.summary}
         if self.calibration is not None:
-            out["verdict"] = verdict_dict(self.calibration, self.proposal)
+            out["verdict"] = verdict_dict(self.calibration, self.proposal,
+                                          raw_count_sensors(self.summary))
             if self.proposal is not None:       # its values are the calibration's own "params"
                 out["rejected_params"] = dict(self.proposal.rejected)
         out.update(self.outputs)
@@ -91,8 +101,9 @@ class SessionReport:
         else:
             self.calibration.save(path, extra=self.to_dict())     # schema, units, report + ours
 
-    def write_params(self, path) -> None:
-        """The proposed parameters as a .param file; the outcome is kept for the JSON file
+    def write_params(self, path, fmt: str = "param") -> None:
+        """The proposed parameters as a .param file (QGroundControl's .params with
+        ``fmt="qgc"``); the outcome is kept for the JSON file
         ("param_file", or "param_file_error" with the reason) and an error raised again.
 
         Raises
@@ -106,7 +117,7 @@ class SessionReport:
                                   "parameters for: add --firmware 3.2 or --firmware 3.3+",
                                   self.path)
             self.proposal.write(path, f"apmcal {self.calibration.method} calibration of "
-                                      f"{self.path}")
+                                      f"{self.path}", fmt)
         except ApmcalError as err:
             self.outputs["param_file_error"] = str(err)
             raise

@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from apmcal.ardupilot.tcal_params import TEMP_REFERENCE_C, polynomial
+from apmcal.report.text import say
 
 UNITS = {"acc": ("m/s²", "accelerometer"), "gyr": ("rad/s", "gyro")}
 
@@ -29,3 +30,5 @@ def print_tcal(results, console) -> None:
                 terms = " ".join(f"c{k + 1} {fit.coeffs[k, j]:+.4g} ± {fit.sigma[k, j]:.2g}"
                                  for k in range(3))
                 console.print(f"    {axis}  {terms}  drift {drift[j]:+.3g} {unit}")
+        if r.withheld:
+            say(console, r.withheld, "  ")

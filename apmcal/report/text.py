@@ -65,7 +65,34 @@ def summarize(contents: LogContents) -> dict:
             "bytes_skipped": contents.bytes_skipped, "messages": contents.messages[:20],
             "notes": reader_notes(contents), "recorded_utc": _utc(contents.start_unix_s),
             "recorded_by": "ground station clock" if contents.format == "tlog" else "GPS time",
-            "param_changes": [str(c) for c in contents.param_changes]}
+            "param_changes": [str(c) for c in contents.param_changes],
+            "moving_share": moving_share(contents)}
+
+
+FLIGHT_MOVING_FRACTION = 0.3    # moving in more than this share of 1 s windows: a flight log
+MOVING_STD_RAD_S = 0.05         # gyro scatter within a 1 s window above this: moving (a bias,
+                                # however large, has no scatter; a hand-held pose has little)
+
+
+def moving_share(contents: LogContents) -> float | None:
+    """The share of 1 s windows in which the first gyro recording moves (gyro scatter within
+    the window above MOVING_STD_RAD_S); None for a CSV file (the user's own session) or too
+    little data. A still-stretch calibration of a log moving in more than
+    FLIGHT_MOVING_FRACTION of it is a flight log's."""
+    if contents.format == "csv":
+        return None
+    rec = next((r for r in contents.recordings if "gyr" in r.sensors and len(r) > 1), None)
+    if rec is None:
+        return None
+    per_window = max(2, int(round(rec.rate_hz))) if np.isfinite(rec.rate_hz) else 2
+    xyz = rec.xyz("gyr")
+    n = len(xyz) // per_window
+    if n < 10:
+        return None
+    windows = xyz[: n * per_window].reshape(n, per_window, 3)
+    with np.errstate(invalid="ignore"):
+        moving = np.nanmax(np.nanstd(windows, axis=1), axis=1) > MOVING_STD_RAD_S
+    return round(float(np.mean(moving)), 3)
 
 
 def _utc(unix_s: float | None) -> str | None:
@@ -89,22 +116,28 @@ def _note(text: str) -> Text:
     return Text(text)
 
 
-def print_summary(summary: dict, console) -> None:
-    """Render :func:`summarize` output with rich.
+def print_summary(summary: dict, console, verbose: bool = True) -> None:
+    """Render :func:`summarize` output with rich (the parameters in force only when
+    ``verbose``: the report shows them beside the proposed ones).
 
     Parameters
     ----------
     summary : dict
         :func:`summarize` output.
     console : rich.console.Console
+    verbose : bool
     """
     from rich import box
     from rich.table import Table
 
-    console.print(Text.assemble((str(summary["file"]), "bold"),
-                                f" ({summary['format']}); vehicle: "
-                                f"{summary['vehicle'] or 'unknown'}; firmware: "
-                                f"{summary['firmware'] or 'unknown'}"))
+    head = Text.assemble((str(summary["file"]), "bold"), f" ({summary['format']})")
+    what = (f"vehicle: {summary['vehicle'] or 'unknown'}; firmware: "
+            f"{summary['firmware'] or 'unknown'}")
+    if len(head.plain) + len(what) + 2 <= MAX_WIDTH:       # one line when it fits
+        console.print(head + Text(f"; {what}"))
+    else:
+        console.print(head)
+        console.print(Text(what))
     if summary.get("recorded_utc"):
         console.print(Text(f"recorded: {summary['recorded_utc']} ({summary['recorded_by']})"))
     # compact (no borders, one space between columns): fits 80 columns, so a piped run neither
@@ -120,10 +153,10 @@ def print_summary(summary: dict, console) -> None:
             f"{r['rate_hz']:.1f}", f"{r['duration_s']:.1f}", r["corrected"], r["frame"])])
     console.print(table)
     params = summary["calibration_params_in_force"]
-    if params:
-        console.print(Text("calibration parameters in force: " +
-                           ", ".join(f"{k}={v:.6g}" for k, v in params.items())))
-    else:
+    if params and verbose:
+        say(console, "calibration parameters in force: " +
+            ", ".join(f"{k}={v:.6g}" for k, v in params.items()))
+    elif not params:
         console.print(Text(f"calibration parameters in force: none found "
                            f"({summary['param_count']} parameters in the log)"))
     if summary["bytes_skipped"]:
@@ -132,7 +165,11 @@ def print_summary(summary: dict, console) -> None:
     for change in summary.get("param_changes", []):
         console.print(_note(f"warning: while recording, {change}"))
     for note in summary.get("notes", []):
-        console.print(_note(note))
+        note_text = _note(note)
+        if len(note_text.plain) <= MAX_WIDTH:
+            console.print(note_text)
+        else:
+            say(console, note_text)
 
 
 # Report lines for the specialist: shown with --verbose only (the JSON keeps them all). A line
@@ -140,7 +177,8 @@ def print_summary(summary: dict, console) -> None:
 TECHNICAL_MARKERS = ("[Niespodziany]", "[Chow]", "[Oppong]", "antithetic", "Jacobian", "rank ",
                      "second-order fit bias", "coverage eigenvalues", "condition number",
                      "cannot be separated", "NOT determinable", "not determinable at",
-                     "relative MSE", "β, γ, μ", "τ, ξ, ν", "R_f", "(1σ)", "huber", "averaged in blocks")
+                     "relative MSE", "β, γ, μ", "τ, ξ, ν", "R_f", "(1σ)", "huber", "averaged in blocks",
+                     "≈ mean: the high-pass mean", "E not computed", "E is reported")
 
 
 def is_technical(line: str) -> bool:
@@ -148,17 +186,44 @@ def is_technical(line: str) -> bool:
     return any(marker in line for marker in TECHNICAL_MARKERS)
 
 
-GRADE_STYLE = {"good": "green", "usable": "yellow", "redo": "red"}
+GRADE_STYLE = {"good": "green", "usable": "yellow", "redo": "red", "not measured": "dim"}
+MAX_WIDTH = 100        # default report lines are wrapped at this many characters
 
 
-def print_verdict(verdicts: dict, console) -> None:
-    """The overall grade, its reason and next step, then one line per sensor.
+def say(console, text, indent: str = "", style: str = "") -> None:
+    """Print ``text`` (str or Text) wrapped at :data:`MAX_WIDTH` characters, continuation lines
+    indented two more than ``indent``; never cut inside a word."""
+    import textwrap
+
+    plain = text.plain if isinstance(text, Text) else str(text)
+    if len(indent) + len(plain) <= MAX_WIDTH:
+        console.print(Text(indent) + (text if isinstance(text, Text) else Text(plain, style)))
+        return
+    for line in textwrap.wrap(plain, MAX_WIDTH, initial_indent=indent,
+                              subsequent_indent=indent + "  ", break_on_hyphens=False):
+        console.print(Text(line, style))
+
+
+def _worst_first(sensors: dict) -> list:
+    """(name, Verdict) of the measured sensors, worst grade first, then the not measured."""
+    from apmcal.report.verdict import GRADES
+
+    rank = {g: i for i, g in enumerate(reversed(GRADES))}
+    return sorted(sensors.items(), key=lambda nv: rank.get(nv[1].grade, len(rank)))
+
+
+def print_verdict(verdicts: dict, console, session_note: str = "") -> None:
+    """The overall grade with each sensor's grade in one line, then ``session_note`` (what kind
+    of session this was, e.g. a flight log), then per sensor, worst first: its grade, the reason
+    and the next step.
 
     Parameters
     ----------
     verdicts : dict
         :func:`apmcal.report.verdict.judge` output (nothing printed without "overall").
     console : rich.console.Console
+    session_note : str
+        One plain sentence about the session ("" for none).
     """
     from apmcal.report.verdict import NAMES
 
@@ -166,18 +231,30 @@ def print_verdict(verdicts: dict, console) -> None:
     if overall is None:
         return
     sensors = {n: v for n, v in verdicts.items() if n != "overall"}
+    measured = [f"{NAMES[n]} {v.grade}" for n, v in sensors.items() if v.measured]
+    missing = [NAMES[n] for n, v in sensors.items() if not v.measured]
+    grades = ", ".join(measured) + (("; " if measured else "") + "not measured: "
+                                    + ", ".join(missing) if missing else "")
     console.print(Text.assemble(("verdict: ", "bold"),
                                 (overall.grade.upper(), f"bold {GRADE_STYLE[overall.grade]}"),
-                                " (" + ", ".join(f"{NAMES[n]} {v.grade}"
-                                                 for n, v in sensors.items()) + ")"))
-    for name, v in sensors.items():
-        console.print(Text.assemble(f"  {NAMES[name]}: ", (v.grade, GRADE_STYLE[v.grade]),
-                                    f" — {v.reason}"))
+                                f" ({grades})"))
+    if session_note:
+        say(console, session_note, "  ")
+    for name, v in _worst_first(sensors):
+        grade = v.grade if v.measured else "not measured by this session"
+        say(console, Text.assemble(f"{NAMES[name]}: ", (grade, GRADE_STYLE[v.grade]),
+                                   f" — {v.reason}"), "  ")
         if v.next_step:
-            console.print(Text(f"    next: {v.next_step}"))
+            say(console, f"next: {v.next_step}", "    ")
 
 
-def verdict_dict(calibration, proposal) -> dict:
+def raw_count_sensors(summary: dict | None) -> list[str]:
+    """Sensors the reader kept in raw counts (its "<sensor>: raw sensor counts" notes)."""
+    return [n.split(":")[0] for n in (summary or {}).get("notes", [])
+            if "raw sensor counts" in n and n.split(":")[0] in ("acc", "gyr", "mag")]
+
+
+def verdict_dict(calibration, proposal, raw_counts=()) -> dict:
     """The verdicts as plain dicts, for the JSON output.
 
     Parameters
@@ -193,7 +270,7 @@ def verdict_dict(calibration, proposal) -> dict:
     """
     from apmcal.report.verdict import judge
 
-    return {name: v.to_dict() for name, v in judge(calibration, proposal).items()}
+    return {name: v.to_dict() for name, v in judge(calibration, proposal, raw_counts).items()}
 
 
 def _vector(values, fmt: str) -> str:
@@ -201,9 +278,143 @@ def _vector(values, fmt: str) -> str:
     return "(" + ", ".join(format(v, fmt) for v in np.ravel(values)) + ")"
 
 
-def print_calibration(calibration, proposal, console, verbose: bool = False) -> None:
-    """Render a Calibration: the verdict first, then the numbers, the solver's report lines
-    (technical ones only when ``verbose``) and the ArduPilot parameter proposal.
+def _decimals(sigma: float) -> int:
+    """Decimal places that show two significant digits of ``sigma`` (0 for σ ≥ 10)."""
+    if not np.isfinite(sigma) or sigma <= 0:
+        return 6
+    return int(max(0, 1 - np.floor(np.log10(sigma))))
+
+
+def with_sigma(values, sigma) -> str:
+    """``(v1, v2, v3) ± (s1, s2, s3)``: each value to the precision its σ supports (σ with two
+    significant digits); without σ, four significant digits and no ± part."""
+    values = np.ravel(values)
+    if sigma is None:
+        return _vector(values, "+.4g")
+    sigma = np.ravel(sigma)
+    vals = ", ".join(f"{v:+.{_decimals(s)}f}" for v, s in zip(values, sigma))
+    sigs = ", ".join("< 1e-9" if s <= 0 else f"{s:.2g}" for s in sigma)
+    return f"({vals}) ± ({sigs})"
+
+
+#: proposal notes printed by default (the others, about what ArduPilot's parameters cannot hold,
+#: go under --verbose)
+DEFAULT_NOTES = ("withheld", "re-measured", "COMPASS_OFS is minus", "INS_ACCOFFS = INS_ACCSCAL",
+                 "unknown: assumed")
+
+MISSION_PLANNER = "Mission Planner (Config > Full Parameter List > Load from file)"
+QGROUNDCONTROL = "QGroundControl (Vehicle Setup > Parameters > Tools > Load from file)"
+
+
+def _notes(proposal, verbose: bool) -> list[str]:
+    """The proposal's notes to print: the ones that concern the values proposed, or all."""
+    notes = []
+    for note in proposal.notes:
+        if "INS_ACCOFFS = INS_ACCSCAL" in note and not any(
+                n.startswith("INS_ACC") and "OFFS" in n for n in proposal.values):
+            continue                                   # about a value that is withheld
+        if verbose or any(k in note for k in DEFAULT_NOTES):
+            notes.append(note.replace(" (see the identifiability report)",
+                                      "" if verbose else " (--verbose shows why)"))
+    return notes
+
+
+def print_apply(proposal, verdicts: dict, console, link: str | None = None,
+                param_file: str | None = None) -> None:
+    """"apply it": the exact commands that put the proposal on the vehicle and take it off.
+
+    Parameters
+    ----------
+    proposal : ParamProposal or None
+    verdicts : dict
+        :func:`apmcal.report.verdict.judge` output.
+    console : rich.console.Console
+    link : str, optional
+        The vehicle's connection (live), else "LINK".
+    param_file : str, optional
+        The parameter file written (--param-file), else a placeholder and how to write it.
+    """
+    console.print(Text("apply it:", style="bold"))
+    overall = verdicts.get("overall")
+    values = {} if proposal is None else proposal.values
+    if proposal is None:
+        say(console, "no parameters: this file names no firmware; add --firmware 3.2 or "
+                     "--firmware 3.3+ to get them", "  ")
+        return
+    if not values:
+        say(console, "nothing to apply: no parameter is proposed", "  ")
+        return
+    if overall is not None and overall.grade == "redo":
+        say(console, "not advised: the verdict is REDO; calibrate again first (the commands "
+                     "below apply it anyway)", "  ")
+    if all(n.startswith("INS_GYR") for n in values):
+        say(console, "only gyro offsets are proposed, and ArduPilot re-measures those at every "
+                     "boot (unless INS_GYR_CAL=0): applying them changes nothing you will notice",
+            "  ")
+    link = link or "LINK"
+    target = param_file or "cal.param"
+    if not param_file:
+        say(console, f"write the file: add --param-file {target} to this command, then", "  ")
+    say(console, f"apmcal upload {link} {target}   (backs up the vehicle's parameters first)",
+        "  ")
+    say(console, f"or load {target} in {MISSION_PLANNER}", "  ")
+    say(console, f"or in {QGROUNDCONTROL}", "  ")
+    say(console, f"undo: apmcal restore {link} BACKUP.param   (the backup the upload names)",
+        "  ")
+    if link == "LINK":
+        say(console, "LINK: the vehicle, e.g. /dev/ttyACM0 (USB) or udp:127.0.0.1:14550", "  ")
+
+
+def print_proposal(proposal, console, in_force: dict | None = None,
+                   verbose: bool = False) -> None:
+    """The proposed parameters beside the values in force (old → new), those the firmware
+    would refuse, and the notes that concern them."""
+    if proposal is None:
+        return
+    in_force = in_force or {}
+    console.print(Text(f"proposed parameters (ArduPilot {proposal.generation}; in force → "
+                       "proposed):", style="bold"))
+    width = max((len(n) for n in proposal.values), default=0)
+    for name, value in proposal.values.items():
+        old = in_force.get(name)
+        old_txt = "?" if old is None else f"{old:.6g}"
+        console.print(Text(f"  {name:<{width}} {old_txt} → {value:.6g}"))
+    for name, why in proposal.rejected.items():
+        say(console, Text.assemble(("not proposed", "red"), f" {name}: {why}"), "  ")
+    for note in _notes(proposal, verbose):
+        say(console, f"note: {note}", "  ")
+
+
+def session_note(calibration, summary: dict | None = None) -> str:
+    """One sentence on what kind of session this was, when it limits what it measures
+    ("" otherwise): a flight log or a single still pose measures the gyro offsets only."""
+    moving = (summary or {}).get("moving_share")
+    if calibration.method == "static" and moving is not None and moving > FLIGHT_MOVING_FRACTION:
+        return ("this is a flight log: it measures the gyro offsets only (at a still moment); "
+                "the accelerometer and compass need calibration sessions of their own")
+    if calibration.method == "static":
+        return ("one still stretch measures the gyro offsets only; the accelerometer needs six "
+                "faces, the compass turning")
+    return ""
+
+
+def frame_words(calibration, summary: dict | None) -> str:
+    """In which frame the offsets and matrices are: the frame of the recording calibrated."""
+    used = calibration.report.recording or ""
+    for r in (summary or {}).get("recordings", []):
+        if used.startswith(f"{r['message']} "):
+            frame = r["frame"]
+            return (f"{frame} frame, as logged" + (" (after AHRS_ORIENTATION)"
+                                                   if frame == "body" else ""))
+    return "the frame of the data"
+
+
+def print_calibration(calibration, proposal, console, verbose: bool = False, *,
+                      summary: dict | None = None, link: str | None = None,
+                      param_file: str | None = None) -> None:
+    """Render a Calibration top down: the verdict (first line), how to apply it, the proposed
+    parameters beside the values in force, then the numbers and the findings (the technical
+    ones, fit internals and the proposal's cost notes only when ``verbose``).
 
     Parameters
     ----------
@@ -214,39 +425,50 @@ def print_calibration(calibration, proposal, console, verbose: bool = False) -> 
     console : rich.console.Console
     verbose : bool
         Also the technical report lines and :func:`apmcal.report.lines.verbose_lines`.
+    summary : dict, optional
+        :func:`summarize` of the file: the parameters in force, the frame, the session kind.
+    link : str, optional
+        The vehicle's connection string (live) for the apply commands.
+    param_file : str, optional
+        The parameter file written, for the apply commands.
     """
-    from apmcal.report.verdict import judge
+    from apmcal.report.verdict import judge, plain
 
-    print_verdict(judge(calibration, proposal), console)
+    verdicts = judge(calibration, proposal, raw_count_sensors(summary))
+    print_verdict(verdicts, console, session_note(calibration, summary))
+    print_apply(proposal, verdicts, console, link, param_file)
+    print_proposal(proposal, console, (summary or {}).get("calibration_params_in_force"),
+                   verbose)
+    print_numbers(calibration, console, verbose, summary)
+    said = {v.reason for v in verdicts.values()}
+    for line in calibration.report.warnings:
+        if any(plain(line.removeprefix("magnetometer not calibrated: ")) in r for r in said):
+            continue                                 # already the verdict's reason
+        say(console, Text.assemble(("warning:", "yellow"), f" {plain(line)}"), "  ")
+
+
+def print_numbers(calibration, console, verbose: bool, summary: dict | None = None) -> None:
+    """The estimates with their σ, in their frame, then the solver's findings."""
+    from apmcal.report.lines import calibration_lines, verbose_lines
+    from apmcal.report.verdict import plain
+
     used = calibration.report.recording
     console.print(Text.assemble(("method:", "bold"), f" {calibration.method}"
                                 + (f" on {used}" if used else "")))
+    say(console, f"numbers: apmcal's model, corrected = matrix · (raw − offset), in the "
+                 f"{frame_words(calibration, summary)}; ± is 1σ", "  ")
     units = {"acc": "m/s²", "gyr": "rad/s", "mag": "mGauss"}
     for name, cal in calibration.sensors.items():
-        sig = cal.sigma.get("offset")
-        sig_txt = "" if sig is None else " ± " + _vector(sig, ".2g")
-        console.print(Text(f"  {name}: offset [{units[name]}] = {_vector(cal.offset, '+.6g')}"
-                           f"{sig_txt}"))
-        with np.printoptions(precision=6, suppress=True):
+        console.print(Text(f"  {name}: offset [{units[name]}] = "
+                           f"{with_sigma(cal.offset, cal.sigma.get('offset'))}"))
+        with np.printoptions(precision=4, suppress=True):
             console.print(Text("    matrix = " + str(cal.matrix).replace("\n", "\n             ")))
         if np.any(cal.drift):
-            console.print(Text(f"    drift [{units[name]}/s] = {cal.drift}"))
-    from apmcal.report.lines import calibration_lines, verbose_lines
-
+            console.print(Text(f"    drift [{units[name]}/s] = {_vector(cal.drift, '+.3g')}"))
     # identifiability, residuals, verdicts of the fits
     for line in calibration_lines(calibration.report, calibration.sensors):
         if verbose or not is_technical(line):
-            console.print(Text(f"  {line}"))
-    for line in calibration.report.warnings:
-        console.print(Text.assemble("  ", ("warning:", "yellow"), f" {line}"))
+            say(console, line if verbose else plain(line), "  ")
     if verbose:
         for line in verbose_lines(calibration.report):      # the six-face misfit, Earth rate
-            console.print(Text(f"  {line}"))
-    if proposal is not None:
-        console.print(Text(f"ArduPilot parameters ({proposal.generation}):", style="bold"))
-        for name, value in proposal.values.items():
-            console.print(Text(f"  {name} {value:.6g}"))
-        for name, why in proposal.rejected.items():
-            console.print(Text.assemble("  ", ("not proposed", "red"), f" {name}: {why}"))
-        for note in proposal.notes:
-            console.print(Text(f"  note: {note}"))
+            say(console, line, "  ")

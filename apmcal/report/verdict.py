@@ -21,11 +21,13 @@ Thresholds, and why (1σ values, as reported):
   MIN_SCATTER_FULL, the ellipsoid fit's own limit for trusting cross-axis terms) is redo; under
   MIN_MAG_FRACTION of the sphere within 20° of a sample is usable. Offset σ: good ≤ 1 % of the
   field (a 0.6° heading error at most), usable ≤ 5 % (3°), else redo.
-* A sensor the method could not determine, or could not calibrate at all, or whose parameters
-  the firmware would refuse, is redo.
-* The overall grade is the worst of the sensors the session measured: a compass the session
-  did not turn through enough directions (``report.not_measured``: six still poses, one
-  position) is redo on its own line, but does not drag an accelerometer calibration down.
+* Plausibility before grading: a gyro offset beyond ±GYR_OFFSET_PLAUSIBLE_RAD_S (20 °/s, the
+  largest zero-rate offset MPU-6000-class datasheets allow) is not a bias, it is motion or the wrong
+  unit: redo whatever its σ.
+* Grade only what the session measured: a sensor the session could not determine (one still pose
+  cannot tell the accelerometer's offset from a tilt; a compass that was not turned) is
+  "not measured" — with the session that would measure it — and left out of the overall grade.
+  A sensor whose parameters the firmware would refuse is redo.
 """
 from __future__ import annotations
 
@@ -37,6 +39,7 @@ from apmcal.solvers.coverage import MIN_SCATTER_FULL
 from apmcal.solvers.report_types import CalibrationReport, MagneticField
 
 GRADES = ("good", "usable", "redo")
+NOT_MEASURED = "not measured"         # outside GRADES: left out of the overall grade
 NAMES = {"acc": "accelerometer", "gyr": "gyroscope", "mag": "compass"}
 
 ACC_OFFSET_SIGMA = (0.05, 0.2)        # m/s²: good, usable limits
@@ -45,9 +48,14 @@ GYR_OFFSET_SIGMA = (0.002, 0.01)      # rad/s
 MAG_OFFSET_SIGMA = (0.01, 0.05)       # fraction of the field magnitude
 MISFIT_BIRGE = 3.0                    # checks beyond 3× their noise: the model does not fit
 MIN_MAG_FRACTION = 0.5                # half the sphere within 20° of a sample
+GYR_OFFSET_PLAUSIBLE_RAD_S = 0.35     # 20 °/s: beyond any MEMS gyro's zero-rate offset at rest
 
 SIX_FACES = ("hold the vehicle still on each of its six faces (level, on its back, each side, "
              "nose up, nose down) for 10 s or more")
+SIX_FACE_SESSION = ("a six-face session measures it (apmcal live LINK --guide ardupilot6, or a "
+                    "log of the vehicle held still on each of its six faces)")
+COMPASS_SESSION = ("a compass session measures it: turn the vehicle slowly through every "
+                   "direction while logging")
 TURN_COMPASS = ("turn the vehicle slowly through every direction: nose up and down, each side "
                 "down, upside down, and a full turn about each axis")
 
@@ -58,7 +66,7 @@ class Verdict:
 
     Attributes
     ----------
-    grade : {"good", "usable", "redo"}
+    grade : {"good", "usable", "redo", "not measured"}
     reason : str
         Why, in plain words.
     next_step : str
@@ -72,6 +80,21 @@ class Verdict:
     def to_dict(self) -> dict:
         """grade, reason and next_step as a plain dict."""
         return {"grade": self.grade, "reason": self.reason, "next_step": self.next_step}
+
+    @property
+    def measured(self) -> bool:
+        """False for "not measured by this session" (left out of the overall grade)."""
+        return self.grade != NOT_MEASURED
+
+
+def not_measured(why: str, session: str) -> Verdict:
+    """A sensor this session could not measure: why, and the session that would."""
+    return Verdict(NOT_MEASURED, plain(why), session)
+
+
+def plain(text: str) -> str:
+    """A solver's message without pointers to lines only --verbose prints."""
+    return text.replace(" (see the identifiability report)", " (--verbose shows why)")
 
 
 def _grade(value: float, limits: tuple[float, float]) -> str:
@@ -111,18 +134,17 @@ def accelerometer(cal, report: CalibrationReport) -> Verdict:
     Verdict
     """
     if "acc" in report.undetermined:
-        return Verdict("redo", f"the offsets could not be measured: "
-                               f"{report.undetermined['acc']}", SIX_FACES)
+        return not_measured(report.undetermined["acc"], SIX_FACE_SESSION)
     sig = cal.sigma
     if "offset" not in sig:
         return Verdict("redo", "no uncertainty could be given for the offsets", SIX_FACES)
     off = float(np.max(sig["offset"]))
     mat = float(np.max(sig["matrix"])) if "matrix" in sig else 0.0
     found = [Verdict(_grade(off, ACC_OFFSET_SIGMA),
-                     f"offsets known to ±{off:.3f} m/s² (a level error of "
-                     f"{np.degrees(off / 9.81):.2f}°)",
+                     f"offsets known to {pm(off)} m/s² (a level error of "
+                     f"{pm(np.degrees(off / 9.81))[1:]}°)",
                      "" if off <= ACC_OFFSET_SIGMA[0] else SIX_FACES),
-             Verdict(_grade(mat, ACC_MATRIX_SIGMA), f"scales known to ±{100 * mat:.2f} %",
+             Verdict(_grade(mat, ACC_MATRIX_SIGMA), f"scales known to {pm(100 * mat)} %",
                      "" if mat <= ACC_MATRIX_SIGMA[0] else SIX_FACES)]
     misfit = report.six_face.misfit if report.six_face is not None else None
     if misfit is not None and misfit.birge_ratio > MISFIT_BIRGE:
@@ -154,22 +176,38 @@ def gyroscope(cal, report: CalibrationReport) -> Verdict:
     Verdict
     """
     if "gyr" in report.undetermined:
-        return Verdict("redo", report.undetermined["gyr"], "keep the vehicle still longer")
+        return not_measured(report.undetermined["gyr"], "keep the vehicle still for 10 s or more")
+    big = float(np.max(np.abs(np.asarray(cal.offset, dtype=float))))
+    if not np.isfinite(big) or big > GYR_OFFSET_PLAUSIBLE_RAD_S:
+        return Verdict("redo", f"an offset of {np.degrees(big):.0f} °/s is beyond what a working "
+                               "gyro reads at rest (±"
+                               f"{np.degrees(GYR_OFFSET_PLAUSIBLE_RAD_S):.0f} °/s): the vehicle was "
+                               "turning, the gyro is faulty, or the data are not in rad/s",
+                       "keep the vehicle still; give a CSV's gyro in rad/s (or name the column "
+                       "gyr_x[deg/s])")
     sig = cal.sigma.get("offset")
     if sig is None:
         return Verdict("redo", "no uncertainty could be given for the offsets",
                        "keep the vehicle still for a minute")
     off = float(np.max(sig))
     found = [Verdict(_grade(off, GYR_OFFSET_SIGMA),
-                     f"offsets known to ±{off:.4f} rad/s ({np.degrees(off):.2f} °/s)",
+                     f"offsets known to {pm(np.degrees(off))} °/s",
                      "" if off <= GYR_OFFSET_SIGMA[0] else "keep the vehicle stiller, longer")]
     turns = [w for w in report.warnings if w.startswith(("no 360° rotation", "rotation about"))]
     if turns:
-        found.append(Verdict("usable", turns[0] + " (ArduPilot stores gyro offsets only, so "
-                                                  "this costs the report, not the vehicle)",
-                             "turn the vehicle one full turn about each axis, pausing still "
-                             "after each quarter"))
+        # ArduPilot stores gyro offsets only: a missing turn costs the report's gyro scale, not
+        # the vehicle, so it neither lowers the grade nor asks for another session
+        found[0].reason += "; gyro scale not reported (no full turns; ArduPilot has no gyro scale)"
     return worst(found)
+
+
+def pm(sigma: float) -> str:
+    """± σ with the two significant digits σ supports; never "±0.0000" (σ 0: "< 1e-9")."""
+    if not np.isfinite(sigma):
+        return "± ?"
+    if sigma <= 0:
+        return "± < 1e-9"
+    return f"±{sigma:.2g}"
 
 
 def compass(cal, report: CalibrationReport) -> Verdict:
@@ -192,9 +230,9 @@ def compass(cal, report: CalibrationReport) -> Verdict:
     fraction = 1.0 if mf.coverage_fraction is None else mf.coverage_fraction
     found = []
     if min_eig < MIN_SCATTER_FULL:
-        found.append(Verdict("redo", "the compass was barely turned: its readings lie close to "
-                                     "one plane, so offsets and soft iron across it are "
-                                     "guesses", TURN_COMPASS))
+        return not_measured("the compass was barely turned: its readings lie close to one "
+                            "plane, so offsets and soft iron across it would be guesses",
+                            COMPASS_SESSION)
     elif fraction < MIN_MAG_FRACTION:
         found.append(Verdict("usable", f"the compass saw only {100 * fraction:.0f} % "
                                        "of the directions", TURN_COMPASS))
@@ -202,7 +240,7 @@ def compass(cal, report: CalibrationReport) -> Verdict:
     if sig is not None and field > 0:
         rel = float(np.max(sig)) / field
         found.append(Verdict(_grade(rel, MAG_OFFSET_SIGMA),
-                             f"offsets known to ±{np.max(sig):.1f} mGauss "
+                             f"offsets known to {pm(float(np.max(sig)))} mGauss "
                              f"({100 * rel:.2g} % of the field)",
                              "" if rel <= MAG_OFFSET_SIGMA[0] else TURN_COMPASS))
     mismatch = [w for w in report.warnings if "field magnitude is" in w]
@@ -217,16 +255,19 @@ def compass(cal, report: CalibrationReport) -> Verdict:
 JUDGES = {"acc": accelerometer, "gyr": gyroscope, "mag": compass}
 
 
-def judge(calibration, proposal=None) -> dict[str, Verdict]:
+def judge(calibration, proposal=None, raw_counts=()) -> dict[str, Verdict]:
     """Per-sensor verdicts and an "overall" one (the worst), in report order.
 
     ``proposal`` (ParamProposal or None): a sensor whose parameters the firmware would refuse
-    is redo whatever its numbers.
+    is redo whatever its numbers. ``raw_counts``: sensors whose data are raw counts of no known
+    unit (a CSV layout without a scale): their σ cannot be graded against thresholds in m/s² or
+    rad/s, so they are "not measured" with the way to declare the unit.
 
     Parameters
     ----------
     calibration : Calibration
     proposal : ParamProposal, optional
+    raw_counts : iterable of str, optional
 
     Returns
     -------
@@ -238,17 +279,36 @@ def judge(calibration, proposal=None) -> dict[str, Verdict]:
     out = {name: JUDGES[name](cal, report) for name, cal in calibration.sensors.items()
            if name in JUDGES}
     for name, why in report.not_calibrated.items():
-        out[name] = Verdict("redo", f"not calibrated: {why}",
-                            TURN_COMPASS if name == "mag" else SIX_FACES)
+        session = COMPASS_SESSION if name == "mag" else SIX_FACE_SESSION
+        why = why.removeprefix("magnetometer not calibrated: ")
+        # not measured: the session did not turn it enough (nothing wrong with the sensor);
+        # any other failure is one of the data, and counts
+        out[name] = (not_measured(why, session) if name in report.not_measured
+                     else Verdict("redo", plain(why), session))
+    for name in raw_counts:
+        if name in out:
+            out[name] = Verdict(NOT_MEASURED, "the data are raw counts of no known unit, so its "
+                                              "offsets cannot be graded in physical units",
+                                "declare the unit (a CSV header such as acc_x[g] or "
+                                "gyr_x[deg/s]) to have it graded")
     for name in _refused(proposal):
         out[name] = Verdict("redo", "the firmware would refuse its parameters (listed below)",
                             "check the mounting and the data, then calibrate again")
     if out:
-        measured = [v for n, v in out.items() if n not in report.not_measured]
-        first = worst(measured or list(out.values()))
-        who = next(NAMES[n] for n, v in out.items() if v is first)
-        out["overall"] = Verdict(first.grade, f"{who}: {first.reason}", first.next_step)
+        out["overall"] = overall(out)
     return out
+
+
+def overall(verdicts: dict[str, Verdict]) -> Verdict:
+    """The worst grade of the sensors this session measured, naming the sensor; "not measured"
+    when it measured none."""
+    measured = {n: v for n, v in verdicts.items() if v.measured}
+    if not measured:
+        return Verdict(NOT_MEASURED, "this session measured no sensor",
+                       next(iter(verdicts.values())).next_step)
+    first = worst(list(measured.values()))
+    who = next(NAMES[n] for n, v in measured.items() if v is first)
+    return Verdict(first.grade, f"{who}: {first.reason}", first.next_step)
 
 
 def _refused(proposal) -> list[str]:

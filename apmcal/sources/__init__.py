@@ -61,6 +61,9 @@ def _looks_text(head: bytes) -> bool:
     return True
 
 
+MIN_LOG_BYTES = 16      # shorter than one header line or one record: no log at all
+
+
 def sniff_format(path) -> str:
     """"tlog", "bin", "log" or "csv" from the file's first bytes (extension breaks ties).
 
@@ -71,6 +74,9 @@ def sniff_format(path) -> str:
     if not head:
         raise ApmcalError("empty file", str(path), "byte 0")
     ext = path.suffix.lower()
+    if len(head) < MIN_LOG_BYTES:
+        raise ApmcalError(f"not a recognised log format ({len(head)} bytes: too short for a "
+                          "tlog, dataflash or CSV file)", str(path), "byte 0")
     if head.startswith(b"\xa3\x95"):
         return "bin"
     if _has_tlog_frame(head):
@@ -80,6 +86,9 @@ def sniff_format(path) -> str:
     if b"FMT," in head and _looks_text(head):
         return "log"
     if _looks_text(head):
+        if ext in (".bin", ".tlog"):
+            raise ApmcalError(f"not a recognised log format: text, but a {ext} file should be "
+                              "binary (no dataflash or MAVLink record found)", str(path), "byte 0")
         return "csv"
     if ext == ".tlog":
         return "tlog"

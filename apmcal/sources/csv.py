@@ -27,7 +27,11 @@ Layouts (``layout=``):
 Units: ``acc_unit``/``gyr_unit``/``mag_unit`` take a name ("m/s^2", "g", "mg"; "rad/s", "deg/s",
 "mrad/s"; "mGauss", "Gauss", "uT"), "counts" (keep as is) or a number (SI per file unit,
 e.g. 9.80665/16384). ``None`` means the layout's own unit. Counts are flagged in
-``LogContents.messages``.
+``LogContents.messages``. In the ``apmcal`` layout the header may declare them instead:
+``acc_x[g]``, ``gyr_x[deg/s]``, ``mag_x[uT]``, ``acc_x[counts]``, ``t[s]`` (the same unit on
+the three axes of a sensor). Without a declaration, values that no Earth-bound sensor reads in
+SI units (a still |a| near 1: g; gyro rates of deg/s; a field of tens: µT; thousands: raw
+counts) are refused with the fix (:func:`apmcal.sources.units.require_plausible_units`).
 """
 from __future__ import annotations
 
@@ -164,7 +168,7 @@ def sniff_layout(path: str | Path) -> str:
     """
     path = Path(path)
     first = _first_line(path)
-    header = [f.strip().lower() for f in first.split(",")]
+    header = [_UNIT_SUFFIX.sub("", f.strip().lower()) for f in first.split(",")]
     if header[0] == "fs" and len(header) == 2:
         return "mpu6050"
     if header[:2] == ["part", "samples"]:
@@ -182,8 +186,42 @@ def sniff_layout(path: str | Path) -> str:
 
 
 # ----------------------------------------------------------------------------- layouts
+_UNIT_SUFFIX = re.compile(r"\s*\[[^\]]*\]\s*$")      # "acc_x[g]" → "acc_x"
+
+
+def header_units(data: pd.DataFrame, path) -> tuple[pd.DataFrame, dict]:
+    """Columns named ``name[unit]`` renamed to ``name``, and sensor → the unit they declare.
+
+    Raises
+    ------
+    ApmcalError
+        When a sensor's axes declare different units.
+    """
+    declared: dict[str, set] = {}
+    renames = {}
+    for col in data.columns:
+        m = re.fullmatch(r"\s*(\w+)\s*\[([^\]]*)\]\s*", str(col))
+        if not m:
+            continue
+        name, unit = m.group(1), m.group(2).strip()
+        renames[col] = name
+        sensor = name.split("_")[0]
+        if sensor in ("acc", "gyr", "mag"):
+            declared.setdefault(sensor, set()).add(unit.replace("µ", "u"))
+        elif name == "t" and unit not in ("s", ""):
+            raise ApmcalError(f"time column in {unit!r}: give t in seconds (t[s])", path,
+                              "line 1")
+    for sensor, units in declared.items():
+        plain = [c for c in data.columns if str(c).startswith(f"{sensor}_") and c not in renames]
+        if len(units) > 1 or plain:
+            raise ApmcalError(f"{sensor} axes declare different units {sorted(units)} in the "
+                              "header; use one unit for x, y and z", path, "line 1")
+    return data.rename(columns=renames), {k: next(iter(v)) for k, v in declared.items()}
+
+
 def _read_apmcal(path, units, rate_hz):
-    data = _read_table(path, header=0)
+    data, declared = header_units(_read_table(path, header=0), path)
+    units = {k: (declared.get(k) if v is None else v) for k, v in units.items()}
     missing = [c for c in ["t", *ACC, *GYR] if c not in data.columns]
     if missing:
         raise ApmcalError(f"missing column(s) {', '.join(missing)}", path, "line 1")
@@ -206,7 +244,8 @@ def _read_imucal(path, units, rate_hz):
     _require(data, ["n_samples", *ACC, *GYR], path)
     rate = rate_hz or IMUCAL_RATE_HZ
     notes = [f"imucal layout: no time column, t = n_samples / {rate:g} Hz"
-             + ("" if rate_hz else " (imucal's example rate; pass rate_hz if different)")]
+             + ("" if rate_hz else " (imucal's example rate; in Python, "
+                                   "read_csv(path, rate_hz=...) if different)")]
     out = pd.DataFrame({"t": data["n_samples"].to_numpy(dtype=float) / rate}, index=data.index)
     out = _scaled(out, data, units, {"acc": "m/s^2", "gyr": "deg/s"}, path, notes)
     return out, notes
@@ -381,7 +420,8 @@ def _factor(sensor: str, unit, default, path) -> tuple[float, str | None]:
         return float(unit), None
     if unit == "counts":
         return 1.0, (f"{sensor}: raw sensor counts, not SI units (no scale known); "
-                     "calibrate them, or pass a unit or scale")
+                     "the offsets are in counts too (declare the unit in the header, e.g. acc_x[g], or "
+                     "give read_csv a unit or scale)")
     table = {"acc": ACC_UNITS, "gyr": GYR_UNITS, "mag": MAG_UNITS}[sensor]
     key = unit.lower() if sensor == "mag" else unit
     if key not in table:

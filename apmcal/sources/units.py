@@ -11,8 +11,10 @@ another message of the same IMU (RAW_IMU / SCALED_IMU*), when the log has one, a
 that passed are calibrated (and can be uploaded) as usual.
 
 The check runs on what a reader returns, before the summary and the calibration (the readers
-themselves decode faithfully, whatever the values). CSV files are not checked: their units are
-the user's to declare (``--layout``, unit options, raw counts allowed).
+themselves decode faithfully, whatever the values). A CSV file's units are the user's to
+declare (header ``acc_x[g]``, ``gyr_x[deg/s]``, ``mag_x[uT]``, ``acc_x[counts]``): a sensor
+declared in counts is left alone, any other that fails :func:`csv_unit_problem` is refused with
+the fix, since there is no other message to take it from.
 
 The ranges are wide on purpose: they must pass any real board, however badly calibrated. They
 catch the gross mix-ups (gauss or the firmware's mGauss×1000 for mGauss, g or mG for m/s², mrad/s
@@ -132,8 +134,69 @@ def require_plausible_units(contents: LogContents) -> None:
     ApmcalError
         No recording left with a sensor in plausible units.
     """
-    if contents.format == "csv" or not contents.recordings:
+    if not contents.recordings:
+        return
+    if contents.format == "csv":
+        require_plausible_csv_units(contents)
         return
     reasons = drop_implausible_sensors(contents)
     if not contents.recordings:
         raise ApmcalError("no IMU data in plausible units: " + "; ".join(reasons), contents.path)
+
+
+# A still gyro's bias stays within ±20 °/s (MPU-6000 datasheet zero-rate offset); a CSV gyro
+# whose stillest tenth reads more is in deg/s (a bias of a few °/s read as rad/s), and none
+# measures beyond ±2000 °/s (35 rad/s), the widest range of the MEMS gyros ArduPilot supports.
+CSV_STILL_GYRO_RAD_S = 0.35
+GYRO_RANGE_RAD_S = 35.0
+
+
+def csv_unit_problem(recording: Recording, sensor: str) -> str | None:
+    """Why a CSV sensor's values are not in the SI units apmcal reads (m/s², rad/s, mGauss),
+    with the header that declares them; None when they are plausible."""
+    value = sensor_magnitude(recording, sensor)
+    if not np.isfinite(value):
+        return None
+    col = f"{sensor}_x"
+    if sensor == "acc":
+        low, high = PLAUSIBLE_ACC_M_S2
+        if low <= value <= high:
+            return None
+        if 0.5 <= value <= 2.0:
+            guess = f"g (name the columns {col}[g], ...)"
+        elif 500 <= value <= 2000:
+            guess = f"mg (name the columns {col}[mg], ...) or raw counts ({col}[counts])"
+        else:
+            guess = f"raw counts? (name the columns {col}[counts], ..., to calibrate counts)"
+        return (f"acc: median |a| is {value:.4g}, where a still accelerometer reads "
+                f"{STANDARD_GRAVITY:.2f} m/s²: this looks like {guess}")
+    if sensor == "gyr":
+        top = float(np.nanmax(np.linalg.norm(recording.xyz("gyr"), axis=1)))
+        if value <= CSV_STILL_GYRO_RAD_S and top <= GYRO_RANGE_RAD_S:
+            return None
+        return (f"gyr: the stillest tenth reads {value:.3g} and the fastest {top:.3g}, where a "
+                f"gyro at rest reads below {CSV_STILL_GYRO_RAD_S} rad/s and none beyond "
+                f"{GYRO_RANGE_RAD_S:g} rad/s: this looks like deg/s (name the columns "
+                f"gyr_x[deg/s], ...) or raw counts (gyr_x[counts])")
+    low, high = PLAUSIBLE_MAG_MGAUSS
+    if low <= value <= high:
+        return None
+    if 15 <= value <= 100:
+        guess = "µT (name the columns mag_x[uT], ...)"
+    elif 0.15 <= value <= 1.0:
+        guess = "gauss (name the columns mag_x[gauss], ...)"
+    else:
+        guess = "raw counts? (name the columns mag_x[counts], ...)"
+    return (f"mag: median field {value:.4g}, where the Earth's is {EARTH_FIELD_MGAUSS[0]:g}-"
+            f"{EARTH_FIELD_MGAUSS[1]:g} mGauss: this looks like {guess}")
+
+
+def require_plausible_csv_units(contents: LogContents) -> None:
+    """ApmcalError naming every CSV sensor in implausible units and the header that fixes it;
+    sensors the reader kept as raw counts (noted in ``messages``) are not checked."""
+    counts = {m.split(":")[0] for m in contents.messages if "raw sensor counts" in m}
+    problems = [why for rec in contents.recordings for sensor in rec.sensors
+                if sensor not in counts and (why := csv_unit_problem(rec, sensor))]
+    if problems:
+        raise ApmcalError("units not m/s², rad/s, mGauss: " + "; ".join(problems)
+                          + "; or convert the file", contents.path)

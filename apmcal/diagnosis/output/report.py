@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from apmcal.diagnosis.output import plots
+from apmcal.diagnosis.output import html, plots
 from apmcal.diagnosis.output.summary import param_text, rate_note, verdict
 
 SPLITS = (("sensor", "sensor"), ("kind", "holds or moves"), ("band", "frequency band"),
@@ -145,6 +145,7 @@ def write_report(diagnosis, directory) -> Path:
         text += ["## Notes", ""] + [f"- {n}" for n in result.notes]
     path = out / "report.md"
     path.write_text("\n".join(text) + "\n")
+    html.write_index(out)       # the same report as one self-contained page, index.html
     return path
 
 

@@ -1,0 +1,58 @@
+"""What a hobbyist reads first, on every bundled sample and every real log of the test data
+folder: the verdict in the first three lines, no line over 200 characters (none over 100 but
+the file table's), no paper handle, no "±0.0000"; a flight log graded on what it measured."""
+import re
+from pathlib import Path
+
+import pytest
+
+from apmcal.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data"
+SAMPLES = ["ferraris.tlog", "onepos.tlog", "tumble.bin", "ferraris_params33.tlog"]
+REAL = ["ardupilot/pixhawk1_copter368.bin", "ardupilot/pxf_copter_mag.BIN",
+        "ardupilot/ardusub_small.BIN", "ardupilot/sitl_vtol.tlog",
+        "mpu6050/example_data_calibration.csv", "imucal/annotated_session.csv"]
+
+
+def report_of(path: Path, capsys) -> list[str]:
+    assert main(["log", str(path)]) in (0, 1)
+    return capsys.readouterr().out.splitlines()
+
+
+def check_plain(lines: list[str]) -> None:
+    assert any(line.startswith("verdict: ") for line in lines[:3]), lines[:3]
+    for line in lines:
+        assert len(line) <= 200, line
+        assert "±0.0000" not in line and "± 0.0000" not in line, line
+        assert not re.search(r"seed 0\d\d|\[(Oppong|Chow|Niespodziany|Ferraris)\]", line), line
+    long = [ln for ln in lines if len(ln) > 100 and "─" not in ln and not ln.startswith(
+        ("message ", "IMU", "RAW_IMU", "MAG", "SCALED", "HIGHRES"))]
+    assert not long, long
+
+
+@pytest.mark.parametrize("name", SAMPLES)
+def test_bundled_samples_read_plainly(capsys, name):
+    check_plain(report_of(ROOT / "logs" / name, capsys))
+
+
+@pytest.mark.parametrize("name", REAL)
+def test_real_logs_read_plainly(capsys, name):
+    path = DATA / name
+    if not path.exists():
+        pytest.skip(f"real recording {name} not here (the test data folder ../shared/data is "
+                    "absent in a fresh clone)")
+    check_plain(report_of(path, capsys))
+
+
+def test_a_flight_log_is_graded_on_what_it_measured(capsys):
+    """A real flight: one still moment measures the gyro offsets; the accelerometer and compass
+    are "not measured", the overall grade is the gyro's, not REDO, and the log is named a
+    flight log."""
+    path = DATA / "ardupilot" / "pixhawk1_copter368.bin"
+    if not path.exists():
+        pytest.skip("real recording absent (the test data folder ../shared/data)")
+    lines = report_of(path, capsys)
+    assert lines[0].startswith("verdict: GOOD (gyroscope good; not measured:"), lines[0]
+    assert "this is a flight log" in lines[1]
