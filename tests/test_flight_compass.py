@@ -134,7 +134,7 @@ def test_not_a_flight_goes_the_old_way():
     """A bench session (no ATT, no GPS) is not taken for a flight; asked directly, the reason
     is named."""
     path = ROOT / "logs" / "gap.bin"
-    assert calibrate_flight_log(path) is None
+    assert calibrate_flight_log(path) == (None, None)
     with pytest.raises(ApmcalError, match="not a flight.*ATT"):
         calibrate_flight(path)
 
@@ -152,3 +152,25 @@ def test_real_flight_gets_a_heading_verdict():
         assert c.orientation is not None and not c.orientation.wrong
     text = "\n".join(res.lines())
     assert "heading error 95 %" in text and "fly " in text
+
+
+def test_a_flown_log_says_what_the_compass_check_lacked():
+    """A log that flew but cannot be checked names what it lacked and the remedy; a bench
+    session or a log without attitude says nothing (it is no flight)."""
+    from apmcal.calibration.flight import MANOEUVRE, lacking
+
+    assert "--lat/--lon" in lacking("no GPS fix (and no --lat/--lon) for the expected field")
+    turn = lacking("the heading changed only 12° (need 90°)")
+    assert turn.startswith("the heading changed only 12°") and MANOEUVRE["iron"] in turn
+    for no_flight in ("no ATT attitude records", "no MAG compass records",
+                      "the vehicle never moved (GPS speed ≤ 1 m/s, throttle ≤ 0.2)"):
+        assert lacking(no_flight) is None
+
+
+@pytest.mark.skipif(not REAL.is_dir(), reason="../shared/data/ardupilot (real logs) is absent")
+def test_a_real_flight_without_gps_fix_names_the_site_it_needs(capsys):
+    from apmcal.cli import main
+
+    assert main(["log", str(REAL / "pxf_copter_mag.BIN")]) in (0, 1)
+    out = capsys.readouterr().out
+    assert "compass in flight: not checked" in out and "--lat/--lon" in out

@@ -540,12 +540,14 @@ def calibrate_flight(source, site: tuple[float, float] | None = None, *,
 
 # ----------------------------------------------------------------------------- the log command
 def calibrate_flight_log(path, site: tuple[float, float] | None = None):
-    """The compass check of a dataflash flight log, or None when the file is not one.
+    """The compass check of a dataflash flight log, or what the flight lacked for it.
 
-    None when the file is no dataflash log or :func:`flight_evidence` finds no flight (the
-    caller then calibrates it the ordinary way); else :func:`calibrate_flight`'s
-    :class:`FlightResult` (printed with :meth:`FlightResult.lines`, saved with
-    :meth:`FlightResult.save_json`, its parameters :meth:`FlightResult.params`).
+    Returns ``(result, None)`` on a flight (:func:`calibrate_flight`'s :class:`FlightResult`:
+    printed with :meth:`FlightResult.lines`, saved with :meth:`FlightResult.save_json`, its
+    parameters :meth:`FlightResult.params`); ``(None, why)`` on a log that flew (attitude,
+    compass, movement) but cannot be checked, ``why`` naming what it lacked and how to supply
+    it; ``(None, None)`` on anything else (no dataflash log, a bench session), which the caller
+    calibrates the ordinary way.
 
     Parameters
     ----------
@@ -561,8 +563,19 @@ def calibrate_flight_log(path, site: tuple[float, float] | None = None):
     from apmcal.sources import sniff_format
 
     if sniff_format(path) not in ("bin", "log"):
-        return None
+        return None, None
     fd = read_flight(path)
-    if not flight_evidence(fd, site)[0]:
+    flew, why = flight_evidence(fd, site)
+    if flew:
+        return calibrate_flight(fd, site), None
+    return None, lacking(why)
+
+
+def lacking(why: str) -> str | None:
+    """What a flown log lacked for the compass check, with the remedy; None when it did not
+    fly (no attitude, no compass, never moved: not a flight at all)."""
+    if why.startswith(("no ATT", "no MAG", "the vehicle never moved")):
         return None
-    return calibrate_flight(fd, site)
+    if why.startswith("no GPS fix"):
+        return "no GPS fix to place the field model: give the flying site with --lat/--lon"
+    return f"{why}: fly {MANOEUVRE['iron']}"

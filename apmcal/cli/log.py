@@ -22,7 +22,7 @@ def run(args) -> int:
     from apmcal.sources import read_log
 
     check_outputs(args)
-    status = run_flight(args)               # a flight: the compass check instead
+    status, lacking = run_flight(args)      # a flight: the compass check instead
     if status is not None:
         return status
     if args.layout == "auto":
@@ -31,20 +31,24 @@ def run(args) -> int:
         from apmcal.sources.csv import read_csv
 
         contents = read_csv(args.file, layout=args.layout)
-    return summarise_and_calibrate(contents, args).status
+    report = summarise_and_calibrate(contents, args)
+    if lacking:
+        console_for(args).print(f"compass in flight: not checked\n  {lacking}")
+    return report.status
 
 
-def run_flight(args) -> int | None:
-    """On a flight log with ``--method auto``: the compass check printed and written, and the
-    exit status; None for any other file or choice (the caller calibrates it as before)."""
+def run_flight(args) -> tuple[int | None, str | None]:
+    """On a flight log with ``--method auto``: the compass check printed and written, and
+    (the exit status, None); for any other file or choice (None, what a flown log lacked for
+    the check, or None): the caller calibrates it as before."""
     if args.method != "auto" or args.layout != "auto" or args.summary_only:
-        return None
+        return None, None
     from apmcal.calibration.flight import calibrate_flight_log
 
     site = (args.lat, args.lon) if args.lat is not None and args.lon is not None else None
-    result = calibrate_flight_log(args.file, site)
+    result, lacking = calibrate_flight_log(args.file, site)
     if result is None:
-        return None
+        return None, lacking
     console = console_for(args)
     for line in result.lines():
         console.print(line)
@@ -61,7 +65,7 @@ def run_flight(args) -> int | None:
     if args.json:
         result.save_json(args.json)
         console.print(f"wrote {args.json}")
-    return 0
+    return 0, None
 
 
 def summarise_and_calibrate(contents, args):
