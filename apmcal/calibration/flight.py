@@ -297,7 +297,7 @@ class FlightResult:
 
     def save_json(self, path) -> None:
         """Write :meth:`to_dict` as JSON."""
-        from apmcal.solvers.result import jsonable
+        from apmcal.core.json_file import jsonable
         try:
             Path(path).write_text(json.dumps(jsonable(self.to_dict(), nan_as_null=True),
                                              indent=2) + "\n")

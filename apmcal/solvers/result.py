@@ -22,7 +22,6 @@ from pathlib import Path
 import numpy as np
 
 from apmcal.core.errors import ApmcalError
-from apmcal.core.json_file import jsonable  # noqa: F401 (the JSON values of a result)
 from apmcal.solvers.misfit import HoldMisfit
 from apmcal.solvers.report_types import (
     CalibrationReport,
