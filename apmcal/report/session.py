@@ -6,6 +6,8 @@ The JSON file is :meth:`apmcal.solvers.result.Calibration.save`'s (schema, units
 params, report) with this report's own top-level fields: ``summary``, ``verdict``,
 ``rejected_params`` (when there is a proposal) and ``param_file`` or ``param_file_error`` (when a
 parameter file was asked for); a summary without a calibration is saved alone.
+
+:func:`calibrate` is the Python front door to all of it (``apmcal.calibrate``).
 """
 from __future__ import annotations
 
