@@ -57,7 +57,12 @@ def test_log_command_recovers_every_parameter_and_names_the_orientation(wrong_or
     from apmcal.cli import main
     path, truth = wrong_orientation
     out_json, out_param = tmp_path / "r.json", tmp_path / "r.param"
-    assert main(["log", str(path), "--json", str(out_json), "--param-file", str(out_param)]) == 0
+    assert main(["log", str(path), "--json", str(out_json), "--param-file", str(out_param),
+                 "--report", str(tmp_path / "report")]) == 0
+    page = (tmp_path / "report" / "index.html").read_text()
+    # the heading error along the flight, one figure per compass, nothing from the network
+    assert page.count("data:image/png;base64,") == 2 and "http" not in page
+    assert "compass 0: calibration in force <span class='redo'>" in page
     res = json.loads(out_json.read_text())
     assert res["method"] == "flight"
     c0, c1 = res["compasses"]

@@ -62,6 +62,10 @@ def run_flight(args) -> tuple[int | None, str | None]:
         write_param_file(args.param_file, result.params(),
                          f"apmcal flight compass fit of {Path(args.file).name}")
         console.print(f"wrote {args.param_file}")
+    if getattr(args, "report", None):
+        from apmcal.report.html import write_flight_html
+
+        console.print(f"wrote {write_flight_html(result, args.report)}")
     if args.json:
         result.save_json(args.json)
         console.print(f"wrote {args.json}")

@@ -6,7 +6,9 @@ returns one PNG as bytes, or None when the session holds nothing to draw.
 - :func:`compass_figure` — the samples on the sphere before/after, with the coverage, and the
   field magnitude along time against the reference field (WMM or the fit's sphere);
 - :func:`gyro_figure` — each full turn's integrated angle before/after against the expected one;
-- :func:`tcal_figure` — the drift against temperature before/after the temperature calibration.
+- :func:`tcal_figure` — the drift against temperature before/after the temperature calibration;
+- :func:`heading_figure` — a flight's compass heading error along the flight, with the
+  calibration in force and with the proposed one.
 
 All vectors are in the sensor frame of the data (raw: the firmware's correction undone).
 """
@@ -177,4 +179,26 @@ def tcal_figure(blocks: dict, coeffs: dict, polynomial, reference_c: float) -> b
             ax.set_title(f"{sensor}: {title} the temperature calibration")
             ax.legend(fontsize=7)
     fig.tight_layout()
+    return _png(fig)
+
+
+def heading_figure(t_s, in_force_deg, proposed_deg, limits_deg: tuple[float, float]):
+    """A flight's compass heading error [deg] along the flight [s], with the calibration in
+    force (before) and the proposed one (after), the good / usable limits as lines; None
+    without samples."""
+    t = np.asarray(t_s, dtype=float)
+    if t.size == 0:
+        return None
+    fig = _figure(8.0, 3.0)
+    ax = fig.add_subplot(1, 1, 1)
+    ax.plot(t - t[0], np.asarray(in_force_deg, dtype=float), color=BEFORE, lw=0.8,
+            label="calibration in force")
+    ax.plot(t - t[0], np.asarray(proposed_deg, dtype=float), color=AFTER, lw=0.8,
+            label="proposed calibration")
+    for limit, style in zip(limits_deg, (":", "--")):
+        for sign in (1, -1):
+            ax.axhline(sign * limit, color="#57606a", lw=0.7, ls=style)
+    ax.set_xlabel("time in the flight [s]")
+    ax.set_ylabel("heading error [°]")
+    ax.legend(loc="upper right", fontsize=8)
     return _png(fig)

@@ -187,3 +187,42 @@ def write_tcal_html(tcal, source: str, out_dir) -> Path:
     verdict = "<p><b>temperature calibration</b></p><ul>" + "".join(items) + "</ul>"
     title = f"apmcal temperature calibration of {Path(str(source)).name}"
     return write_page(out_dir, page(title, verdict, figures, text))
+
+
+# --------------------------------------------------------------------------- flight compass
+def write_flight_html(result, out_dir) -> Path:
+    """The page of ``apmcal log`` on a flight: each compass's verdict in heading degrees, its
+    heading error along the flight with the calibration in force and the proposed one, and
+    the text report.
+
+    Parameters
+    ----------
+    result : FlightResult
+        :func:`apmcal.calibration.flight.calibrate_flight_log`'s result.
+    out_dir : str or Path
+
+    Returns
+    -------
+    Path
+        ``out_dir/index.html``.
+    """
+    from apmcal.report import figures as fig
+    from apmcal.solvers.compass_heading import GOOD_DEG, USABLE_DEG
+
+    items, figures = [], []
+    for c in result.compasses:
+        hi, hp = c.health_in_force, c.health_proposed
+        items.append(f"<li>compass {c.instance}: calibration in force <span class='{hi.verdict}'>"
+                     f"{hi.verdict}</span> — heading error 95 % {hi.p95_deg:.1f}°; proposed "
+                     f"<span class='{hp.verdict}'>{hp.verdict}</span> — {hp.p95_deg:.1f}°</li>")
+        series = c.series()
+        png = fig.heading_figure(series["t_s"], series["in_force_deg"], series["proposed_deg"],
+                                 (GOOD_DEG, USABLE_DEG))
+        if png:
+            figures.append((f"compass {c.instance}: heading error along the flight, with the "
+                            f"calibration in force (red) and the proposed one (green); dotted "
+                            f"±{GOOD_DEG:g}° good, dashed ±{USABLE_DEG:g}° usable", png))
+    verdict = ("<p class='verdict'><b>compass in flight, in heading degrees</b></p><ul>"
+               + "".join(items) + "</ul>")
+    title = f"apmcal flight compass check of {Path(str(result.path)).name}"
+    return write_page(out_dir, page(title, verdict, figures, "\n".join(result.lines())))
