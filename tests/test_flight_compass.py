@@ -179,3 +179,26 @@ def test_a_real_flight_without_gps_fix_names_the_site_it_needs(capsys):
     assert main(["log", str(REAL / "pxf_copter_mag.BIN")]) in (0, 1)
     out = capsys.readouterr().out
     assert "compass in flight: not checked" in out and "--lat/--lon" in out
+
+
+@pytest.mark.skipif(not REAL.is_dir(), reason="../shared/data/ardupilot (real logs) is absent")
+def test_a_telemetry_log_is_read_for_the_flight_check_and_a_slow_gyro_refused():
+    """sitl_vtol.tlog (ArduPlane SITL, 2018-08-08): attitude, position from
+    GLOBAL_POSITION_INT, the boot clock dated by SYSTEM_TIME, compass 0 from RAW_IMU — and
+    its RAW_IMU at about 4 Hz is refused as a heading reference, with the remedy."""
+    import datetime
+
+    from apmcal.calibration.flight import calibrate_flight_log, flight_evidence
+
+    path = REAL / "sitl_vtol.tlog"
+    fd = read_flight(path)
+    assert fd.firmware.startswith("ArduPlane V3.10") and len(fd.att_t) > 800
+    assert np.all(np.abs(fd.roll) < np.pi) and -35.37 < np.median(fd.lat) < -35.35
+    when = datetime.datetime.fromtimestamp(fd.boot_unix_s + fd.gps_t[0], datetime.timezone.utc)
+    assert when.date() == datetime.date(2018, 8, 8)
+    assert [m.instance for m in fd.mags] == [0] and 200 < np.median(
+        np.linalg.norm(fd.mags[0].field, axis=1)) < 1000          # mGauss, the Earth's field
+    flew, why = flight_evidence(fd)
+    assert not flew and "gyro is logged at" in why
+    result, lacking = calibrate_flight_log(path)
+    assert result is None and "dataflash log" in lacking

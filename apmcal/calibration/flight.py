@@ -50,6 +50,10 @@ from apmcal.sources.flight import FlightData, MagSeries, read_flight
 MAX_RATE_HZ = 25.0            # compass samples used per second at most
 ORIENT_SAMPLES = 400          # samples per candidate in the orientation search
 MIN_HEADING_SPAN_DEG = 90.0   # a flight turns at least this much
+# the heading reference integrates the gyro between instants: a yaw turn of 90 °/s moves 9° per
+# sample at 10 Hz, beyond which the integrated heading is no reference (telemetry's RAW_IMU is
+# often streamed at 2-4 Hz)
+MIN_GYRO_RATE_HZ = 10.0
 FULL_TURNS_DEG = 360.0        # heading change below which the iron counts as not determined
 MIN_CURRENT_SPAN_A = 5.0      # 5-95 % current span that lets COMPASS_MOT be fitted
 MIN_THROTTLE_SPAN = 0.15
@@ -147,6 +151,11 @@ def flight_evidence(fd: FlightData, site: tuple[float, float] | None = None) -> 
               or (fd.throttle is not None and np.nanmax(fd.throttle) > 0.2))
     if not moving:
         return False, "the vehicle never moved (GPS speed ≤ 1 m/s, throttle ≤ 0.2)"
+    if fd.gyr_t is not None and len(fd.gyr_t) > 2:
+        rate = (len(fd.gyr_t) - 1) / max(float(fd.gyr_t[-1] - fd.gyr_t[0]), 1e-9)
+        if rate < MIN_GYRO_RATE_HZ:
+            return False, (f"the gyro is logged at {rate:.1f} Hz, too slow to follow the heading "
+                           f"(need {MIN_GYRO_RATE_HZ:g} Hz)")
     span = heading_span_deg(fd)
     if span < MIN_HEADING_SPAN_DEG:
         return False, f"the heading changed only {span:.0f}° (need {MIN_HEADING_SPAN_DEG:.0f}°)"
@@ -562,7 +571,7 @@ def calibrate_flight_log(path, site: tuple[float, float] | None = None):
     """
     from apmcal.sources import sniff_format
 
-    if sniff_format(path) not in ("bin", "log"):
+    if sniff_format(path) not in ("bin", "log", "tlog"):
         return None, None
     fd = read_flight(path)
     flew, why = flight_evidence(fd, site)
@@ -578,4 +587,6 @@ def lacking(why: str) -> str | None:
         return None
     if why.startswith("no GPS fix"):
         return "no GPS fix to place the field model: give the flying site with --lat/--lon"
+    if why.startswith("the gyro is logged at"):
+        return f"{why}: use the flight's dataflash log, or stream the IMU faster (SRn_RAW_SENS)"
     return f"{why}: fly {MANOEUVRE['iron']}"

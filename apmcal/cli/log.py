@@ -33,7 +33,10 @@ def run(args) -> int:
         contents = read_csv(args.file, layout=args.layout)
     report = summarise_and_calibrate(contents, args)
     if lacking:
-        console_for(args).print(f"compass in flight: not checked\n  {lacking}")
+        from textwrap import fill
+
+        console_for(args).print("compass in flight: not checked\n" + fill(
+            lacking, width=100, initial_indent="  ", subsequent_indent="    "))
     return report.status
 
 

@@ -20,6 +20,14 @@ clock (TimeUS [µs] or TimeMS [ms]; the old GPS record's boot time is its ``T`` 
 * IMU (first instance): gyro [rad/s, body] for the heading change between instants.
 * PARM: the last value of every parameter; MSG: the firmware string.
 
+A telemetry log (.tlog) gives the same from MAVLink (:func:`read_flight_tlog`): ATTITUDE;
+GLOBAL_POSITION_INT for position, ground speed and course (its boot-clock time, not
+GPS_RAW_INT's Unix one); SYSTEM_TIME for the boot clock's Unix time; RAW_IMU's corrected compass
+(int16 mGauss, compass 0 only) and gyro [mrad/s]; SERVO_OUTPUT_RAW for the throttle;
+PARAM_VALUE and STATUSTEXT. The offsets in use are the parameters' (the telemetry carries none of
+its own), the motor compensation in use is not carried: taken as zero, with a note when
+COMPASS_MOT is set; SYS_STATUS has no time stamp of its own, so no current.
+
 Readers never fit: missing series are None and the caller decides.
 """
 from __future__ import annotations
@@ -103,13 +111,18 @@ def _messages(path) -> dict:
 
 
 def read_flight(path) -> FlightData:
-    """Read the flight series of a dataflash .bin or text .log (see the module docstring).
+    """Read the flight series of a dataflash .bin, text .log or telemetry .tlog (see the module
+    docstring).
 
     Raises
     ------
     ApmcalError
-        Unreadable file or not a dataflash log.
+        Unreadable file, or none of those formats.
     """
+    from apmcal.sources import sniff_format
+
+    if sniff_format(path) == "tlog":
+        return read_flight_tlog(path)
     msgs = _messages(path)
     out = FlightData(path=str(path))
     parm = msgs.get("PARM", {})
@@ -214,3 +227,85 @@ def _throttle(out: FlightData, msgs: dict) -> None:
     hi = out.params.get("MOT_PWM_MAX", 0) or 2000.0
     pwm = np.mean(np.stack([np.asarray(c, float) for c in chans]), axis=0)
     out.throttle_t, out.throttle = t, np.clip((pwm - lo) / (hi - lo), 0.0, 1.0)
+
+
+TLOG_NAMES = ("ATTITUDE", "GLOBAL_POSITION_INT", "SYSTEM_TIME", "RAW_IMU", "SERVO_OUTPUT_RAW",
+              "PARAM_VALUE", "STATUSTEXT")
+
+
+def _text(value) -> str:
+    """A MAVLink char array as text (bytes up to the first NUL)."""
+    if isinstance(value, bytes):
+        value = value.split(b"\0", 1)[0].decode("ascii", "replace")
+    return str(value)
+
+
+def read_flight_tlog(path) -> FlightData:
+    """Read the flight series of a telemetry log (.tlog; see the module docstring).
+
+    Raises
+    ------
+    ApmcalError
+        Unreadable or empty file.
+    """
+    from apmcal.sources.tlog import read_tlog_messages
+
+    msgs = read_tlog_messages(path, TLOG_NAMES)[0]
+    out = FlightData(path=str(path))
+    pv = msgs.get("PARAM_VALUE")
+    if pv is not None:
+        for name, value in zip(pv["param_id"], pv["param_value"]):
+            out.params[_text(name)] = float(value)
+    st = msgs.get("STATUSTEXT")
+    for text in ([] if st is None else (_text(t) for t in st["text"])):
+        if out.firmware is None and " V" in text and any(
+                v in text for v in ("Copter", "Plane", "Rover", "Sub")):
+            out.firmware = text
+    att = msgs.get("ATTITUDE")
+    if att is not None and len(att):
+        out.att_t = att["time_boot_ms"] * 1e-3
+        out.roll, out.pitch, out.yaw = (att[c].astype(float) for c in ("roll", "pitch", "yaw"))
+    _tlog_position(out, msgs.get("GLOBAL_POSITION_INT"), msgs.get("SYSTEM_TIME"))
+    raw = msgs.get("RAW_IMU")
+    if raw is not None and len(raw):
+        t = raw["time_usec"] * 1e-6
+        out.gyr_t = t
+        out.gyr = np.stack([raw[c].astype(float) for c in ("xgyro", "ygyro", "zgyro")], 1) * 1e-3
+        mag = np.stack([raw[c].astype(float) for c in ("xmag", "ymag", "zmag")], 1)
+        if np.any(mag):
+            ofs = np.array([out.params.get(f"COMPASS_OFS_{a}", 0.0) for a in "XYZ"])
+            out.mags.append(MagSeries(0, t, mag, np.tile(ofs, (len(t), 1)), np.zeros((len(t), 3))))
+            if any(out.params.get(f"COMPASS_MOT_{a}", 0.0) for a in "XYZ"):
+                out.notes.append("the telemetry log does not carry the motor compensation in "
+                                 "use: COMPASS_MOT is set, its effect is taken as zero")
+    servo = msgs.get("SERVO_OUTPUT_RAW")
+    if servo is not None and len(servo):
+        lo = out.params.get("MOT_PWM_MIN", 0) or 1000.0
+        hi = out.params.get("MOT_PWM_MAX", 0) or 2000.0
+        pwm = np.mean(np.stack([servo[f"servo{k}_raw"].astype(float) for k in range(1, 5)]), 0)
+        out.throttle_t = servo["time_usec"] * 1e-6
+        out.throttle = np.clip((pwm - lo) / (hi - lo), 0.0, 1.0)
+    return out
+
+
+def _tlog_position(out: FlightData, pos, system_time) -> None:
+    """Position, ground speed and course from GLOBAL_POSITION_INT (lat/lon 1e-7 deg, alt mm
+    above mean sea level, vx/vy cm/s north/east), and the boot clock's Unix time from
+    SYSTEM_TIME."""
+    if pos is None or not len(pos):
+        return
+    keep = (pos["lat"] != 0) | (pos["lon"] != 0)
+    if not keep.any():
+        out.notes.append("no position in the telemetry log")
+        return
+    p = pos[keep]
+    out.gps_t = p["time_boot_ms"] * 1e-3
+    out.lat, out.lon = p["lat"] * 1e-7, p["lon"] * 1e-7
+    out.alt = p["alt"] * 1e-3
+    vn, ve = p["vx"] * 1e-2, p["vy"] * 1e-2
+    out.speed, out.course = np.hypot(vn, ve), np.arctan2(ve, vn)
+    if system_time is not None and len(system_time):
+        st = system_time[system_time["time_unix_usec"] > 0]
+        if len(st):
+            out.boot_unix_s = float(np.median(st["time_unix_usec"] * 1e-6
+                                              - st["time_boot_ms"] * 1e-3))
