@@ -31,13 +31,14 @@ def run(args) -> int:
         from apmcal.sources.csv import read_csv
 
         contents = read_csv(args.file, layout=args.layout)
-    report = summarise_and_calibrate(contents, args)
-    if lacking:
-        from textwrap import fill
+    try:
+        return summarise_and_calibrate(contents, args).status
+    finally:        # said also when the calibration itself is refused
+        if lacking:
+            from textwrap import fill
 
-        console_for(args).print("compass in flight: not checked\n" + fill(
-            lacking, width=100, initial_indent="  ", subsequent_indent="    "))
-    return report.status
+            console_for(args).print("compass in flight: not checked\n" + fill(
+                lacking, width=100, initial_indent="  ", subsequent_indent="    "))
 
 
 def run_flight(args) -> tuple[int | None, str | None]:
