@@ -73,12 +73,13 @@ def gyr_param_names(instance: int = 0) -> list[str]:
 
 
 def mag_param_names(instance: int = 0) -> dict[str, list[str] | str]:
-    """Names of the compass parameters of one instance: ofs, dia, odi lists; scale
+    """Names of the compass parameters of one instance: ofs, dia, odi, mot lists; scale
     (COMPASS_SCALE, COMPASS_SCALE2, COMPASS_SCALE3), orient, external."""
     s = _suffix(instance)
     return {"ofs": [f"COMPASS_OFS{s}_{a}" for a in AXES],
             "dia": [f"COMPASS_DIA{s}_{a}" for a in AXES],
             "odi": [f"COMPASS_ODI{s}_{a}" for a in AXES],
+            "mot": [f"COMPASS_MOT{s}_{a}" for a in AXES],
             "scale": f"COMPASS_SCALE{s}",
             "orient": f"COMPASS_ORIENT{s}",
             "external": "COMPASS_EXTERNAL" if instance == 0 else f"COMPASS_EXTERN{s}"}

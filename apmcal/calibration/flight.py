@@ -68,18 +68,13 @@ MANOEUVRE = {"iron": "two full yaw turns (720°) in the hover",
              "motor": "a climb at full throttle (and a slow descent), turning as it climbs"}
 
 
-def _mot_names(instance: int) -> list[str]:
-    s = "" if instance == 0 else str(instance + 1)
-    return [f"COMPASS_MOT{s}_{a}" for a in "XYZ"]
-
-
 def param_names(instance: int) -> dict[str, str]:
     """``PARAMS`` entry → ArduPilot parameter name for one compass instance."""
     n = mag_param_names(instance)
     out = dict(zip(PARAMS[0:3], n["ofs"]))
     out.update(zip(PARAMS[3:6], n["dia"]))
     out.update(zip(PARAMS[6:9], n["odi"]))
-    out.update(zip(PARAMS[9:12], _mot_names(instance)))
+    out.update(zip(PARAMS[9:12], mag_param_names(instance)["mot"]))
     return out
 
 
@@ -425,7 +420,7 @@ def _fit_compass(fd, mag, params, generation, after, b_h, b_d, field_ned, decl,
     roll, pitch = attitude_at(fd, mag.t)
     x, kind, span = _drive(fd, mag.t)
     motct = int(params.get("COMPASS_MOTCT", 0))
-    mot0 = np.array([float(params.get(n, 0.0)) for n in _mot_names(inst)])
+    mot0 = np.array([float(params.get(n, 0.0)) for n in mag_param_names(inst)["mot"]])
     drive0 = _drive(fd, mag.t, "current" if motct == 2 else "throttle")[0] if motct in (1, 2) \
         else np.zeros(len(mag.t))
     raw_body = undo(mag, params, inst, after, np.outer(drive0, mot0))
@@ -449,7 +444,7 @@ def _fit_compass(fd, mag, params, generation, after, b_h, b_d, field_ned, decl,
         if np.any(mot_sigma > MOTOR_SIGMA_MGAUSS):
             fit_motor = False
     if not fit_motor:
-        names = _mot_names(inst)
+        names = mag_param_names(inst)["mot"]
         same = kind is not None and int(params.get("COMPASS_MOTCT", 0)) == (
             2 if kind == "current" else 1)
         held = np.array([params.get(n, 0.0) for n in names]) if same else np.zeros(3)
