@@ -32,6 +32,7 @@ SINGLE = ("temperature_drift", "bias_drift", "triangle_drift", "bias_random_walk
 PAIRS = (("temperature_drift", "g_sensitivity"), ("gyro_scale", "mag_interference"),
          ("bias_random_walk", "lowpass_filter"))
 QUICK = (("temperature_drift",), ("gyro_scale",), ("mag_interference",), ())
+NULL_SESSIONS = 40      # clean sessions (no extra effect) of a full run
 
 
 @dataclass
@@ -161,13 +162,14 @@ def run_case(withheld: tuple, seed: int, rate_hz: float, fs: float) -> Case:
     return case
 
 
-def cases(quick: bool) -> list[tuple]:
+def cases(quick: bool, null: int = NULL_SESSIONS, effects: bool = True) -> list[tuple]:
     """The (withheld effects, seed) pairs to run: a few with ``quick``, else every single
-    effect on two seeds, the pairs, and ten null sessions."""
+    effect on two seeds and the pairs (unless ``effects`` is False), and ``null`` clean
+    sessions (seeds 1 to ``null``)."""
     if quick:
         return [(w, 1) for w in QUICK]
-    singles = [((e,), s) for e in SINGLE for s in (1, 2)]
-    return singles + [(p, 1) for p in PAIRS] + [((), s) for s in range(1, 11)]
+    singles = [((e,), s) for e in SINGLE for s in (1, 2)] + [(p, 1) for p in PAIRS]
+    return (singles if effects else []) + [((), s) for s in range(1, null + 1)]
 
 
 def main(argv=None) -> int:
@@ -184,9 +186,15 @@ def main(argv=None) -> int:
                         help="the simulated sessions' sample rate [Hz] (default 100, 50 with "
                              "--quick; above 200 the slow effects are scored on block means)")
     parser.add_argument("--json", default=None, help="write the cases as JSON")
+    parser.add_argument("--null", type=int, default=NULL_SESSIONS, metavar="N",
+                        help=f"clean sessions to run (default {NULL_SESSIONS})")
+    parser.add_argument("--null-only", action="store_true",
+                        help="only the clean sessions (the false-alarm rate)")
     args = parser.parse_args(argv)
     if args.rate is not None and not 10 <= args.rate <= 2000:
         parser.error("--rate must be within 10 to 2000 Hz")
+    if args.null < 0:
+        parser.error("--null must be 0 or more")
     return run_benchmark(args, Console(highlight=False, markup=False, emoji=False))
 
 
@@ -195,7 +203,7 @@ def run_benchmark(args, console) -> int:
     rate = args.rate or (50.0 if args.quick else 100.0)
     fs = rate
     done = []
-    for withheld, seed in cases(args.quick):
+    for withheld, seed in cases(args.quick, args.null, not args.null_only):
         case = run_case(withheld, seed, rate, fs)
         done.append(case)
         console.print(f"{'+'.join(withheld) or 'none':40s} seed {seed}: first "

@@ -16,9 +16,17 @@ from apmcal.diagnosis.model.params import white_noise_of_folds
 from apmcal.diagnosis.noise.structure import merged as merged_structure
 from apmcal.diagnosis.noise.terms import prepare as prepare_noise_terms
 from apmcal.diagnosis.output.result import GapResult
+from apmcal.diagnosis.scoring import null
 from apmcal.diagnosis.scoring.breakdown import gap_summary
 from apmcal.diagnosis.scoring.evaluate import FOLDS, Evaluation, Evaluator
-from apmcal.diagnosis.scoring.select import candidates, forward_selection, merged, rank, rank_effects
+from apmcal.diagnosis.scoring.select import (
+    candidates,
+    forward_selection,
+    merged,
+    rank,
+    rank_effects,
+    testable,
+)
 from apmcal.diagnosis.session.decimate import FINE_EFFECTS, SHAPES_BLOCK_MEANS
 
 
@@ -139,36 +147,55 @@ def preload_imports() -> None:
 
 
 def _rank_and_select(ev: Evaluator, names, say):
-    """Every candidate scored alone, and the stepwise combination.
+    """Every candidate scored alone, its significance calibrated on null sessions, and the
+    stepwise combination.
 
     A recording faster than :data:`~apmcal.diagnosis.session.decimate.SLOW_RATE_HZ` is scored in
     stages: the fine effects alone at its own rate; the slow ones on its block means, on top of
     a low-pass filter when one was found (it colours the noise down into the slow band: left
     out, a random walk would stand in for it); then the fine effects' combination at the
-    recorded rate, on top of the slow effects selected."""
+    recorded rate, on top of the slow effects selected. Each stage's candidates are calibrated
+    on null sessions scored in that same stage (:mod:`apmcal.diagnosis.scoring.null`)."""
     preload_imports()       # before the first workers that may need them are forked
     if not ev.decimates:
         say("candidate effects")
         ranked = rank_effects(ev, names)
+        say("null sessions")
+        ranked = _calibrated(ev, ranked, len(testable(ev, candidates(names))), say=say)
         say("combination")
         return ranked, forward_selection(ev, ranked)
     slow_names = [n for n in candidates(names) if n not in FINE_EFFECTS]
     fine_names = [n for n in candidates(names) if n in FINE_EFFECTS]
+    family = len(testable(ev, fine_names)) + len(testable(ev.slow, slow_names))
     say("candidate effects")
     ranked_fine = rank_effects(ev, fine_names)
+    say("null sessions")
+    ranked_fine = _calibrated(ev, ranked_fine, family, say=say)
     carried = tuple(s.name for s in ranked_fine if s.supported and s.name in SHAPES_BLOCK_MEANS)
     ranked_slow = rank_effects(ev.slow, slow_names, base=carried)
+    ranked_slow = _calibrated(ev, ranked_slow, family, stage=lambda null: null.slow,
+                              base=carried, scored_by=ev.slow, say=say)
     say("combination")
     slow = forward_selection(ev.slow, ranked_slow, base=carried)
     fine = forward_selection(ev, ranked_fine, base=tuple(slow.order()))
     return rank(ranked_slow + ranked_fine), merged(slow, fine)
 
 
+def _calibrated(ev: Evaluator, ranked, family: int, stage=None, base=(), scored_by=None,
+                say=None):
+    """``ranked`` with the candidates supported so far tested against their null
+    distributions on this session (:mod:`apmcal.diagnosis.scoring.null`)."""
+    draws = null.calibrate(ev, ranked, family, stage=stage, base=base,
+                           say=lambda text: say(text) if say else None)
+    return null.apply(ranked, draws, scored_by or ev)
+
+
 def _effect_entry(s, selection, params: dict) -> dict:
     entry = {"name": s.name, "significant": selection.significant(s.name),
              "supported_alone": bool(s.supported), "not_tested": s.reason,
              "implausible": s.implausible, "parameters_p_value": s.p_value,
-             "scored_at_hz": s.rate_hz}
+             "null_p_value": s.null_p_value, "null_threshold_nats": s.null_threshold,
+             "null_sessions": s.null_draws, "scored_at_hz": s.rate_hz}
     if s.name in selection.joined:
         entry["evidence_when_selected_nats"] = selection.joined[s.name]
         entry["evidence_in_combination_nats"] = selection.needed[s.name]

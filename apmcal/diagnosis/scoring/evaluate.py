@@ -45,6 +45,8 @@ SLOW_TO_FIT = frozenset({"gyro_scale", "motion_contamination", "time_offset"})
 ACC_TERM_ROUNDS = 2     # hold/move alternations of the accelerometer terms the moves fit
 # effects that change only the noise model and the twin, not the fit of the real data
 NOISE_ONLY = frozenset({"quantization", "lowpass_filter", "uniform_noise", "bias_random_walk"})
+NULL_SEEDS = 1 << 24    # noise seeds of the null sessions (the twins' are the evaluator's seed
+                        # plus the fold: small numbers)
 REAL_MODELS_KEPT = 2    # real fits kept per process (each holds all its residuals: 44 MB
                         # for a 10-minute 400 Hz session), the two folds of one model
 
@@ -239,6 +241,9 @@ class Evaluator:
         self.move_rows = Moves.of(session).rows()
         if session.mag is not None:
             self.fs_of["mag"] = float(1.0 / np.median(np.diff(session.mag.t)))
+        # evidence [nats] each candidate must reach, where the null calibration set one
+        # (apmcal.diagnosis.scoring.null); MIN_EVIDENCE_NATS elsewhere
+        self.min_evidence: dict[str, float] = {}
         self._cache: dict[frozenset, Evaluation] = {}
         self._summaries: dict[frozenset, Summary] = {}
         self._motion: dict = {}     # per fold: the real motion (poses, moves, hold motion)
@@ -349,6 +354,17 @@ class Evaluator:
             self._motion[("nominal", fold)] = self.fit(self.session, self.reduced, (), fold,
                                                        with_sigma=True)[:2]
         return self._motion[("nominal", fold)]
+
+    def nominal_draw(self, draw: int):
+        """A session drawn from the fitted nominal model: this session's times, poses, moves,
+        temperatures and current, its readings simulated afresh from the nominal fit of fold
+        ``draw % 2`` with noise seed ``NULL_SEEDS + draw`` (none of the twins' seeds) — a
+        session in which no candidate effect exists (:mod:`apmcal.diagnosis.scoring.null`)."""
+        fold = draw % 2
+        fit, noise = self._nominal(fold)
+        session, _ = simulate(self.session, fit, noise, seed=NULL_SEEDS + draw,
+                              motion_path=self._motion_path(fold))
+        return session
 
     def _motion_path(self, fold: int):
         """The real poses and moves as the nominal model sees them: one path for all models."""

@@ -80,6 +80,14 @@ class EffectScore:
         Wald test of the parameters (None: not testable).
     rate_hz : float
         Sample rate it was scored at [Hz].
+    null_p_value : float or None
+        Probability of this much evidence by chance on this session, from the null sessions
+        (:mod:`apmcal.diagnosis.scoring.null`; None: not calibrated, the other tests already
+        refuse it).
+    null_threshold : float or None
+        The evidence it must reach [nats]: its null distribution's 1 − α/M quantile.
+    null_draws : int
+        Null sessions it was scored on.
     """
 
     name: str
@@ -96,6 +104,9 @@ class EffectScore:
     p_value: float | None = None         # Wald test of the parameters (None: not testable)
     rate_hz: float = float("nan")        # sample rate it was scored at (the recording's, or
                                          # lower for a slow effect: apmcal.diagnosis.session.decimate)
+    null_p_value: float | None = None    # P(evidence this large by chance), from null sessions
+    null_threshold: float | None = None  # evidence it must reach [nats] (its null's quantile)
+    null_draws: int = 0                  # null sessions it was scored on
 
     @property
     def tested(self) -> bool:
@@ -128,10 +139,18 @@ def score(evaluator, base: tuple, name: str) -> EffectScore:
     params = after.params.get(name, {})
     why = implausible(name, params) if np.isfinite(evidence) else "its fit diverged"
     p = wald_p_value(name, params)
-    supported = evidence >= MIN_EVIDENCE_NATS and why is None and (p is None or p < MAX_P_VALUE)
+    supported = evidence >= required_evidence(evaluator, name) and why is None and \
+        (p is None or p < MAX_P_VALUE)
     return EffectScore(name, None, after.gap_in, after.gap_out,
                        shrink(before.gap_in, after.gap_in), shrink(before.gap_out, after.gap_out),
                        evidence, bool(supported), params, why, p, evaluator.session.fs)
+
+
+def required_evidence(evaluator, name: str) -> float:
+    """The evidence [nats] candidate ``name`` must reach on ``evaluator``'s session:
+    ``MIN_EVIDENCE_NATS``, or its null distribution's quantile when that is higher
+    (:mod:`apmcal.diagnosis.scoring.null`)."""
+    return max(MIN_EVIDENCE_NATS, getattr(evaluator, "min_evidence", {}).get(name, -np.inf))
 
 
 def rank(scores: list[EffectScore]) -> list[EffectScore]:
@@ -185,6 +204,8 @@ class Selection:
     stand_in : dict of str to str
         Stochastic effects removed because they took a deterministic effect's place instead of
         adding to it, with that effect.
+    required : dict of str to float
+        The evidence each candidate must reach [nats] (:func:`required_evidence`).
     """
 
     selected: list[str]
@@ -199,13 +220,16 @@ class Selection:
                                   # that explains it where the two disagree (left out)
     stand_in: dict[str, str] = field(default_factory=dict)    # stochastic effect -> the
                                   # deterministic one whose place it took (removed)
+    required: dict[str, float] = field(default_factory=dict)  # evidence each candidate must
+                                  # reach, where its null set it above MIN_EVIDENCE_NATS
 
     def significant(self, name: str) -> bool:
         """Part of the combination, or still supported on top of it (a stochastic effect
         removed as a stand-in never is)."""
         if name in self.stand_in or name in self.confounded:
             return name in self.selected
-        return name in self.selected or self.beyond.get(name, -np.inf) >= MIN_EVIDENCE_NATS
+        return name in self.selected or \
+            self.beyond.get(name, -np.inf) >= self.required.get(name, MIN_EVIDENCE_NATS)
 
     def order(self) -> list[str]:
         """The combination, the effect it needs most first."""
@@ -252,7 +276,7 @@ def forward_selection(evaluator, ranked: list[EffectScore], max_rounds: int = MA
             joined.pop(weakest)
             dropped.append(weakest)
     return Selection(selected, joined, beyond, leave_one_out(evaluator, selected, base),
-                     confounded, stand_in)
+                     confounded, stand_in, {n: required_evidence(evaluator, n) for n in pool})
 
 
 def simplest_best(trials: list[EffectScore]) -> EffectScore | None:
@@ -324,4 +348,5 @@ def merged(slow: Selection, fine: Selection) -> Selection:
     """One selection from the slow effects' and the fine effects' (each made at its own rate)."""
     return Selection(slow.selected + fine.selected, {**slow.joined, **fine.joined},
                      {**slow.beyond, **fine.beyond}, {**slow.needed, **fine.needed},
-                     {**slow.confounded, **fine.confounded}, {**slow.stand_in, **fine.stand_in})
+                     {**slow.confounded, **fine.confounded}, {**slow.stand_in, **fine.stand_in},
+                     {**slow.required, **fine.required})

@@ -1,0 +1,195 @@
+"""Significance calibrated under the null, by simulation: what chance alone gives each candidate.
+
+A candidate's held-out evidence (:mod:`apmcal.diagnosis.scoring.select`) is a cross-validated
+likelihood ratio, but what it reaches by chance depends on the candidate (how many parameters
+it fits, how they trade with the nominal ones) and on the session (its length, motion and
+noise): one fixed threshold is too strict for some and too loose for others. The twin is a
+generative model, so the null distribution can be drawn rather than assumed — a parametric
+bootstrap [Efron] ch. 6:
+
+1. *Null sessions*: the real session's sample times, poses, moves, temperatures and current,
+   with the sensor readings drawn afresh from the **fitted nominal model** (its errors and
+   noise, formatted as the log formats them), the two folds' nominal fits taking turns
+   (:meth:`~apmcal.diagnosis.scoring.evaluate.Evaluator.nominal_draw`). Each is a session in which
+   no candidate effect exists.
+2. Each null session is scored **exactly as the real one**: a fresh evaluator fits the nominal
+   model and the candidate on top of the same base, simulates their twins (with the real
+   scoring's twin seeds) and scores them held-out; the evidence is a draw of that candidate's
+   null distribution on this very session.
+3. The p-value of the real evidence e is the upper tail of the predictive distribution of one
+   more null draw, a Student t with B − 1 degrees of freedom around the draws' mean m with scale
+   s·√(1 + 1/B) ([Geisser] §2.1: the prediction interval of a normal sample whose mean and
+   variance are both estimated), and never below the draws' own rank p-value
+   (1 + #{draws ≥ e}) / (B + 1) [Besag]. A candidate is supported only when p < α / M, the
+   M candidates tested on the session sharing the family-wise false-alarm rate α = 5 %
+   (Bonferroni).
+
+Only candidates that pass the other tests (evidence ≥ 15 nats, plausible parameters, the Wald
+test) need the null: the others are not supported whatever it says. Draws stop early, per
+candidate, once the decision is plain (p below α/M/``DECISIVE`` or above ``DECISIVE``·α/M
+after ``MIN_DRAWS`` draws) [Besag]: an effect with thousands of nats of evidence needs the
+fewest. The resulting evidence threshold of each candidate (the evidence at which p = α/M) is
+also what it must reach on top of other effects in the stepwise selection — the null of an
+effect added to a larger model is taken to be the one it has added to the nominal model.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.special import stdtr, stdtrit
+
+ALPHA = 0.05            # family-wise false-alarm rate per session
+MIN_DRAWS = 5           # null sessions every calibrated candidate gets
+MAX_DRAWS = 12          # ... at most
+DECISIVE = 5.0          # p this far from α/M (either way) stops the draws for a candidate
+MIN_SPREAD_NATS = 0.5   # floor of the null draws' standard deviation [nats]: a candidate
+                        # whose draws happen to agree closely is not made infinitely sharp
+
+
+@dataclass
+class NullDraws:
+    """One candidate's evidence in each null session [nats] and what follows from it.
+
+    Attributes
+    ----------
+    name : str
+    evidence : list of float
+        The candidate's held-out evidence in each null session [nats] (NaN: not testable
+        there).
+    family : int
+        Candidates tested on the session (M): the test is at level α / M.
+    """
+
+    name: str
+    evidence: list = field(default_factory=list)
+    family: int = 1
+
+    @property
+    def level(self) -> float:
+        """α / M: the p-value a supported candidate must stay below."""
+        return ALPHA / max(self.family, 1)
+
+    def _finite(self) -> np.ndarray:
+        e = np.asarray(self.evidence, float)
+        return e[np.isfinite(e)]
+
+    def _spread(self) -> tuple[float, float, int]:
+        e = self._finite()
+        b = len(e)
+        sd = max(float(np.std(e, ddof=1)) if b > 1 else np.inf, MIN_SPREAD_NATS)
+        return float(np.mean(e)) if b else np.nan, sd * np.sqrt(1.0 + 1.0 / max(b, 1)), b
+
+    def p_value(self, real_evidence: float) -> float | None:
+        """P(a null draw ≥ ``real_evidence``) (module docstring, step 3); None when fewer than
+        two null sessions could test the candidate."""
+        mean, scale, b = self._spread()
+        if b < 2 or not np.isfinite(real_evidence):
+            return None
+        predictive = float(1.0 - stdtr(b - 1, (real_evidence - mean) / scale))
+        reached = int(np.sum(self._finite() >= real_evidence))
+        # a null draw at or above the real evidence: the draws' own rank says more than the
+        # normal tail, which a skewed null would understate
+        return max(predictive, (1.0 + reached) / (b + 1.0)) if reached else predictive
+
+    def threshold(self) -> float | None:
+        """The evidence [nats] at which the p-value is α / M (None: no null to go by)."""
+        mean, scale, b = self._spread()
+        if b < 2:
+            return None
+        return float(mean + scale * stdtrit(b - 1, 1.0 - self.level))
+
+    def decided(self, real_evidence: float) -> bool:
+        """Whether more draws could hardly change the decision."""
+        p = self.p_value(real_evidence)
+        if p is None:
+            return len(self.evidence) >= MIN_DRAWS
+        return len(self._finite()) >= MIN_DRAWS and (p < self.level / DECISIVE
+                                                     or p > self.level * DECISIVE)
+
+
+def calibrate(evaluator, ranked: list, family: int, stage=None, base: tuple = (),
+              say=None) -> dict:
+    """The null draws of every candidate of ``ranked`` that is supported so far.
+
+    Parameters
+    ----------
+    evaluator : Evaluator
+        The real session's evaluator at its recorded rate: the null sessions are drawn from
+        its nominal model.
+    ranked : list of EffectScore
+        The candidates scored alone on the real session (on top of ``base``).
+    family : int
+        Candidates tested on the session in all (M).
+    stage : callable, optional
+        The evaluator the candidates are scored by, given a null session's evaluator (e.g.
+        ``lambda ev: ev.slow`` for effects scored on block means); the evaluator itself by
+        default.
+    base : tuple of str
+        Effects every model of this stage includes (the same as on the real session).
+    say : callable, optional
+        Progress text.
+
+    Returns
+    -------
+    dict of str to NullDraws
+    """
+    from apmcal.diagnosis.scoring.evaluate import Evaluator
+    from apmcal.diagnosis.scoring.select import score
+
+    stage = stage or (lambda ev: ev)
+    real = {s.name: s.evidence for s in ranked if s.supported}
+    draws = {name: NullDraws(name, [], family) for name in real}
+    base = tuple(base)
+    for draw in range(MAX_DRAWS):
+        pending = [n for n, d in draws.items() if not d.decided(real[n])]
+        if not pending:
+            break
+        if say:
+            say(f"null session {draw + 1} ({', '.join(pending)})")
+        null_ev = stage(Evaluator(evaluator.nominal_draw(draw), evaluator.seed))
+        names = [n for n in pending if n in _testable(null_ev, pending)]
+        null_ev.prefetch([base] + [base + (n,) for n in names])
+        for n in pending:
+            draws[n].evidence.append(score(null_ev, base, n).evidence if n in names
+                                     else float("nan"))
+    return draws
+
+
+def apply(ranked: list, draws: dict, evaluator) -> list:
+    """``ranked`` with each calibrated candidate's p-value and threshold filled in, supported
+    only when its p-value is below α / M; the thresholds set on ``evaluator`` (what the
+    stepwise selection then asks of each candidate). Re-ranked.
+
+    Parameters
+    ----------
+    ranked : list of EffectScore
+    draws : dict of str to NullDraws
+        :func:`calibrate`'s result.
+    evaluator : Evaluator
+        The real session's evaluator the candidates were scored by.
+
+    Returns
+    -------
+    list of EffectScore
+    """
+    from apmcal.diagnosis.scoring.select import rank
+
+    for s in ranked:
+        d = draws.get(s.name)
+        if d is None:
+            continue
+        s.null_draws = int(np.sum(np.isfinite(d.evidence)))
+        s.null_p_value = d.p_value(s.evidence)
+        s.null_threshold = d.threshold()
+        if s.null_p_value is None:      # no null session could test it: the other tests rule
+            continue
+        s.supported = bool(s.supported and s.null_p_value < d.level)
+        evaluator.min_evidence[s.name] = s.null_threshold
+    return rank(ranked)
+
+
+def _testable(evaluator, names) -> list:
+    from apmcal.diagnosis.scoring.select import testable
+
+    return testable(evaluator, names)
