@@ -76,12 +76,14 @@ def motion(fs: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray,
     return t, f_body, w_body
 
 
-def session(seed: int, fs: float = 200.0) -> np.ndarray:
+def session(seed: int, fs: float = 200.0, gyro_scale=None) -> np.ndarray:
     """One clean session as rows ``t, acc_x..z, gyr_x..z`` [s, m/s², rad/s].
 
     The board's errors are drawn from ``seed``: accelerometer offsets ±0.5 m/s², scales
     1 ± 3 %; gyro offsets ±0.05 rad/s; white noise per sample σ 0.003-0.03 m/s² and
-    0.0003-0.003 rad/s (log-uniform: quiet and noisy boards).
+    0.0003-0.003 rad/s (log-uniform: quiet and noisy boards). ``gyro_scale`` (3,), when
+    given, multiplies the gyro's readings axis by axis: an effect beyond the nominal model,
+    for a check that the diagnosis still finds one.
     """
     rng = np.random.default_rng([0x1DE, seed])
     t, f_body, w_body = motion(fs, rng)
@@ -89,12 +91,13 @@ def session(seed: int, fs: float = 200.0) -> np.ndarray:
     acc_offset, gyr_offset = rng.uniform(-0.5, 0.5, 3), rng.uniform(-0.05, 0.05, 3)
     acc_sigma, gyr_sigma = 10.0 ** rng.uniform(-1.0, 0.0, 2) * np.array([0.03, 0.003])
     acc = f_body * acc_scale + acc_offset + rng.normal(0.0, acc_sigma, f_body.shape)
-    gyr = w_body + gyr_offset + rng.normal(0.0, gyr_sigma, w_body.shape)
+    gyr = w_body * (1.0 if gyro_scale is None else np.asarray(gyro_scale)) + gyr_offset \
+        + rng.normal(0.0, gyr_sigma, w_body.shape)
     return np.column_stack([t, acc, gyr])
 
 
-def write_csv(path: Path, seed: int, fs: float = 200.0) -> Path:
+def write_csv(path: Path, seed: int, fs: float = 200.0, gyro_scale=None) -> Path:
     """:func:`session` written as apmcal's CSV layout; returns ``path``."""
-    np.savetxt(path, session(seed, fs), delimiter=",", fmt="%.9g",
+    np.savetxt(path, session(seed, fs, gyro_scale), delimiter=",", fmt="%.9g",
                header="t,acc_x,acc_y,acc_z,gyr_x,gyr_y,gyr_z", comments="")
     return path

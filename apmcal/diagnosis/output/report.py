@@ -30,7 +30,11 @@ METHOD = """\
   scored held out. Its *evidence* is the held-out gap it removes, in nats (the log of how many
   times better it predicts the held-out data); it is *supported* when the evidence reaches 15
   nats, its fitted parameters differ from the values that switch it off (Wald test, p < 0.001)
-  and lie within physical limits (else it is *implausible*: standing in for something else).
+  and lie within physical limits (else it is *implausible*: standing in for something else),
+  and chance alone would not give it that much: the candidate is scored the same way on
+  sessions drawn from the fitted nominal model (*null sessions*: the same motion and
+  temperatures, no effect), and its real evidence must lie beyond what those give it (p below
+  5 % shared among the candidates tested).
   Supported effects are then combined stepwise: each round adds the one with the most evidence
   on top of those chosen and drops an earlier one the later ones explain. An effect is
   *significant* when it is in that combination (or still supported on top of it); one supported

@@ -9,14 +9,21 @@ Schema 1 (every gap in nats per sample, see :mod:`apmcal.diagnosis.scoring.gap`)
      "effects": [{"name", "shrink_heldout", "shrink_in_sample", "gap_heldout", "evidence_nats",
                   "supported_alone", "significant", "evidence_when_selected_nats",
                   "evidence_beyond_selection_nats", "params", "not_tested",
-                  "implausible", "scored_at_hz", "confounded_with", "stands_in_for"}, ...]  (best first),
+                  "implausible", "parameters_p_value", "null_p_value", "null_threshold_nats",
+                  "null_sessions", "scored_at_hz", "confounded_with", "stands_in_for"}, ...]
+                 (best first),
      "selected": [names], "after": {"total", "heldout", "breakdown", "breakdown_heldout",
                                     "noise_ratio_heldout"},
      "white_noise": {...}, "noise_structure": {...}, "notes": [...]}
 
 "shrink_*", "gap_*" and "evidence_nats" score the effect alone on the nominal model;
 "supported_alone" is that evidence ≥ 15 nats with plausible parameters ("implausible" says why
-not, :mod:`apmcal.diagnosis.model.plausible`); "significant" means selected, or still supported
+not, :mod:`apmcal.diagnosis.model.plausible`), away from "off" ("parameters_p_value", the Wald
+test's, below 0.001) and beyond chance on this session: "null_p_value" is the probability of
+that much evidence on sessions drawn from the nominal model ("null_sessions" of them,
+:mod:`apmcal.diagnosis.scoring.null`; null when not needed: the other tests already refuse the
+effect), below 0.05 / the number of candidates tested, "null_threshold_nats" the evidence that
+reaches it; "significant" means selected, or still supported
 on top of the selected combination (see :mod:`apmcal.diagnosis.scoring.select`);
 "confounded_with" (only when so) names the effect that explains this one where their shapes
 part (:func:`apmcal.diagnosis.scoring.select.confounded_effects`); "stands_in_for" (only when

@@ -123,7 +123,7 @@ def print_effects(result, console) -> None:
     for e in tested:
         if e["significant"]:
             _say(console, Text(f"  significant {e['name']:<21} {_shrink(e):>6}  evidence "
-                               f"{e['evidence_nats']:.0f}", style="bold"))
+                               f"{e['evidence_nats']:.0f}{_by_chance(e)}", style="bold"))
             for name, p in e.get("params", {}).items():
                 _say(console, f"      {name} = {param_text(p)} {p['unit']}")
     confounded = [e for e in tested if e.get("confounded_with")]
@@ -170,14 +170,31 @@ def rate_note(result) -> str | None:
             f"effects selected")
 
 
+def _by_chance(e: dict) -> str:
+    """How often chance gives that much evidence on this session (the null sessions of
+    apmcal.diagnosis.scoring.null), when they were needed."""
+    p = e.get("null_p_value")
+    if p is None:
+        return ""
+    said = "p < 1e-12" if p < 1e-12 else f"p {p:.2g}"
+    return f" (by chance: {said} in {e.get('null_sessions', 0)} null sessions)"
+
+
 def _chance(e: dict) -> str:
     """Why an effect with enough evidence is still not supported: its parameters are all
-    within their noise of "off" (Wald test, apmcal.diagnosis.model.wald)."""
-    p = e.get("parameters_p_value")
-    if p is None or e.get("evidence_nats", 0.0) < MIN_EVIDENCE_NATS or p < MAX_P_VALUE:
+    within their noise of "off" (Wald test, apmcal.diagnosis.model.wald), or chance gives it
+    as much on this session (the null sessions)."""
+    if e.get("evidence_nats", 0.0) < MIN_EVIDENCE_NATS:
         return ""
-    return (f" (evidence {e['evidence_nats']:.0f}, but its parameters are within their noise "
-            f"of off: p {p:.2g})")
+    p = e.get("parameters_p_value")
+    if p is not None and p >= MAX_P_VALUE:
+        return (f" (evidence {e['evidence_nats']:.0f}, but its parameters are within their "
+                f"noise of off: p {p:.2g})")
+    p, needed = e.get("null_p_value"), e.get("null_threshold_nats")
+    if p is None or needed is None:
+        return ""
+    return (f" (evidence {e['evidence_nats']:.0f}, but chance gives as much on this session: "
+            f"p {p:.2g} in {e.get('null_sessions', 0)} null sessions; it needs {needed:.0f})")
 
 
 def _shrink(e: dict) -> str:
