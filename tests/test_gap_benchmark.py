@@ -2,7 +2,7 @@
 
 Each case is diagnosed blind (the diagnosis is not told which effect is on) and must rank the
 withheld effect first; the session without an extra effect must report nothing supported.
-The full benchmark (30 single cases, 3 pairs, 10 null sessions) is ``python -m apmcal_sim.gap_benchmark``.
+The full benchmark (30 single cases, 3 pairs, 40 null sessions) is ``python -m apmcal_sim.gap_benchmark``.
 """
 from __future__ import annotations
 
