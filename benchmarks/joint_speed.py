@@ -111,7 +111,7 @@ def main(argv=None) -> int:
     print(f"session {session.name}: {len(contents.recordings[0])} IMU samples")
     print(f"ellipsoid      {e_wall:7.2f} s wall  {e_cpu:7.2f} s CPU")
     print(f"joint          {j_wall:7.2f} s wall  {j_cpu:7.2f} s CPU")
-    before = joint_in(export_tree(args.before, ("apmcal", "apmcal_sim", "sitl")), session,
+    before = joint_in(export_tree(args.before), session,
                       args.runs)
     print(f"joint {args.before:8s} {before['wall']:7.2f} s wall  {before['cpu']:7.2f} s CPU "
           f"(now {before['cpu'] / j_cpu:.1f}x as fast, CPU)")

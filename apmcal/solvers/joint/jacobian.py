@@ -10,13 +10,22 @@ For dR = E_0·…·E_{K−1}, E_k = Exp(ω_k·Δt_k), a change δω_k turns dR i
 the identity — this only slows Gauss-Newton's convergence, never moves its fixed point, since
 the misclosures themselves are exact). The per-sample derivatives ∂a/∂X, ∂ω/∂X, ∂m/∂X come
 from forward differences of the closed-form corrections (cheap: no integration).
+
+All windows at once (:mod:`apmcal.solvers.joint.trajectory`): with Q_k the frame of sample k in
+the first sample's, S_k = Q_sᵀ·Q_{k+1} for a window starting at s, so Σ_{s≤k<e} S_k·δω_k·Δt_k =
+Q_sᵀ·(Φ_e − Φ_s) with the running sum Φ_k = Σ_{l<k} Q_{l+1}·δω_l·Δt_l over the session, and
+δθ = Q_eᵀ·(Φ_e − Φ_s). The ZUPT's sum Σ_k [P_k·f_k]×·Σ_{l<k} S_l·φ_l (P_k = Q_sᵀ·Q_k, f_k the
+specific force step, φ_l = δω_l·Δt_l) is rearranged as Q_sᵀ·Σ_l [V_e − V_{l+1}]×·Q_{l+1}·φ_l
+(V the running velocity sum), again differences of running sums.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from apmcal.solvers.joint import model as jm
-from apmcal.solvers.strapdown import hat, midpoint, prefix_products, so3_exp
+from apmcal.solvers.joint.residuals import window_ends
+from apmcal.solvers.joint.trajectory import Trajectory, running_sum, transposed
+from apmcal.solvers.strapdown import hat, midpoint
 
 STEP = 1e-7
 
@@ -32,15 +41,7 @@ def _left(mat: np.ndarray, arr: np.ndarray) -> np.ndarray:
     return np.tensordot(mat, arr, axes=([1], [1])).transpose(1, 0, 2)
 
 
-def _signals(x: np.ndarray, d):
-    m = jm.matrices(x)
-    a = jm.correct_acc(d.acc, m)
-    w = jm.correct_gyr(d.gyr, a, m)
-    mc = jm.correct_mag(d.mag, m) if d.mag is not None else None
-    return a, w, mc
-
-
-def sample_derivatives(x: np.ndarray, d, free: np.ndarray):
+def sample_derivatives(x: np.ndarray, tr: Trajectory, free: np.ndarray):
     """∂a, ∂ω, ∂m per sample over the free parameters each depends on: ∂a (n, 3, p_a) over the
     free accelerometer parameters, ∂ω (n, 3, p_ω) over the free accelerometer then gyro
     parameters, ∂m (n, 3, p_m) over the free magnetometer parameters (the free parameters in
@@ -56,20 +57,18 @@ def sample_derivatives(x: np.ndarray, d, free: np.ndarray):
     ----------
     x : (42,) array
         Parameters (:mod:`apmcal.solvers.joint.model`).
-    d : JointData
-        The session's samples and condition layout (:func:`apmcal.solvers.joint.residuals.layout`).
+    tr : Trajectory
+        The corrected signals at ``x`` (:class:`~apmcal.solvers.joint.trajectory.Trajectory`).
     free : (42,) bool array
         The parameters estimated (p = p_ω + p_m of them).
 
     Returns
     -------
-    signals : tuple
-        a (n, 3) [m/s²], ω (n, 3) [rad/s], m (n, 3) [mGauss] or None.
-    derivatives : tuple
+    tuple
         ∂a (n, 3, p_a), ∂ω (n, 3, p_ω), ∂m (n, 3, p_m) (None without a magnetometer).
     """
-    m0 = jm.matrices(x)
-    a0, w0, mag0 = _signals(x, d)
+    m0 = tr.mats
+    a0, w0, mag0 = tr.a, tr.w, tr.mc
     cols = np.flatnonzero(free)
     pa, pw = _counts(free)
     dmat = {k: [] for k in m0}
@@ -91,7 +90,7 @@ def sample_derivatives(x: np.ndarray, d, free: np.ndarray):
     if mag0 is not None:
         dm = -_left(np.linalg.inv(m0["D_m"]),
                     dmat["o_m"][pw:].T[None] + _each(dmat["D_m"][pw:], mag0))
-    return (a0, w0, mag0), (da, dw, dm)
+    return da, dw, dm
 
 
 def _counts(free: np.ndarray) -> tuple[int, int]:
@@ -127,12 +126,8 @@ def unit_derivative(v: np.ndarray, dv: np.ndarray):
     return proj @ dv, u
 
 
-def _rows_with_pad(v: np.ndarray) -> np.ndarray:
-    """Append a zero row: index n is the padding of integration rows."""
-    return np.concatenate([v, np.zeros((1,) + v.shape[1:])])
-
-
-def jacobian(x: np.ndarray, d, families, rows, free: np.ndarray) -> dict[str, np.ndarray]:
+def jacobian(x: np.ndarray, d, families, free: np.ndarray,
+             traj: Trajectory | None = None) -> dict[str, np.ndarray]:
     """∂w/∂X of each family: name → (n_c, dim, p) over the free parameters.
 
     Parameters
@@ -143,22 +138,26 @@ def jacobian(x: np.ndarray, d, families, rows, free: np.ndarray) -> dict[str, np
         The session's samples and condition layout (:func:`apmcal.solvers.joint.residuals.layout`).
     families : tuple of str
         The families to differentiate.
-    rows : (I, K+1) int array
-        :func:`apmcal.solvers.joint.residuals.interval_rows` of ``d``.
     free : (42,) bool array
         The parameters estimated (p of them).
+    traj : Trajectory, optional
+        :class:`~apmcal.solvers.joint.trajectory.Trajectory` of ``x`` and ``d``, when the
+        caller has it.
 
     Returns
     -------
     dict
         family → (n_c, dim, p) array.
     """
-    (a, w, mc), (da, dw, dm) = sample_derivatives(x, d, free)
-    mats, cols = jm.matrices(x), np.flatnonzero(free)
+    tr = Trajectory(x, d) if traj is None else traj
+    a, mc, q = tr.a, tr.mc, tr.frame
+    da, dw, dm = sample_derivatives(x, tr, free)
+    cols = np.flatnonzero(free)
     p = len(cols)
     pa, pw = _counts(free)
-    step_rot = so3_exp(_rows_with_pad(midpoint(w) * d.dt[:, None]))
-    phi = _rows_with_pad(midpoint(dw) * d.dt[:, None, None])   # δω_k·Δt_k per parameter
+    # Ψ_k = Q_{k+1}·δω_k·Δt_k per parameter (session frame), and its running sum Φ
+    psi = q[1:] @ (midpoint(dw) * d.dt[:, None, None])           # (n, 3, p_ω)
+    phi = running_sum(psi)                                          # (n+1, 3, p_ω)
     out = {}
     bm = d.block_mean
     a_blk = bm @ a
@@ -167,54 +166,45 @@ def jacobian(x: np.ndarray, d, families, rows, free: np.ndarray) -> dict[str, np
         u = a_blk / np.linalg.norm(a_blk, axis=1, keepdims=True)
         out["acc_norm"] = _widen(np.einsum("ci,cip->cp", u, da_blk)[:, None, :], 0, p)
     if "zaru" in families:
-        out["zaru"] = _widen((bm @ dw.reshape(len(w), -1)).reshape(-1, 3, pw), 0, p)
+        out["zaru"] = _widen((bm @ dw.reshape(len(dw), -1)).reshape(-1, 3, pw), 0, p)
     if d.intervals and ("level" in families or "zupt" in families):
-        i = np.array([iv[0] for iv in d.intervals])
-        j = np.array([iv[1] for iv in d.intervals])
-        s = prefix_products(step_rot[rows[:, :-1]])             # (I, K, 3, 3)
-        dr = s[:, -1]
-        sphi = np.einsum("wkij,wkjp->wkip", s, phi[rows[:, :-1]])
+        i, j, k0, k1 = d.interval_index.T
+        dphi = phi[k1] - phi[k0]                                    # Q_{k0}·Σ S_k·φ_k
         if "level" in families:
+            dr = tr.rotation(k0, k1)
             dui, ui = unit_derivative(a_blk[i], da_blk[i])
             duj, _ = unit_derivative(a_blk[j], da_blk[j])
             rui = np.einsum("wji,wj->wi", dr, ui)
-            dtheta = np.einsum("wji,wjp->wip", dr, sphi.sum(axis=1))
+            dtheta = transposed(q[k1]) @ dphi
             lv = -hat(rui) @ dtheta
-            lv[..., :pa] += duj - np.einsum("wji,wjp->wip", dr, dui)
+            lv[..., :pa] += duj - transposed(dr) @ dui
             out["level"] = _widen(np.einsum("wia,wip->wap", d.level_basis, lv), 0, p)
         if "zupt" in families:
-            f = _rows_with_pad(a * d.dt[:, None])[rows[:, :-1]]          # (I, K, 3)
-            df = _rows_with_pad(da * d.dt[:, None, None])[rows[:, :-1]]  # (I, K, 3, p_a)
-            eye = np.broadcast_to(np.eye(3), (len(rows), 1, 3, 3))
-            pk = np.concatenate([eye, s[:, :-1]], axis=1)              # P_k = S_{k−1}
-            c = np.cumsum(sphi, axis=1) - sphi                          # Σ_{l<k} S_l·φ_l
-            pf = np.einsum("wkij,wkj->wki", pk, f)
-            span = np.array([d.t[k1] - d.t[k0] for _, _, k0, k1 in d.intervals])
-            zv = -np.einsum("wkij,wkjp->wip", hat(pf), c)
-            zv[..., :pa] += (np.einsum("wkij,wkjp->wip", pk, df)
-                             - da_blk[i] * span[:, None, None])
+            v = tr.velocity
+            # Σ_l [V_e − V_{l+1}]×·Ψ_l = [V_e]×·ΔΦ − Σ_l [V_{l+1}]×·Ψ_l
+            cross = running_sum(hat(v[1:]) @ psi)                    # (n+1, 3, p_ω)
+            rot = hat(v[k1]) @ dphi - (cross[k1] - cross[k0])
+            force = running_sum(q[:-1] @ (da * d.dt[:, None, None]))  # (n+1, 3, p_a)
+            qt = transposed(q[k0])
+            zv = -(qt @ rot)
+            zv[..., :pa] += (qt @ (force[k1] - force[k0])
+                             - da_blk[i] * (d.t[k1] - d.t[k0])[:, None, None])
             out["zupt"] = _widen(zv, 0, p)
     if mc is not None and "mag" in families:
-        parts = []
-        for idx in d.windows:
-            s = prefix_products(step_rot[idx[:, :-1]])
-            dr = s[:, -1]
-            sphi = np.einsum("wkij,wkjp->wip", s, phi[idx[:, :-1]])
-            dtheta = np.einsum("wji,wjp->wip", dr, sphi)
-            rms = np.einsum("wji,wj->wi", dr, mc[idx[:, 0]])
-            w_cal = mc[idx[:, -1]] - rms
-            # columns: the inertial parameters through the rotation, the magnetometer's own
-            dw_cal = np.concatenate([-hat(rms) @ dtheta,
-                                     dm[idx[:, -1]] - np.einsum("wji,wjp->wip", dr,
-                                                                dm[idx[:, 0]])], axis=2)
-            # the condition is D_m·w_cal: product rule, D_m's own entries row-major
-            da_m = np.einsum("ij,wjp->wip", mats["D_m"], dw_cal)
-            for c, i in enumerate(cols):
-                if i in jm.SLICES_RANGE["D_m"]:
-                    row, col = divmod(i - jm.SLICES["D_m"].start, 3)
-                    da_m[:, row, c] += w_cal[:, col]
-            parts.append(da_m)
-        out["mag"] = np.concatenate(parts)
+        s, e = window_ends(d)
+        dr = tr.rotation(s, e)
+        dtheta = transposed(q[e]) @ (phi[e] - phi[s])
+        rms = np.einsum("wji,wj->wi", dr, mc[s])
+        w_cal = mc[e] - rms
+        # columns: the inertial parameters through the rotation, the magnetometer's own
+        dw_cal = np.concatenate([-hat(rms) @ dtheta, dm[e] - transposed(dr) @ dm[s]], axis=2)
+        # the condition is D_m·w_cal: product rule, D_m's own entries row-major
+        da_m = tr.mats["D_m"] @ dw_cal
+        for c, col in enumerate(cols):
+            if col in jm.SLICES_RANGE["D_m"]:
+                row, k = divmod(col - jm.SLICES["D_m"].start, 3)
+                da_m[:, row, c] += w_cal[:, k]
+        out["mag"] = da_m
         if "mag_datum" in families:
             u = mc / np.linalg.norm(mc, axis=1, keepdims=True)
             out["mag_datum"] = _widen(np.einsum("ni,nip->p", u, dm)[None, None, :] / len(mc),
