@@ -8,8 +8,9 @@ For dR = E_0·…·E_{K−1}, E_k = Exp(ω_k·Δt_k), a change δω_k turns dR i
 
 (first order; the right Jacobian of Exp over one sample step, |ω·Δt| ≲ 0.05 rad, is taken as
 the identity — this only slows Gauss-Newton's convergence, never moves its fixed point, since
-the misclosures themselves are exact). The per-sample derivatives ∂a/∂X, ∂ω/∂X, ∂m/∂X come
-from forward differences of the closed-form corrections (cheap: no integration).
+the misclosures themselves are exact). The per-sample derivatives ∂a/∂X, ∂ω/∂X, ∂m/∂X are
+closed-form and linear in a few features of the sample (:func:`coefficients`), so every sum
+over samples is taken of the features and multiplied by the coefficients once.
 
 All windows at once (:mod:`apmcal.solvers.joint.trajectory`): with Q_k the frame of sample k in
 the first sample's, S_k = Q_sᵀ·Q_{k+1} for a window starting at s, so Σ_{s≤k<e} S_k·δω_k·Δt_k =
@@ -30,67 +31,88 @@ from apmcal.solvers.strapdown import hat, midpoint
 STEP = 1e-7
 
 
-def _each(mats: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """(n, 3, p): mats[p] @ v[n] for (p, 3, 3) matrices and (n, 3) vectors, by one BLAS
-    product (einsum loops in C here, ten times slower)."""
-    return np.tensordot(v, mats, axes=([1], [2])).transpose(0, 2, 1)
+def coefficients(x: np.ndarray, mats: dict, free: np.ndarray):
+    """The per-sample derivatives ∂a, ∂ω, ∂m as linear maps of a few per-sample features.
 
-
-def _left(mat: np.ndarray, arr: np.ndarray) -> np.ndarray:
-    """(n, 3, p): mat @ arr[n] for one (3, 3) matrix and (n, 3, p) arrays, by one BLAS product."""
-    return np.tensordot(mat, arr, axes=([1], [1])).transpose(1, 0, 2)
-
-
-def sample_derivatives(x: np.ndarray, tr: Trajectory, free: np.ndarray):
-    """∂a, ∂ω, ∂m per sample over the free parameters each depends on: ∂a (n, 3, p_a) over the
-    free accelerometer parameters, ∂ω (n, 3, p_ω) over the free accelerometer then gyro
-    parameters, ∂m (n, 3, p_m) over the free magnetometer parameters (the free parameters in
-    :data:`~apmcal.solvers.joint.model.NAMES` order are exactly these: accelerometer, gyro,
-    magnetometer; every other derivative is zero, so it is not computed).
-
-    Closed form through the matrices: with a = K_a⁻¹(y_a − b_a), ∂a = −K_a⁻¹·(∂b_a + ∂K_a·a);
-    with ω = K_ω⁻¹(y_ω − b_ω − G_ω·a), ∂ω = −K_ω⁻¹·(∂b_ω + ∂G_ω·a + G_ω·∂a + ∂K_ω·ω);
-    with m = D⁻¹(y_m − o), ∂m = −D⁻¹·(∂o + ∂D·m). Only ∂K/∂x of the 3×3 matrices is taken
-    by differences (cheap: no samples involved).
+    With a = K_a⁻¹(y_a − b_a), ∂a = −K_a⁻¹·(∂b_a + ∂K_a·a); with ω = K_ω⁻¹(y_ω − b_ω − G_ω·a),
+    ∂ω = −K_ω⁻¹·(∂b_ω + ∂G_ω·a + G_ω·∂a + ∂K_ω·ω); with m = D⁻¹(y_m − o), ∂m = −D⁻¹·(∂o + ∂D·m).
+    Each is linear in the features z_a = [1, a], z_ω = [1, a, ω], z_m = [1, m] of the sample:
+    ∂a_k = Σ_f z_a[k, f]·C_a[f] and so on, so that sums of derivatives over samples are sums
+    of features (3 + 3·3 + …, not 3 × 42 columns per sample). Only ∂K/∂x of the 3×3 matrices is
+    taken by differences (cheap: no samples involved). Each sensor's derivatives are over the
+    free parameters it depends on: ∂a over the free accelerometer parameters, ∂ω over the free
+    accelerometer then gyro parameters, ∂m over the free magnetometer parameters (the free
+    parameters in :data:`~apmcal.solvers.joint.model.NAMES` order are exactly these; every
+    other derivative is zero, so it is not computed).
 
     Parameters
     ----------
     x : (42,) array
         Parameters (:mod:`apmcal.solvers.joint.model`).
-    tr : Trajectory
-        The corrected signals at ``x`` (:class:`~apmcal.solvers.joint.trajectory.Trajectory`).
+    mats : dict
+        :func:`apmcal.solvers.joint.model.matrices` of ``x``.
     free : (42,) bool array
         The parameters estimated (p = p_ω + p_m of them).
 
     Returns
     -------
     tuple
-        ∂a (n, 3, p_a), ∂ω (n, 3, p_ω), ∂m (n, 3, p_m) (None without a magnetometer).
+        C_a (4, 3, p_a), C_ω (7, 3, p_ω), C_m (4, 3, p_m) (units of the sensor per parameter,
+        the non-constant features' units divided out).
     """
-    m0 = tr.mats
-    a0, w0, mag0 = tr.a, tr.w, tr.mc
     cols = np.flatnonzero(free)
     pa, pw = _counts(free)
-    dmat = {k: [] for k in m0}
+    dmat = {k: [] for k in mats}
     for i in cols:
         h = STEP * max(1.0, abs(x[i]))
         xh = x.copy()
         xh[i] += h
         mh = jm.matrices(xh)
-        for k in m0:
-            dmat[k].append((mh[k] - m0[k]) / h)
-    dmat = {k: np.array(v) for k, v in dmat.items()}             # (p, 3) or (p, 3, 3)
-    ka_inv, kw_inv = np.linalg.inv(m0["K_a"]), np.linalg.inv(m0["K_w"])
-    da = -_left(ka_inv, dmat["b_a"][:pa].T[None] + _each(dmat["K_a"][:pa], a0))
-    inner = (dmat["b_w"][:pw].T[None] + _each(dmat["G_w"][:pw], a0)
-             + _each(dmat["K_w"][:pw], w0))
-    inner[:, :, :pa] += _left(m0["G_w"], da)
-    dw = -_left(kw_inv, inner)
-    dm = None
-    if mag0 is not None:
-        dm = -_left(np.linalg.inv(m0["D_m"]),
-                    dmat["o_m"][pw:].T[None] + _each(dmat["D_m"][pw:], mag0))
-    return da, dw, dm
+        for k in mats:
+            dmat[k].append((mh[k] - mats[k]) / h)
+    dmat = {k: np.array(v).reshape((len(cols),) + np.shape(mats[k])) for k, v in dmat.items()}
+    ka_inv, kw_inv = np.linalg.inv(mats["K_a"]), np.linalg.inv(mats["K_w"])
+    # C[f] (3, p): f = 0 the constant, then the components of a (and of ω)
+    c_a = -ka_inv @ np.concatenate([dmat["b_a"][:pa].T[None],
+                                    np.moveaxis(dmat["K_a"][:pa], 0, 2).transpose(1, 0, 2)])
+    inner = np.concatenate([dmat["b_w"][:pw].T[None],
+                            np.moveaxis(dmat["G_w"][:pw], 0, 2).transpose(1, 0, 2),
+                            np.moveaxis(dmat["K_w"][:pw], 0, 2).transpose(1, 0, 2)])
+    inner[:4, :, :pa] += mats["G_w"] @ c_a
+    c_w = -kw_inv @ inner
+    c_m = -np.linalg.inv(mats["D_m"]) @ np.concatenate(
+        [dmat["o_m"][pw:].T[None], np.moveaxis(dmat["D_m"][pw:], 0, 2).transpose(1, 0, 2)])
+    return c_a, c_w, c_m
+
+
+def features(v: np.ndarray, *more: np.ndarray) -> np.ndarray:
+    """[1, v, more…] per sample: (n, 1 + 3·k).
+
+    Parameters
+    ----------
+    v, more : (n, 3) arrays
+
+    Returns
+    -------
+    (n, 1 + 3·(1 + len(more))) array
+    """
+    return np.column_stack((np.ones(len(v)), v) + more)
+
+
+def _apply(z: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Σ_f z[..., f]·c[f]: (..., 3, p) from features (..., F) and coefficients (F, 3, p)."""
+    return (z.reshape(-1, z.shape[-1]) @ c.reshape(c.shape[0], -1)).reshape(
+        z.shape[:-1] + c.shape[1:])
+
+
+def _rotated(rot: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Y[k, i, j·F + f] = rot[k, i, j]·z[k, f]: (n, 3, 3·F), the features of rot·∂(…)."""
+    return (rot[:, :, :, None] * z[:, None, None, :]).reshape(len(z), 3, -1)
+
+
+def _contract(y: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Σ_{j,f} y[..., i, j·F + f]·c[f, j, p]: (..., 3, p) from :func:`_rotated` sums."""
+    return y @ c.transpose(1, 0, 2).reshape(-1, c.shape[2])
 
 
 def _counts(free: np.ndarray) -> tuple[int, int]:
@@ -151,25 +173,26 @@ def jacobian(x: np.ndarray, d, families, free: np.ndarray,
     """
     tr = Trajectory(x, d) if traj is None else traj
     a, mc, q = tr.a, tr.mc, tr.frame
-    da, dw, dm = sample_derivatives(x, tr, free)
+    c_a, c_w, c_m = coefficients(x, tr.mats, free)
     cols = np.flatnonzero(free)
     p = len(cols)
     pa, pw = _counts(free)
-    # Ψ_k = Q_{k+1}·δω_k·Δt_k per parameter (session frame), and its running sum Φ
-    psi = q[1:] @ (midpoint(dw) * d.dt[:, None, None])           # (n, 3, p_ω)
-    phi = running_sum(psi)                                          # (n+1, 3, p_ω)
+    za, zw = features(a), features(a, tr.w)
+    # Ψ_k = Q_{k+1}·δω̄_k·Δt_k (session frame) as features; Φ its running sum
+    zmid = midpoint(zw) * d.dt[:, None]                               # (n, 7)
+    phi = running_sum(_rotated(q[1:], zmid))                          # (n+1, 3, 21)
     out = {}
     bm = d.block_mean
     a_blk = bm @ a
-    da_blk = (bm @ da.reshape(len(a), -1)).reshape(-1, 3, pa)
+    da_blk = _apply(bm @ za, c_a)                                     # (n_blocks, 3, p_a)
     if "acc_norm" in families:
         u = a_blk / np.linalg.norm(a_blk, axis=1, keepdims=True)
         out["acc_norm"] = _widen(np.einsum("ci,cip->cp", u, da_blk)[:, None, :], 0, p)
     if "zaru" in families:
-        out["zaru"] = _widen((bm @ dw.reshape(len(dw), -1)).reshape(-1, 3, pw), 0, p)
+        out["zaru"] = _widen(_apply(bm @ zw, c_w), 0, p)
     if d.intervals and ("level" in families or "zupt" in families):
         i, j, k0, k1 = d.interval_index.T
-        dphi = phi[k1] - phi[k0]                                    # Q_{k0}·Σ S_k·φ_k
+        dphi = _contract(phi[k1] - phi[k0], c_w)                      # Q_{k0}·Σ S_k·φ_k
         if "level" in families:
             dr = tr.rotation(k0, k1)
             dui, ui = unit_derivative(a_blk[i], da_blk[i])
@@ -181,23 +204,31 @@ def jacobian(x: np.ndarray, d, families, free: np.ndarray,
             out["level"] = _widen(np.einsum("wia,wip->wap", d.level_basis, lv), 0, p)
         if "zupt" in families:
             v = tr.velocity
-            # Σ_l [V_e − V_{l+1}]×·Ψ_l = [V_e]×·ΔΦ − Σ_l [V_{l+1}]×·Ψ_l
-            cross = running_sum(hat(v[1:]) @ psi)                    # (n+1, 3, p_ω)
-            rot = hat(v[k1]) @ dphi - (cross[k1] - cross[k0])
-            force = running_sum(q[:-1] @ (da * d.dt[:, None, None]))  # (n+1, 3, p_a)
+            # Σ_l [V_e − V_{l+1}]×·Ψ_l = [V_e]×·ΔΦ − Σ_l [V_{l+1}]×·Ψ_l, and Σ_l Q_l·∂f_l,
+            # summed over each interval's samples only
+            steps = np.concatenate([np.arange(s0, s1) for s0, s1 in zip(k0, k1)])
+            first = np.concatenate([[0], np.cumsum(k1 - k0)[:-1]])
+            cross = np.add.reduceat(_rotated(hat(v[steps + 1]) @ q[steps + 1], zmid[steps]),
+                                    first, axis=0)
+            force = np.add.reduceat(_rotated(q[steps], za[steps] * d.dt[steps, None]),
+                                    first, axis=0)
+            rot = hat(v[k1]) @ dphi - _contract(cross, c_w)
             qt = transposed(q[k0])
             zv = -(qt @ rot)
-            zv[..., :pa] += (qt @ (force[k1] - force[k0])
+            zv[..., :pa] += (qt @ _contract(force, c_a)
                              - da_blk[i] * (d.t[k1] - d.t[k0])[:, None, None])
             out["zupt"] = _widen(zv, 0, p)
     if mc is not None and "mag" in families:
         s, e = window_ends(d)
         dr = tr.rotation(s, e)
-        dtheta = transposed(q[e]) @ (phi[e] - phi[s])
+        dtheta = transposed(q[e]) @ _contract(phi[e] - phi[s], c_w)
         rms = np.einsum("wji,wj->wi", dr, mc[s])
         w_cal = mc[e] - rms
+        zm = features(mc)
         # columns: the inertial parameters through the rotation, the magnetometer's own
-        dw_cal = np.concatenate([-hat(rms) @ dtheta, dm[e] - transposed(dr) @ dm[s]], axis=2)
+        dw_cal = np.concatenate([-hat(rms) @ dtheta,
+                                 _apply(zm[e], c_m) - transposed(dr) @ _apply(zm[s], c_m)],
+                                axis=2)
         # the condition is D_m·w_cal: product rule, D_m's own entries row-major
         da_m = tr.mats["D_m"] @ dw_cal
         for c, col in enumerate(cols):
@@ -207,6 +238,7 @@ def jacobian(x: np.ndarray, d, families, free: np.ndarray,
         out["mag"] = da_m
         if "mag_datum" in families:
             u = mc / np.linalg.norm(mc, axis=1, keepdims=True)
-            out["mag_datum"] = _widen(np.einsum("ni,nip->p", u, dm)[None, None, :] / len(mc),
-                                      pw, p)
+            # Σ_n u_n·∂m_n / n = Σ_{i,f} (Σ_n u_n[i]·z_m[n, f])·C_m[f, i] / n
+            out["mag_datum"] = _widen(np.einsum("if,fip->p", u.T @ zm, c_m)[None, None, :]
+                                      / len(mc), pw, p)
     return out
