@@ -62,15 +62,12 @@ def coefficients(x: np.ndarray, mats: dict, free: np.ndarray):
     """
     cols = np.flatnonzero(free)
     pa, pw = _counts(free)
-    dmat = {k: [] for k in mats}
-    for i in cols:
-        h = STEP * max(1.0, abs(x[i]))
-        xh = x.copy()
-        xh[i] += h
-        mh = jm.matrices(xh)
-        for k in mats:
-            dmat[k].append((mh[k] - mats[k]) / h)
-    dmat = {k: np.array(v).reshape((len(cols),) + np.shape(mats[k])) for k, v in dmat.items()}
+    h = STEP * np.maximum(1.0, np.abs(x[cols]))
+    xh = np.repeat(x[None], len(cols), axis=0)
+    xh[np.arange(len(cols)), cols] += h
+    many = jm.matrices_many(xh)
+    dmat = {k: (many[k] - mats[k]) / h.reshape((-1,) + (1,) * np.ndim(mats[k]))
+            for k in mats}
     ka_inv, kw_inv = np.linalg.inv(mats["K_a"]), np.linalg.inv(mats["K_w"])
     # C[f] (3, p): f = 0 the constant, then the components of a (and of ω)
     c_a = -ka_inv @ np.concatenate([dmat["b_a"][:pa].T[None],
@@ -107,7 +104,7 @@ def _apply(z: np.ndarray, c: np.ndarray) -> np.ndarray:
 
 def _rotated(rot: np.ndarray, z: np.ndarray) -> np.ndarray:
     """Y[k, i, j·F + f] = rot[k, i, j]·z[k, f]: (n, 3, 3·F), the features of rot·∂(…)."""
-    return (rot[:, :, :, None] * z[:, None, None, :]).reshape(len(z), 3, -1)
+    return np.einsum("nij,nf->nijf", rot, z).reshape(len(z), 3, -1)
 
 
 def _contract(y: np.ndarray, c: np.ndarray) -> np.ndarray:

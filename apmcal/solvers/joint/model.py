@@ -86,6 +86,35 @@ def matrices(x: np.ndarray) -> dict[str, np.ndarray]:
             "o_m": x[SLICES["o_m"]]}
 
 
+def matrices_many(xs: np.ndarray) -> dict[str, np.ndarray]:
+    """:func:`matrices` of many parameter vectors at once (the same numbers, stacked).
+
+    Parameters
+    ----------
+    xs : (k, 42) array
+        Parameter vectors laid out as :data:`NAMES`.
+
+    Returns
+    -------
+    dict
+        As :func:`matrices`, each entry with a leading axis of length k.
+    """
+    xs = np.asarray(xs, dtype=float)
+    k = len(xs)
+
+    def lower_many(n):
+        out = np.broadcast_to(np.eye(3), (k, 3, 3)).copy()
+        out[:, _LOWER[0], _LOWER[1]] = n
+        return out
+
+    k_a = (1.0 + xs[:, SLICES["s_a"]])[:, :, None] * lower_many(xs[:, SLICES["n_a"]])
+    r_w = Rotation.from_rotvec(xs[:, SLICES["r_w"]]).as_matrix().reshape(k, 3, 3)
+    k_w = (1.0 + xs[:, SLICES["s_w"]])[:, :, None] * lower_many(xs[:, SLICES["n_w"]]) @ r_w
+    return {"b_a": xs[:, SLICES["b_a"]], "K_a": k_a, "b_w": xs[:, SLICES["b_w"]], "K_w": k_w,
+            "G_w": xs[:, SLICES["G_w"]].reshape(k, 3, 3),
+            "D_m": xs[:, SLICES["D_m"]].reshape(k, 3, 3), "o_m": xs[:, SLICES["o_m"]]}
+
+
 def correct_acc(y_a: np.ndarray, mats: dict) -> np.ndarray:
     """True specific force a [m/s²] (n, 3) from measured y_a, eq. 1 inverted.
 
