@@ -93,7 +93,11 @@ def features(v: np.ndarray, *more: np.ndarray) -> np.ndarray:
     -------
     (n, 1 + 3·(1 + len(more))) array
     """
-    return np.column_stack((np.ones(len(v)), v) + more)
+    out = np.empty((len(v), 4 + 3 * len(more)))
+    out[:, 0] = 1.0
+    for k, part in enumerate((v,) + more):
+        out[:, 1 + 3 * k:4 + 3 * k] = part
+    return out
 
 
 def _apply(z: np.ndarray, c: np.ndarray) -> np.ndarray:

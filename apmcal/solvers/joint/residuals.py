@@ -209,11 +209,24 @@ def white_noise(d: JointData) -> dict[str, float]:
         "acc" [m/s²], "gyr" [rad/s], "mag" [mGauss] (those present) → σ, at least 1e-9.
     """
     out = {}
+    if not d.blocks:
+        return out
+    # all blocks at once: the samples of every block in turn, the differences that straddle
+    # two blocks left out, so that block b keeps its size − 1 differences, contiguous
+    sizes = np.array([b.size for b in d.blocks])
+    idx = np.concatenate(d.blocks)
+    keep = np.ones(idx.size - 1, bool)
+    keep[np.cumsum(sizes)[:-1] - 1] = False
+    counts = sizes - 1
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     for name, y in (("acc", d.acc), ("gyr", d.gyr), ("mag", d.mag)):
-        if y is None or not d.blocks:
+        if y is None:
             continue
-        s = [np.std(np.diff(y[b], axis=0), axis=0).mean() / np.sqrt(2) for b in d.blocks]
-        out[name] = max(float(np.median(s)), 1e-9)
+        dy = np.diff(y[idx], axis=0)[keep]
+        mean = np.add.reduceat(dy, starts, axis=0) / counts[:, None]
+        dev = dy - np.repeat(mean, counts, axis=0)
+        std = np.sqrt(np.add.reduceat(dev * dev, starts, axis=0) / counts[:, None])
+        out[name] = max(float(np.median(std.mean(axis=1) / np.sqrt(2))), 1e-9)
     return out
 
 
