@@ -222,16 +222,18 @@ def jacobian(x: np.ndarray, d, families, free: np.ndarray,
     if mc is not None and "mag" in families:
         s, e = window_ends(d)
         dr = tr.rotation(s, e)
-        dtheta = transposed(q[e]) @ _contract(phi[e] - phi[s], c_w)
         rms = np.einsum("wji,wj->wi", dr, mc[s])
         w_cal = mc[e] - rms
         zm = features(mc)
-        # columns: the inertial parameters through the rotation, the magnetometer's own
-        dw_cal = np.concatenate([-hat(rms) @ dtheta,
-                                 _apply(zm[e], c_m) - transposed(dr) @ _apply(zm[s], c_m)],
-                                axis=2)
-        # the condition is D_m·w_cal: product rule, D_m's own entries row-major
-        da_m = tr.mats["D_m"] @ dw_cal
+        dmag = tr.mats["D_m"]
+        da_m = np.empty((len(s), 3, p))
+        # the condition is D_m·w_cal. The inertial parameters act through the rotation:
+        # D_m·(−[dRᵀ·m_s]×·δθ), δθ = Q_eᵀ·ΔΦ (3×3 products first, then one per window)
+        lead = -(dmag @ hat(rms) @ transposed(q[e]))
+        da_m[:, :, :pw] = lead @ _contract(phi[e] - phi[s], c_w)
+        # the magnetometer's own: D_m·(∂m_e − dRᵀ·∂m_s), plus D_m's own entries (row-major)
+        da_m[:, :, pw:] = (_apply(zm[e], dmag @ c_m)
+                           - (dmag @ transposed(dr)) @ _apply(zm[s], c_m))
         for c, col in enumerate(cols):
             if col in jm.SLICES_RANGE["D_m"]:
                 row, k = divmod(col - jm.SLICES["D_m"].start, 3)
