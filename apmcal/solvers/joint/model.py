@@ -242,11 +242,12 @@ def sensor_calibrations(x: np.ndarray, cov: np.ndarray, sensors=("acc", "gyr", "
         "gyr_g_sensitivity" and "gyr_g_sensitivity_sigma", (3, 3) [rad/s per m/s²].
     """
     f0 = calibration_parts(x)
-    jac = np.empty((f0.size, x.size))
-    for i in range(x.size):
-        dx = np.zeros_like(x)
-        dx[i] = step
-        jac[:, i] = (calibration_parts(x + dx) - f0) / step
+    xs = x[None] + step * np.eye(x.size)                  # one forward step per parameter
+    m = matrices_many(xs)
+    inv = {k: np.linalg.inv(m[k]).reshape(x.size, 9) for k in ("K_a", "K_w", "D_m")}
+    parts = np.concatenate([m["b_a"], inv["K_a"], m["b_w"], inv["K_w"],
+                            m["G_w"].reshape(x.size, 9), m["o_m"], inv["D_m"]], axis=1)
+    jac = ((parts - f0) / step).T
     sig = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", jac, cov, jac), 0, None))
     val, s = unflatten_parts(f0), unflatten_parts(sig)
     out = {name: SensorCalibration(offset=val[(name, "offset")], matrix=val[(name, "matrix")],

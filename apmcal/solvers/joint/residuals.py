@@ -164,8 +164,8 @@ def layout(t, acc, gyr, mag, holds, gravity: float, field_mgauss: float | None) 
         if k1 > k0 and dt[k0:k1].max() <= gap:
             d.intervals.append((index[id(b0[-1])], index[id(b1[0])], k0, k1))
     d.interval_index = np.array(d.intervals, dtype=int).reshape(-1, 4)
-    d.level_basis = np.array([perpendicular_basis(d.acc[d.blocks[j]].mean(axis=0))
-                              for _, j, _, _ in d.intervals]).reshape(-1, 3, 2)
+    d.level_basis = perpendicular_basis(np.array(
+        [d.acc[d.blocks[j]].mean(axis=0) for _, j, _, _ in d.intervals]).reshape(-1, 3))
     if d.mag is not None:
         for span in MAG_WINDOWS_S:
             k = max(1, int(round(span / np.median(dt))))
@@ -179,20 +179,24 @@ def layout(t, acc, gyr, mag, holds, gravity: float, field_mgauss: float | None) 
 
 
 def perpendicular_basis(v: np.ndarray) -> np.ndarray:
-    """(3, 2) orthonormal columns perpendicular to ``v``.
+    """(3, 2) orthonormal columns perpendicular to ``v``, or (c, 3, 2) of (c, 3) vectors (one
+    stacked QR for all).
 
     Parameters
     ----------
-    v : (3,) array
-        Non-zero vector (any units).
+    v : (3,) or (c, 3) array
+        Non-zero vector(s) (any units).
 
     Returns
     -------
-    (3, 2) array
+    (3, 2) or (c, 3, 2) array
     """
-    u = v / np.linalg.norm(v)
-    q, _ = np.linalg.qr(np.column_stack([u, np.eye(3)[np.argsort(np.abs(u))[:2]].T]))
-    return q[:, 1:]
+    v = np.asarray(v, float)
+    u = v / np.linalg.norm(v, axis=-1, keepdims=True)
+    # columns: u, then the two coordinate axes least aligned with it
+    others = np.swapaxes(np.eye(3)[np.argsort(np.abs(u), axis=-1)[..., :2]], -1, -2)
+    q, _ = np.linalg.qr(np.concatenate([u[..., None], others], axis=-1))
+    return q[..., 1:]
 
 
 def white_noise(d: JointData) -> dict[str, float]:

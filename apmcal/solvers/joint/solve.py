@@ -185,7 +185,11 @@ def _solve(d, x0: np.ndarray, free: np.ndarray, consider=None, start=None) -> di
         return memo["traj"]
 
     def wmis(xx):
-        return misclosures(xx, d, families, at(xx))
+        """The misclosures at ``xx``, kept with its Trajectory."""
+        at(xx)
+        if "w" not in memo:
+            memo["w"] = misclosures(xx, d, families, memo["traj"])
+        return memo["w"]
 
     w0 = wmis(x)
     weights = {k: np.ones(len(v)) for k, v in w0.items()}
