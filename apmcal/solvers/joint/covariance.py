@@ -30,7 +30,7 @@ import numpy as np
 from scipy import sparse
 from scipy.linalg import solve_triangular
 
-from apmcal.solvers.joint.residuals import DIM, interval_rows, window_ends
+from apmcal.solvers.joint.residuals import DIM, window_ends
 from apmcal.solvers.joint.trajectory import Trajectory, transposed
 from apmcal.solvers.strapdown import hat
 
@@ -96,7 +96,7 @@ def inertial_covariance(tr: Trajectory, d, families) -> tuple[np.ndarray, np.nda
         bi, bj, k0, k1 = d.interval_index.T
         dr = tr.rotation(k0, k1)
         # C_k = Σ_{l>k} P_l·a_l·Δt_l, the velocity still to come, in the session's frame
-        steps = interval_rows(d)[:, :-1]                                  # (I, K), padded n
+        steps = d.steps                                                   # (I, K), padded n
         dt = np.append(d.dt, 0.0)[steps]                                  # (I, K), 0 padded
         v = tr.velocity
         c = v[k1][:, None, :] - v[np.minimum(steps + 1, len(v) - 1)]      # (I, K, 3)

@@ -14,10 +14,11 @@ over samples is taken of the features and multiplied by the coefficients once.
 
 All windows at once (:mod:`apmcal.solvers.joint.trajectory`): with Q_k the frame of sample k in
 the first sample's, S_k = Q_sᵀ·Q_{k+1} for a window starting at s, so Σ_{s≤k<e} S_k·δω_k·Δt_k =
-Q_sᵀ·(Φ_e − Φ_s) with the running sum Φ_k = Σ_{l<k} Q_{l+1}·δω_l·Δt_l over the session, and
-δθ = Q_eᵀ·(Φ_e − Φ_s). The ZUPT's sum Σ_k [P_k·f_k]×·Σ_{l<k} S_l·φ_l (P_k = Q_sᵀ·Q_k, f_k the
-specific force step, φ_l = δω_l·Δt_l) is rearranged as Q_sᵀ·Σ_l [V_e − V_{l+1}]×·Q_{l+1}·φ_l
-(V the running velocity sum), again differences of running sums.
+Q_sᵀ·ΔΦ with ΔΦ = Σ_{s≤k<e} Q_{k+1}·δω_k·Δt_k, and δθ = Q_eᵀ·ΔΦ. The ZUPT's sum
+Σ_k [P_k·f_k]×·Σ_{l<k} S_l·φ_l (P_k = Q_sᵀ·Q_k, f_k the specific force step, φ_l = δω_l·Δt_l)
+is rearranged as Q_sᵀ·Σ_l [V_e − V_{l+1}]×·Q_{l+1}·φ_l (V the running velocity sum). Each
+window's sums are taken of the features (:func:`window_sums`, one batched matrix product for
+all windows of a length), then multiplied by the coefficients.
 """
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ import numpy as np
 
 from apmcal.solvers.joint import model as jm
 from apmcal.solvers.joint.residuals import window_ends
-from apmcal.solvers.joint.trajectory import Trajectory, running_sum, transposed
+from apmcal.solvers.joint.trajectory import Trajectory, transposed
 from apmcal.solvers.strapdown import hat, midpoint
 
 STEP = 1e-7
@@ -106,13 +107,35 @@ def _apply(z: np.ndarray, c: np.ndarray) -> np.ndarray:
         z.shape[:-1] + c.shape[1:])
 
 
-def _rotated(rot: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """Y[k, i, j·F + f] = rot[k, i, j]·z[k, f]: (n, 3, 3·F), the features of rot·∂(…)."""
-    return np.einsum("nij,nf->nijf", rot, z).reshape(len(z), 3, -1)
+def _pad(v: np.ndarray) -> np.ndarray:
+    """``v`` with a zero row appended: index n, the padding of window rows, adds nothing."""
+    return np.concatenate([v, np.zeros((1,) + v.shape[1:])])
+
+
+def window_sums(rot: np.ndarray, z: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """Σ_k rot[k]⊗z[k] over each row of ``steps``: (W, 3, 3·F) with [w, i, j·F + f] =
+    Σ_k rot[k, i, j]·z[k, f], the summed features of rot·∂(…) (:func:`_contract` applies the
+    coefficients). One batched product (9 × K)·(K × F) per window.
+
+    Parameters
+    ----------
+    rot : (n+1, 3, 3) array
+        Per-sample matrices (row n: padding, any value).
+    z : (n+1, F) array
+        Per-sample features, row n zero.
+    steps : (W, K) int array
+        Sample indices of each window, padded with n.
+
+    Returns
+    -------
+    (W, 3, 3·F) array
+    """
+    r9 = rot.reshape(len(rot), 9)
+    return np.matmul(r9[steps].transpose(0, 2, 1), z[steps]).reshape(len(steps), 3, -1)
 
 
 def _contract(y: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Σ_{j,f} y[..., i, j·F + f]·c[f, j, p]: (..., 3, p) from :func:`_rotated` sums."""
+    """Σ_{j,f} y[..., i, j·F + f]·c[f, j, p]: (..., 3, p) from :func:`window_sums`."""
     return y @ c.transpose(1, 0, 2).reshape(-1, c.shape[2])
 
 
@@ -179,9 +202,9 @@ def jacobian(x: np.ndarray, d, families, free: np.ndarray,
     p = len(cols)
     pa, pw = _counts(free)
     za, zw = features(a), features(a, tr.w)
-    # Ψ_k = Q_{k+1}·δω̄_k·Δt_k (session frame) as features; Φ its running sum
-    zmid = midpoint(zw) * d.dt[:, None]                               # (n, 7)
-    phi = running_sum(_rotated(q[1:], zmid))                          # (n+1, 3, 21)
+    # Ψ_k = Q_{k+1}·δω̄_k·Δt_k (session frame) as features, summed over each window's steps
+    zmid = _pad(midpoint(zw) * d.dt[:, None])                         # (n+1, 7)
+    q_next = _pad(q[1:])                                              # Q_{k+1}
     out = {}
     bm = d.block_mean
     a_blk = bm @ a
@@ -193,7 +216,8 @@ def jacobian(x: np.ndarray, d, families, free: np.ndarray,
         out["zaru"] = _widen(_apply(bm @ zw, c_w), 0, p)
     if d.intervals and ("level" in families or "zupt" in families):
         i, j, k0, k1 = d.interval_index.T
-        dphi = _contract(phi[k1] - phi[k0], c_w)                      # Q_{k0}·Σ S_k·φ_k
+        steps = d.steps                                               # (I, K), padded n
+        dphi = _contract(window_sums(q_next, zmid, steps), c_w)       # Q_{k0}·Σ S_k·φ_k
         if "level" in families:
             dr = tr.rotation(k0, k1)
             dui, ui = unit_derivative(a_blk[i], da_blk[i])
@@ -205,14 +229,12 @@ def jacobian(x: np.ndarray, d, families, free: np.ndarray,
             out["level"] = _widen(np.einsum("wia,wip->wap", d.level_basis, lv), 0, p)
         if "zupt" in families:
             v = tr.velocity
-            # Σ_l [V_e − V_{l+1}]×·Ψ_l = [V_e]×·ΔΦ − Σ_l [V_{l+1}]×·Ψ_l, and Σ_l Q_l·∂f_l,
-            # summed over each interval's samples only
-            steps = np.concatenate([np.arange(s0, s1) for s0, s1 in zip(k0, k1)])
-            first = np.concatenate([[0], np.cumsum(k1 - k0)[:-1]])
-            cross = np.add.reduceat(_rotated(hat(v[steps + 1]) @ q[steps + 1], zmid[steps]),
-                                    first, axis=0)
-            force = np.add.reduceat(_rotated(q[steps], za[steps] * d.dt[steps, None]),
-                                    first, axis=0)
+            # Σ_l [V_e − V_{l+1}]×·Ψ_l = [V_e]×·ΔΦ − Σ_l [V_{l+1}]×·Ψ_l, and Σ_l Q_l·∂f_l
+            nxt = np.minimum(steps + 1, len(v) - 1)                   # (padding: z is 0)
+            hq = hat(v[nxt]) @ q[nxt]                                 # (I, K, 3, 3)
+            cross = np.matmul(hq.reshape(*steps.shape, 9).transpose(0, 2, 1),
+                              zmid[steps]).reshape(len(steps), 3, -1)
+            force = window_sums(q, _pad(za * d.dt[:, None]), steps)
             rot = hat(v[k1]) @ dphi - _contract(cross, c_w)
             qt = transposed(q[k0])
             zv = -(qt @ rot)
@@ -230,7 +252,8 @@ def jacobian(x: np.ndarray, d, families, free: np.ndarray,
         # the condition is D_m·w_cal. The inertial parameters act through the rotation:
         # D_m·(−[dRᵀ·m_s]×·δθ), δθ = Q_eᵀ·ΔΦ (3×3 products first, then one per window)
         lead = -(dmag @ hat(rms) @ transposed(q[e]))
-        da_m[:, :, :pw] = lead @ _contract(phi[e] - phi[s], c_w)
+        dphi = np.concatenate([window_sums(q_next, zmid, idx[:, :-1]) for idx in d.windows])
+        da_m[:, :, :pw] = lead @ _contract(dphi, c_w)
         # the magnetometer's own: D_m·(∂m_e − dRᵀ·∂m_s), plus D_m's own entries (row-major)
         da_m[:, :, pw:] = (_apply(zm[e], dmag @ c_m)
                            - (dmag @ transposed(dr)) @ _apply(zm[s], c_m))

@@ -92,6 +92,9 @@ class JointData:
         k0 .. k1−1 between them.
     interval_index : (I, 4) int array
         The same as columns: block i, block j, k0, k1.
+    steps : (I, K) int array
+        Each interval's steps k0 .. k1−1, padded with n (:func:`interval_rows` without its
+        last column).
     windows : list of int arrays
         Per window length, an (W, K+1) index array of the samples each window spans.
     noise : dict
@@ -110,6 +113,7 @@ class JointData:
     block_mean: object = None           # sparse (n_blocks, n): the block means as one product
     intervals: list = field(default_factory=list)
     interval_index: np.ndarray = None   # (I, 4): the intervals as columns
+    steps: np.ndarray = None            # (I, K): their steps, padded with n
     windows: list = field(default_factory=list)
     noise: dict = field(default_factory=dict)
 
@@ -164,6 +168,7 @@ def layout(t, acc, gyr, mag, holds, gravity: float, field_mgauss: float | None) 
         if k1 > k0 and dt[k0:k1].max() <= gap:
             d.intervals.append((index[id(b0[-1])], index[id(b1[0])], k0, k1))
     d.interval_index = np.array(d.intervals, dtype=int).reshape(-1, 4)
+    d.steps = interval_rows(d)[:, :-1]
     d.level_basis = perpendicular_basis(np.array(
         [d.acc[d.blocks[j]].mean(axis=0) for _, j, _, _ in d.intervals]).reshape(-1, 3))
     if d.mag is not None:
