@@ -9,8 +9,8 @@ import pytest
 from scipy.optimize import least_squares
 
 from apmcal.preprocessing.static import make_segment
+from apmcal.solvers.joint import covariance as jc
 from apmcal.solvers.joint import model as jm
-from apmcal.solvers.joint.covariance import inertial_covariance, inverse_cholesky
 from apmcal.solvers.joint.jacobian import jacobian
 from apmcal.solvers.joint.residuals import layout, misclosures
 from apmcal.solvers.joint.solve import _Compressed, _families
@@ -122,7 +122,7 @@ def test_interval_gyro_noise_is_the_sum_over_steps(session):
     d.noise = dict(d.noise, acc=1e-12)          # the gyro's part alone
     tr = Trajectory(x, d)
     families = _families(d)
-    cov, _ = inertial_covariance(tr, d, families)
+    cov, _ = jc.inertial_covariance(tr, d, families)
     nb, ni = len(d.blocks), len(d.intervals)
     a_blk = d.block_mean @ tr.a
     steps = so3_exp(midpoint(tr.w) * d.dt[:, None])
@@ -149,10 +149,26 @@ def test_inverse_cholesky_of_small_matrices():
         m = rng.normal(size=(200, k, k))
         a = m @ np.swapaxes(m, 1, 2) + 0.1 * np.eye(k)
         ref = np.linalg.inv(np.linalg.cholesky(a))
-        assert np.abs(inverse_cholesky(a) - ref).max() < 1e-12 * np.abs(ref).max()
+        assert np.abs(jc.inverse_cholesky(a) - ref).max() < 1e-12 * np.abs(ref).max()
     bad = np.array([[[1.0, 2.0], [2.0, 1.0]]])
     with pytest.raises(np.linalg.LinAlgError):
-        inverse_cholesky(bad)
+        jc.inverse_cholesky(bad)
+
+
+def test_cholesky_with_a_diagonal_head(session):
+    """The Schur-complement factor of the session's own inertial covariance (its static-norm
+    head diagonal) against numpy's of the whole matrix; a matrix that is not positive definite
+    is refused."""
+    d, x = session
+    cov, _ = jc.inertial_covariance(Trajectory(x, d), d, _families(d))
+    k = len(d.blocks)
+    assert not np.count_nonzero(cov[:k, :k] - np.diag(np.diag(cov[:k, :k])))
+    ref = np.linalg.cholesky(cov)
+    assert np.abs(jc.cholesky_diagonal_head(cov, k) - ref).max() < 1e-12 * np.abs(ref).max()
+    bad = cov.copy()
+    bad[-1, -1] = -1.0
+    with pytest.raises(np.linalg.LinAlgError):
+        jc.cholesky_diagonal_head(bad, k)
 
 
 def test_compressed_problem_takes_the_same_steps():

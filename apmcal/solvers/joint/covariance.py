@@ -205,6 +205,43 @@ def inverse_cholesky(a: np.ndarray) -> np.ndarray:
     return out
 
 
+def cholesky_diagonal_head(a: np.ndarray, k: int) -> np.ndarray:
+    """Cholesky factor L (L·Lᵀ = a) of a symmetric positive definite matrix whose leading k×k
+    block is diagonal (the static norms: each its own block's noise), by the Schur complement:
+    L₁₁ = diag(√a₁₁), L₂₁ = a₂₁·L₁₁⁻¹, L₂₂ = chol(a₂₂ − L₂₁·L₂₁ᵀ) — the factor LAPACK would give,
+    for a third of the work when k is a third of the rows. Any other ``a`` is factored whole.
+
+    Parameters
+    ----------
+    a : (N, N) array
+    k : int
+        Rows of the diagonal head.
+
+    Returns
+    -------
+    (N, N) array
+        Lower triangular.
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        When ``a`` is not positive definite.
+    """
+    head = a[:k, :k]
+    if k == 0 or np.count_nonzero(head - np.diag(np.diag(head))):
+        return np.linalg.cholesky(a)
+    diag = np.diag(head)
+    if not np.all(diag > 0):
+        raise np.linalg.LinAlgError("Matrix is not positive definite")
+    root = np.sqrt(diag)
+    out = np.zeros_like(a)
+    out[np.arange(k), np.arange(k)] = root
+    low = a[k:, :k] / root
+    out[k:, :k] = low
+    out[k:, k:] = np.linalg.cholesky(a[k:, k:] - low @ low.T)
+    return out
+
+
 class Whitener:
     """Maps misclosures (family → (n_c, dim)) to the whitened, weighted residual vector of the
     least squares, with per-condition robust weights and per-family variance factors folded
@@ -247,7 +284,9 @@ class Whitener:
             k += n * dim
         sc = (np.concatenate([scale(f) for f in self.correlated]) if self.correlated
               else np.zeros(0))
-        self.chol = np.linalg.cholesky(cov * np.outer(sc, sc))
+        self.chol = cholesky_diagonal_head(cov * np.outer(sc, sc),
+                                           len(weights["acc_norm"]) if "acc_norm" in families
+                                           else 0)
         if "zaru" in self.inertial:
             self.marginal["zaru"] = zaru.reshape(-1, 3)[:, :, None] * np.eye(3)
             self.zaru_scale = 1.0 / (np.sqrt(zaru) * scale("zaru"))

@@ -133,16 +133,19 @@ def quat_matrix(q: np.ndarray) -> np.ndarray:
     (n, 3, 3) array
     """
     w, x, y, z = q[0].real, q[0].imag, q[1].real, q[1].imag
+    xx, yy, zz = 2 * x * x, 2 * y * y, 2 * z * z
+    xy, xz, yz = 2 * x * y, 2 * x * z, 2 * y * z
+    wx, wy, wz = 2 * w * x, 2 * w * y, 2 * w * z
     out = np.empty((q.shape[1], 3, 3))
-    out[:, 0, 0] = 1 - 2 * (y * y + z * z)
-    out[:, 0, 1] = 2 * (x * y - w * z)
-    out[:, 0, 2] = 2 * (x * z + w * y)
-    out[:, 1, 0] = 2 * (x * y + w * z)
-    out[:, 1, 1] = 1 - 2 * (x * x + z * z)
-    out[:, 1, 2] = 2 * (y * z - w * x)
-    out[:, 2, 0] = 2 * (x * z - w * y)
-    out[:, 2, 1] = 2 * (y * z + w * x)
-    out[:, 2, 2] = 1 - 2 * (x * x + y * y)
+    out[:, 0, 0] = 1 - (yy + zz)
+    out[:, 0, 1] = xy - wz
+    out[:, 0, 2] = xz + wy
+    out[:, 1, 0] = xy + wz
+    out[:, 1, 1] = 1 - (xx + zz)
+    out[:, 1, 2] = yz - wx
+    out[:, 2, 0] = xz - wy
+    out[:, 2, 1] = yz + wx
+    out[:, 2, 2] = 1 - (xx + yy)
     return out
 
 
