@@ -103,7 +103,8 @@ def features(v: np.ndarray, *more: np.ndarray) -> np.ndarray:
 
 def _apply(z: np.ndarray, c: np.ndarray) -> np.ndarray:
     """Σ_f z[..., f]·c[f]: (..., 3, p) from features (..., F) and coefficients (F, 3, p)."""
-    return (z.reshape(-1, z.shape[-1]) @ c.reshape(c.shape[0], -1)).reshape(
+    # explicit sizes: with no free parameter of a sensor, c has 0 columns and −1 is ambiguous
+    return (z.reshape(-1, z.shape[-1]) @ c.reshape(c.shape[0], c.shape[1] * c.shape[2])).reshape(
         z.shape[:-1] + c.shape[1:])
 
 
@@ -136,7 +137,7 @@ def window_sums(rot: np.ndarray, z: np.ndarray, steps: np.ndarray) -> np.ndarray
 
 def _contract(y: np.ndarray, c: np.ndarray) -> np.ndarray:
     """Σ_{j,f} y[..., i, j·F + f]·c[f, j, p]: (..., 3, p) from :func:`window_sums`."""
-    return y @ c.transpose(1, 0, 2).reshape(-1, c.shape[2])
+    return y @ c.transpose(1, 0, 2).reshape(c.shape[0] * c.shape[1], c.shape[2])
 
 
 def _counts(free: np.ndarray) -> tuple[int, int]:

@@ -81,7 +81,8 @@ def joint_calibration(t, acc, gyr, mag, holds, *, gravity: float,
     Raises
     ------
     ApmcalError
-        Without gyro samples, or when the session has no turns between still poses.
+        Without gyro samples, when the session has no turns between still poses, or when the
+        t-test finds no parameter significant.
     """
     from apmcal.solvers.ellipsoid.fit import fit_ellipsoid_robust, sphere_fit
 
@@ -105,6 +106,11 @@ def joint_calibration(t, acc, gyr, mag, holds, *, gravity: float,
     dropped: list[str] = []
     if t_test:
         insignificant = free & (fit["t"] < fit["t_crit"])
+        if np.array_equal(insignificant, free):
+            raise ApmcalError(f"joint calibration: none of the {int(free.sum())} parameters "
+                              f"differs from an error-free sensor at 95 % confidence; the session "
+                              f"does not determine them (hold more still poses in other "
+                              f"orientations, with turns between them)")
         if insignificant.any():
             dropped = [jm.NAMES[i] for i in np.flatnonzero(insignificant)]
             x1 = fit["x"].copy()
