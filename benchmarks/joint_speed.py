@@ -1,21 +1,22 @@
 """The joint method's time against the ellipsoid method's on the same hand-held session, and its
 results against the joint solver of an earlier revision.
 
-    python benchmarks/joint_speed.py [--before REV] [--runs 3] [--command-runs 3]
+    python benchmarks/joint_speed.py [--before REV] [--runs 3] [--command-runs 3] [--log FILE]
 
 The session: a 250 s hand-held sitl session at 100 Hz with accelerometer, gyro and compass
 (``python -m apmcal_sim.makelog --script handheld --seed 11 --rate 100 --fs 100 --duration 250``,
-made once into ``benchmarks/_data/``). Both methods run in this process on the log read once,
-through ``apmcal.calibration.log.calibrate_log`` (what ``apmcal log FILE --method ellipsoid``
-and ``--method joint`` run after reading; BLAS single-threaded, as ``apmcal log`` runs), best
-of ``--runs`` after a warm-up run of each (imports left out: scipy.optimize's import, ~0.3 s of CPU,
-comes with the joint method's first fit in a process), wall and CPU seconds (the machine may
-be shared: the CPU time does not count other processes' turns). Then the joint
-fit of revision ``--before`` (default: main; its apmcal and simulator exported with
-``git archive``) runs on the same file in a fresh process (best of ``--runs``: the first pays
-the imports), and every parameter both fits
-estimate is compared: the largest change in units of the earlier fit's σ is printed, with the
-range of the σ ratios, and the check fails (exit status 1) when a parameter moved by more than
+made once into ``benchmarks/_data/``), or ``--log FILE`` (another session, to check the
+results on data the changes were not tuned on; the site stays sitl's). Both methods run in
+this process on the log read once, through ``apmcal.calibration.log.calibrate_log`` (what
+``apmcal log FILE --method ellipsoid`` and ``--method joint`` run after reading; BLAS
+single-threaded, as ``apmcal log`` runs), best of ``--runs`` after a warm-up run of each
+(imports left out: scipy.optimize's import, ~0.3 s of CPU, comes with the joint method's first
+fit in a process), wall and CPU seconds (the machine may be shared: the CPU time does not count
+other processes' turns). Then the joint fit of revision ``--before`` (default: main; its apmcal
+and simulator exported with ``git archive``) runs on the same file in a fresh process (best of
+``--runs``: the first pays the imports), and every parameter both fits estimate is compared:
+the largest change in units of the earlier fit's σ is printed, with the range of the σ
+ratios, and the check fails (exit status 1) when a parameter moved by more than
 ``MAX_CHANGE_SIGMA`` σ, a σ changed by more than ``MAX_SIGMA_CHANGE`` (relative), or the two
 fits estimate or drop different parameters.
 
@@ -155,10 +156,11 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--before", default="main", help="revision to compare with (default main)")
     ap.add_argument("--runs", type=int, default=3, help="runs per method, best taken (default 3)")
+    ap.add_argument("--log", type=Path, help="another session instead of the simulated one")
     ap.add_argument("--command-runs", type=int, default=3,
                     help="fresh-process runs of each whole command, best taken (default 3)")
     args = ap.parse_args(argv)
-    session = make_session()
+    session = args.log.resolve() if args.log else make_session()
     contents = read_log(session)
     timed(contents, "ellipsoid", 1)                       # warm-up: imports
     timed(contents, "joint", 1)
