@@ -138,7 +138,7 @@ def compare(now: dict, old: dict, dropped_now: list, dropped_old: list, before: 
     print(f"parameters compared: {len(common)}; estimated in one fit only: {only or 'none'}; "
           f"dropped by the t-test: {'the same' if dropped_now == dropped_old else 'DIFFERENT'} "
           f"({len(dropped_now)})")
-    print(f"largest change against {before}: {changes[worst]:.3f} σ ({worst}); "
+    print(f"largest change against {before}: {changes[worst]:.3f} σ ({changes[worst]:.1e}; {worst}); "
           f"σ ratio new/old {min(ratios):.3f}-{max(ratios):.3f}")
     same = (not only and dropped_now == dropped_old and changes[worst] <= MAX_CHANGE_SIGMA
             and max(abs(r - 1) for r in ratios) <= MAX_SIGMA_CHANGE)
