@@ -132,7 +132,8 @@ def window_sums(rot: np.ndarray, z: np.ndarray, steps: np.ndarray) -> np.ndarray
     (W, 3, 3·F) array
     """
     r9 = rot.reshape(len(rot), 9)
-    return np.matmul(r9[steps].transpose(0, 2, 1), z[steps]).reshape(len(steps), 3, -1)
+    return np.matmul(r9[steps].transpose(0, 2, 1), z[steps]).reshape(len(steps), 3,
+                                                                     3 * z.shape[1])
 
 
 def _contract(y: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -234,7 +235,7 @@ def jacobian(x: np.ndarray, d, families, free: np.ndarray,
             nxt = np.minimum(steps + 1, len(v) - 1)                   # (padding: z is 0)
             hq = hat(v[nxt]) @ q[nxt]                                 # (I, K, 3, 3)
             cross = np.matmul(hq.reshape(*steps.shape, 9).transpose(0, 2, 1),
-                              zmid[steps]).reshape(len(steps), 3, -1)
+                              zmid[steps]).reshape(len(steps), 3, 3 * zmid.shape[1])
             force = window_sums(q, _pad(za * d.dt[:, None]), steps)
             rot = hat(v[k1]) @ dphi - _contract(cross, c_w)
             qt = transposed(q[k0])
