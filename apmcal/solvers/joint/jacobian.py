@@ -8,90 +8,137 @@ For dR = E_0·…·E_{K−1}, E_k = Exp(ω_k·Δt_k), a change δω_k turns dR i
 
 (first order; the right Jacobian of Exp over one sample step, |ω·Δt| ≲ 0.05 rad, is taken as
 the identity — this only slows Gauss-Newton's convergence, never moves its fixed point, since
-the misclosures themselves are exact). The per-sample derivatives ∂a/∂X, ∂ω/∂X, ∂m/∂X come
-from forward differences of the closed-form corrections (cheap: no integration).
+the misclosures themselves are exact). The per-sample derivatives ∂a/∂X, ∂ω/∂X, ∂m/∂X are
+closed-form and linear in a few features of the sample (:func:`coefficients`), so every sum
+over samples is taken of the features and multiplied by the coefficients once.
+
+All windows at once (:mod:`apmcal.solvers.joint.trajectory`): with Q_k the frame of sample k in
+the first sample's, S_k = Q_sᵀ·Q_{k+1} for a window starting at s, so Σ_{s≤k<e} S_k·δω_k·Δt_k =
+Q_sᵀ·ΔΦ with ΔΦ = Σ_{s≤k<e} Q_{k+1}·δω_k·Δt_k, and δθ = Q_eᵀ·ΔΦ. The ZUPT's sum
+Σ_k [P_k·f_k]×·Σ_{l<k} S_l·φ_l (P_k = Q_sᵀ·Q_k, f_k the specific force step, φ_l = δω_l·Δt_l)
+is rearranged as Q_sᵀ·Σ_l [V_e − V_{l+1}]×·Q_{l+1}·φ_l (V the running velocity sum). Each
+window's sums are taken of the features (:func:`window_sums`, one batched matrix product for
+all windows of a length), then multiplied by the coefficients.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from apmcal.solvers.joint import model as jm
-from apmcal.solvers.strapdown import hat, midpoint, prefix_products, so3_exp
+from apmcal.solvers.joint.residuals import window_ends
+from apmcal.solvers.joint.trajectory import Trajectory, transposed
+from apmcal.solvers.strapdown import hat, midpoint
 
 STEP = 1e-7
 
 
-def _each(mats: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """(n, 3, p): mats[p] @ v[n] for (p, 3, 3) matrices and (n, 3) vectors, by one BLAS
-    product (einsum loops in C here, ten times slower)."""
-    return np.tensordot(v, mats, axes=([1], [2])).transpose(0, 2, 1)
+def coefficients(x: np.ndarray, mats: dict, free: np.ndarray):
+    """The per-sample derivatives ∂a, ∂ω, ∂m as linear maps of a few per-sample features.
 
-
-def _left(mat: np.ndarray, arr: np.ndarray) -> np.ndarray:
-    """(n, 3, p): mat @ arr[n] for one (3, 3) matrix and (n, 3, p) arrays, by one BLAS product."""
-    return np.tensordot(mat, arr, axes=([1], [1])).transpose(1, 0, 2)
-
-
-def _signals(x: np.ndarray, d):
-    m = jm.matrices(x)
-    a = jm.correct_acc(d.acc, m)
-    w = jm.correct_gyr(d.gyr, a, m)
-    mc = jm.correct_mag(d.mag, m) if d.mag is not None else None
-    return a, w, mc
-
-
-def sample_derivatives(x: np.ndarray, d, free: np.ndarray):
-    """∂a, ∂ω, ∂m per sample over the free parameters each depends on: ∂a (n, 3, p_a) over the
-    free accelerometer parameters, ∂ω (n, 3, p_ω) over the free accelerometer then gyro
-    parameters, ∂m (n, 3, p_m) over the free magnetometer parameters (the free parameters in
-    :data:`~apmcal.solvers.joint.model.NAMES` order are exactly these: accelerometer, gyro,
-    magnetometer; every other derivative is zero, so it is not computed).
-
-    Closed form through the matrices: with a = K_a⁻¹(y_a − b_a), ∂a = −K_a⁻¹·(∂b_a + ∂K_a·a);
-    with ω = K_ω⁻¹(y_ω − b_ω − G_ω·a), ∂ω = −K_ω⁻¹·(∂b_ω + ∂G_ω·a + G_ω·∂a + ∂K_ω·ω);
-    with m = D⁻¹(y_m − o), ∂m = −D⁻¹·(∂o + ∂D·m). Only ∂K/∂x of the 3×3 matrices is taken
-    by differences (cheap: no samples involved).
+    With a = K_a⁻¹(y_a − b_a), ∂a = −K_a⁻¹·(∂b_a + ∂K_a·a); with ω = K_ω⁻¹(y_ω − b_ω − G_ω·a),
+    ∂ω = −K_ω⁻¹·(∂b_ω + ∂G_ω·a + G_ω·∂a + ∂K_ω·ω); with m = D⁻¹(y_m − o), ∂m = −D⁻¹·(∂o + ∂D·m).
+    Each is linear in the features z_a = [1, a], z_ω = [1, a, ω], z_m = [1, m] of the sample:
+    ∂a_k = Σ_f z_a[k, f]·C_a[f] and so on, so that sums of derivatives over samples are sums
+    of features (3 + 3·3 + …, not 3 × 42 columns per sample). Only ∂K/∂x of the 3×3 matrices is
+    taken by differences (cheap: no samples involved). Each sensor's derivatives are over the
+    free parameters it depends on: ∂a over the free accelerometer parameters, ∂ω over the free
+    accelerometer then gyro parameters, ∂m over the free magnetometer parameters (the free
+    parameters in :data:`~apmcal.solvers.joint.model.NAMES` order are exactly these; every
+    other derivative is zero, so it is not computed).
 
     Parameters
     ----------
     x : (42,) array
         Parameters (:mod:`apmcal.solvers.joint.model`).
-    d : JointData
-        The session's samples and condition layout (:func:`apmcal.solvers.joint.residuals.layout`).
+    mats : dict
+        :func:`apmcal.solvers.joint.model.matrices` of ``x``.
     free : (42,) bool array
         The parameters estimated (p = p_ω + p_m of them).
 
     Returns
     -------
-    signals : tuple
-        a (n, 3) [m/s²], ω (n, 3) [rad/s], m (n, 3) [mGauss] or None.
-    derivatives : tuple
-        ∂a (n, 3, p_a), ∂ω (n, 3, p_ω), ∂m (n, 3, p_m) (None without a magnetometer).
+    tuple
+        C_a (4, 3, p_a), C_ω (7, 3, p_ω), C_m (4, 3, p_m) (units of the sensor per parameter,
+        the non-constant features' units divided out).
     """
-    m0 = jm.matrices(x)
-    a0, w0, mag0 = _signals(x, d)
     cols = np.flatnonzero(free)
     pa, pw = _counts(free)
-    dmat = {k: [] for k in m0}
-    for i in cols:
-        h = STEP * max(1.0, abs(x[i]))
-        xh = x.copy()
-        xh[i] += h
-        mh = jm.matrices(xh)
-        for k in m0:
-            dmat[k].append((mh[k] - m0[k]) / h)
-    dmat = {k: np.array(v) for k, v in dmat.items()}             # (p, 3) or (p, 3, 3)
-    ka_inv, kw_inv = np.linalg.inv(m0["K_a"]), np.linalg.inv(m0["K_w"])
-    da = -_left(ka_inv, dmat["b_a"][:pa].T[None] + _each(dmat["K_a"][:pa], a0))
-    inner = (dmat["b_w"][:pw].T[None] + _each(dmat["G_w"][:pw], a0)
-             + _each(dmat["K_w"][:pw], w0))
-    inner[:, :, :pa] += _left(m0["G_w"], da)
-    dw = -_left(kw_inv, inner)
-    dm = None
-    if mag0 is not None:
-        dm = -_left(np.linalg.inv(m0["D_m"]),
-                    dmat["o_m"][pw:].T[None] + _each(dmat["D_m"][pw:], mag0))
-    return (a0, w0, mag0), (da, dw, dm)
+    h = STEP * np.maximum(1.0, np.abs(x[cols]))
+    xh = np.repeat(x[None], len(cols), axis=0)
+    xh[np.arange(len(cols)), cols] += h
+    many = jm.matrices_many(xh)
+    dmat = {k: (many[k] - mats[k]) / h.reshape((-1,) + (1,) * np.ndim(mats[k]))
+            for k in mats}
+    ka_inv, kw_inv = np.linalg.inv(mats["K_a"]), np.linalg.inv(mats["K_w"])
+    # C[f] (3, p): f = 0 the constant, then the components of a (and of ω)
+    c_a = -ka_inv @ np.concatenate([dmat["b_a"][:pa].T[None],
+                                    np.moveaxis(dmat["K_a"][:pa], 0, 2).transpose(1, 0, 2)])
+    inner = np.concatenate([dmat["b_w"][:pw].T[None],
+                            np.moveaxis(dmat["G_w"][:pw], 0, 2).transpose(1, 0, 2),
+                            np.moveaxis(dmat["K_w"][:pw], 0, 2).transpose(1, 0, 2)])
+    inner[:4, :, :pa] += mats["G_w"] @ c_a
+    c_w = -kw_inv @ inner
+    c_m = -np.linalg.inv(mats["D_m"]) @ np.concatenate(
+        [dmat["o_m"][pw:].T[None], np.moveaxis(dmat["D_m"][pw:], 0, 2).transpose(1, 0, 2)])
+    return c_a, c_w, c_m
+
+
+def features(v: np.ndarray, *more: np.ndarray) -> np.ndarray:
+    """[1, v, more…] per sample: (n, 1 + 3·k).
+
+    Parameters
+    ----------
+    v, more : (n, 3) arrays
+
+    Returns
+    -------
+    (n, 1 + 3·(1 + len(more))) array
+    """
+    out = np.empty((len(v), 4 + 3 * len(more)))
+    out[:, 0] = 1.0
+    for k, part in enumerate((v,) + more):
+        out[:, 1 + 3 * k:4 + 3 * k] = part
+    return out
+
+
+def _apply(z: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Σ_f z[..., f]·c[f]: (..., 3, p) from features (..., F) and coefficients (F, 3, p)."""
+    # explicit sizes: with no free parameter of a sensor, c has 0 columns and −1 is ambiguous
+    return (z.reshape(-1, z.shape[-1]) @ c.reshape(c.shape[0], c.shape[1] * c.shape[2])).reshape(
+        z.shape[:-1] + c.shape[1:])
+
+
+def _pad(v: np.ndarray) -> np.ndarray:
+    """``v`` with a zero row appended: index n, the padding of window rows, adds nothing."""
+    return np.concatenate([v, np.zeros((1,) + v.shape[1:])])
+
+
+def window_sums(rot: np.ndarray, z: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """Σ_k rot[k]⊗z[k] over each row of ``steps``: (W, 3, 3·F) with [w, i, j·F + f] =
+    Σ_k rot[k, i, j]·z[k, f], the summed features of rot·∂(…) (:func:`_contract` applies the
+    coefficients). One batched product (9 × K)·(K × F) per window.
+
+    Parameters
+    ----------
+    rot : (n+1, 3, 3) array
+        Per-sample matrices (row n: padding, any value).
+    z : (n+1, F) array
+        Per-sample features, row n zero.
+    steps : (W, K) int array
+        Sample indices of each window, padded with n.
+
+    Returns
+    -------
+    (W, 3, 3·F) array
+    """
+    r9 = rot.reshape(len(rot), 9)
+    return np.matmul(r9[steps].transpose(0, 2, 1), z[steps]).reshape(len(steps), 3,
+                                                                     3 * z.shape[1])
+
+
+def _contract(y: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Σ_{j,f} y[..., i, j·F + f]·c[f, j, p]: (..., 3, p) from :func:`window_sums`."""
+    return y @ c.transpose(1, 0, 2).reshape(c.shape[0] * c.shape[1], c.shape[2])
 
 
 def _counts(free: np.ndarray) -> tuple[int, int]:
@@ -127,12 +174,8 @@ def unit_derivative(v: np.ndarray, dv: np.ndarray):
     return proj @ dv, u
 
 
-def _rows_with_pad(v: np.ndarray) -> np.ndarray:
-    """Append a zero row: index n is the padding of integration rows."""
-    return np.concatenate([v, np.zeros((1,) + v.shape[1:])])
-
-
-def jacobian(x: np.ndarray, d, families, rows, free: np.ndarray) -> dict[str, np.ndarray]:
+def jacobian(x: np.ndarray, d, families, free: np.ndarray,
+             traj: Trajectory | None = None) -> dict[str, np.ndarray]:
     """∂w/∂X of each family: name → (n_c, dim, p) over the free parameters.
 
     Parameters
@@ -143,80 +186,87 @@ def jacobian(x: np.ndarray, d, families, rows, free: np.ndarray) -> dict[str, np
         The session's samples and condition layout (:func:`apmcal.solvers.joint.residuals.layout`).
     families : tuple of str
         The families to differentiate.
-    rows : (I, K+1) int array
-        :func:`apmcal.solvers.joint.residuals.interval_rows` of ``d``.
     free : (42,) bool array
         The parameters estimated (p of them).
+    traj : Trajectory, optional
+        :class:`~apmcal.solvers.joint.trajectory.Trajectory` of ``x`` and ``d``, when the
+        caller has it.
 
     Returns
     -------
     dict
         family → (n_c, dim, p) array.
     """
-    (a, w, mc), (da, dw, dm) = sample_derivatives(x, d, free)
-    mats, cols = jm.matrices(x), np.flatnonzero(free)
+    tr = Trajectory(x, d) if traj is None else traj
+    a, mc, q = tr.a, tr.mc, tr.frame
+    c_a, c_w, c_m = coefficients(x, tr.mats, free)
+    cols = np.flatnonzero(free)
     p = len(cols)
     pa, pw = _counts(free)
-    step_rot = so3_exp(_rows_with_pad(midpoint(w) * d.dt[:, None]))
-    phi = _rows_with_pad(midpoint(dw) * d.dt[:, None, None])   # δω_k·Δt_k per parameter
+    za, zw = features(a), features(a, tr.w)
+    # Ψ_k = Q_{k+1}·δω̄_k·Δt_k (session frame) as features, summed over each window's steps
+    zmid = _pad(midpoint(zw) * d.dt[:, None])                         # (n+1, 7)
+    q_next = _pad(q[1:])                                              # Q_{k+1}
     out = {}
     bm = d.block_mean
     a_blk = bm @ a
-    da_blk = (bm @ da.reshape(len(a), -1)).reshape(-1, 3, pa)
+    da_blk = _apply(bm @ za, c_a)                                     # (n_blocks, 3, p_a)
     if "acc_norm" in families:
         u = a_blk / np.linalg.norm(a_blk, axis=1, keepdims=True)
         out["acc_norm"] = _widen(np.einsum("ci,cip->cp", u, da_blk)[:, None, :], 0, p)
     if "zaru" in families:
-        out["zaru"] = _widen((bm @ dw.reshape(len(w), -1)).reshape(-1, 3, pw), 0, p)
+        out["zaru"] = _widen(_apply(bm @ zw, c_w), 0, p)
     if d.intervals and ("level" in families or "zupt" in families):
-        i = np.array([iv[0] for iv in d.intervals])
-        j = np.array([iv[1] for iv in d.intervals])
-        s = prefix_products(step_rot[rows[:, :-1]])             # (I, K, 3, 3)
-        dr = s[:, -1]
-        sphi = np.einsum("wkij,wkjp->wkip", s, phi[rows[:, :-1]])
+        i, j, k0, k1 = d.interval_index.T
+        steps = d.steps                                               # (I, K), padded n
+        dphi = _contract(window_sums(q_next, zmid, steps), c_w)       # Q_{k0}·Σ S_k·φ_k
         if "level" in families:
+            dr = tr.rotation(k0, k1)
             dui, ui = unit_derivative(a_blk[i], da_blk[i])
             duj, _ = unit_derivative(a_blk[j], da_blk[j])
             rui = np.einsum("wji,wj->wi", dr, ui)
-            dtheta = np.einsum("wji,wjp->wip", dr, sphi.sum(axis=1))
+            dtheta = transposed(q[k1]) @ dphi
             lv = -hat(rui) @ dtheta
-            lv[..., :pa] += duj - np.einsum("wji,wjp->wip", dr, dui)
+            lv[..., :pa] += duj - transposed(dr) @ dui
             out["level"] = _widen(np.einsum("wia,wip->wap", d.level_basis, lv), 0, p)
         if "zupt" in families:
-            f = _rows_with_pad(a * d.dt[:, None])[rows[:, :-1]]          # (I, K, 3)
-            df = _rows_with_pad(da * d.dt[:, None, None])[rows[:, :-1]]  # (I, K, 3, p_a)
-            eye = np.broadcast_to(np.eye(3), (len(rows), 1, 3, 3))
-            pk = np.concatenate([eye, s[:, :-1]], axis=1)              # P_k = S_{k−1}
-            c = np.cumsum(sphi, axis=1) - sphi                          # Σ_{l<k} S_l·φ_l
-            pf = np.einsum("wkij,wkj->wki", pk, f)
-            span = np.array([d.t[k1] - d.t[k0] for _, _, k0, k1 in d.intervals])
-            zv = -np.einsum("wkij,wkjp->wip", hat(pf), c)
-            zv[..., :pa] += (np.einsum("wkij,wkjp->wip", pk, df)
-                             - da_blk[i] * span[:, None, None])
+            v = tr.velocity
+            # Σ_l [V_e − V_{l+1}]×·Ψ_l = [V_e]×·ΔΦ − Σ_l [V_{l+1}]×·Ψ_l, and Σ_l Q_l·∂f_l
+            nxt = np.minimum(steps + 1, len(v) - 1)                   # (padding: z is 0)
+            hq = hat(v[nxt]) @ q[nxt]                                 # (I, K, 3, 3)
+            cross = np.matmul(hq.reshape(*steps.shape, 9).transpose(0, 2, 1),
+                              zmid[steps]).reshape(len(steps), 3, 3 * zmid.shape[1])
+            force = window_sums(q, _pad(za * d.dt[:, None]), steps)
+            rot = hat(v[k1]) @ dphi - _contract(cross, c_w)
+            qt = transposed(q[k0])
+            zv = -(qt @ rot)
+            zv[..., :pa] += (qt @ _contract(force, c_a)
+                             - da_blk[i] * (d.t[k1] - d.t[k0])[:, None, None])
             out["zupt"] = _widen(zv, 0, p)
     if mc is not None and "mag" in families:
-        parts = []
-        for idx in d.windows:
-            s = prefix_products(step_rot[idx[:, :-1]])
-            dr = s[:, -1]
-            sphi = np.einsum("wkij,wkjp->wip", s, phi[idx[:, :-1]])
-            dtheta = np.einsum("wji,wjp->wip", dr, sphi)
-            rms = np.einsum("wji,wj->wi", dr, mc[idx[:, 0]])
-            w_cal = mc[idx[:, -1]] - rms
-            # columns: the inertial parameters through the rotation, the magnetometer's own
-            dw_cal = np.concatenate([-hat(rms) @ dtheta,
-                                     dm[idx[:, -1]] - np.einsum("wji,wjp->wip", dr,
-                                                                dm[idx[:, 0]])], axis=2)
-            # the condition is D_m·w_cal: product rule, D_m's own entries row-major
-            da_m = np.einsum("ij,wjp->wip", mats["D_m"], dw_cal)
-            for c, i in enumerate(cols):
-                if i in jm.SLICES_RANGE["D_m"]:
-                    row, col = divmod(i - jm.SLICES["D_m"].start, 3)
-                    da_m[:, row, c] += w_cal[:, col]
-            parts.append(da_m)
-        out["mag"] = np.concatenate(parts)
+        s, e = window_ends(d)
+        dr = tr.rotation(s, e)
+        rms = np.einsum("wji,wj->wi", dr, mc[s])
+        w_cal = mc[e] - rms
+        zm = features(mc)
+        dmag = tr.mats["D_m"]
+        da_m = np.empty((len(s), 3, p))
+        # the condition is D_m·w_cal. The inertial parameters act through the rotation:
+        # D_m·(−[dRᵀ·m_s]×·δθ), δθ = Q_eᵀ·ΔΦ (3×3 products first, then one per window)
+        lead = -(dmag @ hat(rms) @ transposed(q[e]))
+        dphi = np.concatenate([window_sums(q_next, zmid, idx[:, :-1]) for idx in d.windows])
+        da_m[:, :, :pw] = lead @ _contract(dphi, c_w)
+        # the magnetometer's own: D_m·(∂m_e − dRᵀ·∂m_s), plus D_m's own entries (row-major)
+        da_m[:, :, pw:] = (_apply(zm[e], dmag @ c_m)
+                           - (dmag @ transposed(dr)) @ _apply(zm[s], c_m))
+        for c, col in enumerate(cols):
+            if col in jm.SLICES_RANGE["D_m"]:
+                row, k = divmod(col - jm.SLICES["D_m"].start, 3)
+                da_m[:, row, c] += w_cal[:, k]
+        out["mag"] = da_m
         if "mag_datum" in families:
             u = mc / np.linalg.norm(mc, axis=1, keepdims=True)
-            out["mag_datum"] = _widen(np.einsum("ni,nip->p", u, dm)[None, None, :] / len(mc),
-                                      pw, p)
+            # Σ_n u_n·∂m_n / n = Σ_{i,f} (Σ_n u_n[i]·z_m[n, f])·C_m[f, i] / n
+            out["mag_datum"] = _widen(np.einsum("if,fip->p", u.T @ zm, c_m)[None, None, :]
+                                      / len(mc), pw, p)
     return out

@@ -86,6 +86,35 @@ def matrices(x: np.ndarray) -> dict[str, np.ndarray]:
             "o_m": x[SLICES["o_m"]]}
 
 
+def matrices_many(xs: np.ndarray) -> dict[str, np.ndarray]:
+    """:func:`matrices` of many parameter vectors at once (the same numbers, stacked).
+
+    Parameters
+    ----------
+    xs : (k, 42) array
+        Parameter vectors laid out as :data:`NAMES`.
+
+    Returns
+    -------
+    dict
+        As :func:`matrices`, each entry with a leading axis of length k.
+    """
+    xs = np.asarray(xs, dtype=float)
+    k = len(xs)
+
+    def lower_many(n):
+        out = np.broadcast_to(np.eye(3), (k, 3, 3)).copy()
+        out[:, _LOWER[0], _LOWER[1]] = n
+        return out
+
+    k_a = (1.0 + xs[:, SLICES["s_a"]])[:, :, None] * lower_many(xs[:, SLICES["n_a"]])
+    r_w = Rotation.from_rotvec(xs[:, SLICES["r_w"]]).as_matrix().reshape(k, 3, 3)
+    k_w = (1.0 + xs[:, SLICES["s_w"]])[:, :, None] * lower_many(xs[:, SLICES["n_w"]]) @ r_w
+    return {"b_a": xs[:, SLICES["b_a"]], "K_a": k_a, "b_w": xs[:, SLICES["b_w"]], "K_w": k_w,
+            "G_w": xs[:, SLICES["G_w"]].reshape(k, 3, 3),
+            "D_m": xs[:, SLICES["D_m"]].reshape(k, 3, 3), "o_m": xs[:, SLICES["o_m"]]}
+
+
 def correct_acc(y_a: np.ndarray, mats: dict) -> np.ndarray:
     """True specific force a [m/s²] (n, 3) from measured y_a, eq. 1 inverted.
 
@@ -213,11 +242,12 @@ def sensor_calibrations(x: np.ndarray, cov: np.ndarray, sensors=("acc", "gyr", "
         "gyr_g_sensitivity" and "gyr_g_sensitivity_sigma", (3, 3) [rad/s per m/s²].
     """
     f0 = calibration_parts(x)
-    jac = np.empty((f0.size, x.size))
-    for i in range(x.size):
-        dx = np.zeros_like(x)
-        dx[i] = step
-        jac[:, i] = (calibration_parts(x + dx) - f0) / step
+    xs = x[None] + step * np.eye(x.size)                  # one forward step per parameter
+    m = matrices_many(xs)
+    inv = {k: np.linalg.inv(m[k]).reshape(x.size, 9) for k in ("K_a", "K_w", "D_m")}
+    parts = np.concatenate([m["b_a"], inv["K_a"], m["b_w"], inv["K_w"],
+                            m["G_w"].reshape(x.size, 9), m["o_m"], inv["D_m"]], axis=1)
+    jac = ((parts - f0) / step).T
     sig = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", jac, cov, jac), 0, None))
     val, s = unflatten_parts(f0), unflatten_parts(sig)
     out = {name: SensorCalibration(offset=val[(name, "offset")], matrix=val[(name, "matrix")],

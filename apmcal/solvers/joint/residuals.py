@@ -56,8 +56,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import sparse
 
-from apmcal.solvers.joint.model import correct_acc, correct_gyr, correct_mag, matrices
-from apmcal.solvers.strapdown import integrate, midpoint, so3_exp
+from apmcal.solvers.joint.trajectory import Trajectory
 
 BLOCK_S = 1.0                  # still conditions on means of blocks this long [s]
 MAG_WINDOWS_S = (0.1, 1.0, 5.0)   # magnetometer window lengths [s] ([Chow] §3.2.3)
@@ -91,6 +90,11 @@ class JointData:
     intervals : list of tuple
         (last block of pose i, first block of pose j, k0, k1) with the moving samples
         k0 .. k1−1 between them.
+    interval_index : (I, 4) int array
+        The same as columns: block i, block j, k0, k1.
+    steps : (I, K) int array
+        Each interval's steps k0 .. k1−1, padded with n (:func:`interval_rows` without its
+        last column).
     windows : list of int arrays
         Per window length, an (W, K+1) index array of the samples each window spans.
     noise : dict
@@ -108,6 +112,8 @@ class JointData:
     level_basis: np.ndarray = None      # (I, 3, 2): E_j of each interval
     block_mean: object = None           # sparse (n_blocks, n): the block means as one product
     intervals: list = field(default_factory=list)
+    interval_index: np.ndarray = None   # (I, 4): the intervals as columns
+    steps: np.ndarray = None            # (I, K): their steps, padded with n
     windows: list = field(default_factory=list)
     noise: dict = field(default_factory=dict)
 
@@ -161,8 +167,10 @@ def layout(t, acc, gyr, mag, holds, gravity: float, field_mgauss: float | None) 
         k0, k1 = int(b0[-1][b0[-1].size // 2]), int(b1[0][b1[0].size // 2])
         if k1 > k0 and dt[k0:k1].max() <= gap:
             d.intervals.append((index[id(b0[-1])], index[id(b1[0])], k0, k1))
-    d.level_basis = np.array([perpendicular_basis(d.acc[d.blocks[j]].mean(axis=0))
-                              for _, j, _, _ in d.intervals]).reshape(-1, 3, 2)
+    d.interval_index = np.array(d.intervals, dtype=int).reshape(-1, 4)
+    d.steps = interval_rows(d)[:, :-1]
+    d.level_basis = perpendicular_basis(np.array(
+        [d.acc[d.blocks[j]].mean(axis=0) for _, j, _, _ in d.intervals]).reshape(-1, 3))
     if d.mag is not None:
         for span in MAG_WINDOWS_S:
             k = max(1, int(round(span / np.median(dt))))
@@ -176,20 +184,24 @@ def layout(t, acc, gyr, mag, holds, gravity: float, field_mgauss: float | None) 
 
 
 def perpendicular_basis(v: np.ndarray) -> np.ndarray:
-    """(3, 2) orthonormal columns perpendicular to ``v``.
+    """(3, 2) orthonormal columns perpendicular to ``v``, or (c, 3, 2) of (c, 3) vectors (one
+    stacked QR for all).
 
     Parameters
     ----------
-    v : (3,) array
-        Non-zero vector (any units).
+    v : (3,) or (c, 3) array
+        Non-zero vector(s) (any units).
 
     Returns
     -------
-    (3, 2) array
+    (3, 2) or (c, 3, 2) array
     """
-    u = v / np.linalg.norm(v)
-    q, _ = np.linalg.qr(np.column_stack([u, np.eye(3)[np.argsort(np.abs(u))[:2]].T]))
-    return q[:, 1:]
+    v = np.asarray(v, float)
+    u = v / np.linalg.norm(v, axis=-1, keepdims=True)
+    # columns: u, then the two coordinate axes least aligned with it
+    others = np.swapaxes(np.eye(3)[np.argsort(np.abs(u), axis=-1)[..., :2]], -1, -2)
+    q, _ = np.linalg.qr(np.concatenate([u[..., None], others], axis=-1))
+    return q[..., 1:]
 
 
 def white_noise(d: JointData) -> dict[str, float]:
@@ -206,11 +218,24 @@ def white_noise(d: JointData) -> dict[str, float]:
         "acc" [m/s²], "gyr" [rad/s], "mag" [mGauss] (those present) → σ, at least 1e-9.
     """
     out = {}
+    if not d.blocks:
+        return out
+    # all blocks at once: the samples of every block in turn, the differences that straddle
+    # two blocks left out, so that block b keeps its size − 1 differences, contiguous
+    sizes = np.array([b.size for b in d.blocks])
+    idx = np.concatenate(d.blocks)
+    keep = np.ones(idx.size - 1, bool)
+    keep[np.cumsum(sizes)[:-1] - 1] = False
+    counts = sizes - 1
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     for name, y in (("acc", d.acc), ("gyr", d.gyr), ("mag", d.mag)):
-        if y is None or not d.blocks:
+        if y is None:
             continue
-        s = [np.std(np.diff(y[b], axis=0), axis=0).mean() / np.sqrt(2) for b in d.blocks]
-        out[name] = max(float(np.median(s)), 1e-9)
+        dy = np.diff(y[idx], axis=0)[keep]
+        mean = np.add.reduceat(dy, starts, axis=0) / counts[:, None]
+        dev = dy - np.repeat(mean, counts, axis=0)
+        std = np.sqrt(np.add.reduceat(dev * dev, starts, axis=0) / counts[:, None])
+        out[name] = max(float(np.median(std.mean(axis=1) / np.sqrt(2))), 1e-9)
     return out
 
 
@@ -235,7 +260,8 @@ def interval_rows(d: JointData) -> np.ndarray:
     return out
 
 
-def misclosures(x: np.ndarray, d: JointData, families, rows=None) -> dict[str, np.ndarray]:
+def misclosures(x: np.ndarray, d: JointData, families,
+                traj: Trajectory | None = None) -> dict[str, np.ndarray]:
     """Each family's misclosure w = f(X, Y) at parameters ``x``: name → (n_c, dim) array.
 
     Parameters
@@ -246,8 +272,9 @@ def misclosures(x: np.ndarray, d: JointData, families, rows=None) -> dict[str, n
         The session's samples and condition layout (:func:`layout`).
     families : tuple of str
         The families to evaluate.
-    rows : (I, K+1) int array, optional
-        :func:`interval_rows` of ``d``, when the caller has it.
+    traj : Trajectory, optional
+        :class:`~apmcal.solvers.joint.trajectory.Trajectory` of ``x`` and ``d``, when the
+        caller has it.
 
     Returns
     -------
@@ -255,10 +282,8 @@ def misclosures(x: np.ndarray, d: JointData, families, rows=None) -> dict[str, n
         family → (n_c, dim) array, in the family's units (acc_norm [m/s²], zaru [rad/s],
         level [rad], zupt [m/s], mag and mag_datum [mGauss]).
     """
-    m = matrices(x)
-    a = correct_acc(d.acc, m)
-    w = correct_gyr(d.gyr, a, m)
-    step_rot = so3_exp(np.vstack([midpoint(w) * d.dt[:, None], np.zeros((1, 3))]))
+    tr = Trajectory(x, d) if traj is None else traj
+    a, w = tr.a, tr.w
     out: dict[str, np.ndarray] = {}
     a_blk = d.block_mean @ a
     if "acc_norm" in families:
@@ -266,26 +291,38 @@ def misclosures(x: np.ndarray, d: JointData, families, rows=None) -> dict[str, n
     if "zaru" in families:
         out["zaru"] = d.block_mean @ w
     if d.intervals and ("level" in families or "zupt" in families):
-        rows = interval_rows(d) if rows is None else rows
-        dr, dv = integrate(step_rot, rows, np.vstack([a * d.dt[:, None], np.zeros((1, 3))]))
-        ai = a_blk[[iv[0] for iv in d.intervals]]
-        aj = a_blk[[iv[1] for iv in d.intervals]]
+        bi, bj, k0, k1 = d.interval_index.T
+        ai, aj = a_blk[bi], a_blk[bj]
         if "level" in families:
+            dr = tr.rotation(k0, k1)
             ui = ai / np.linalg.norm(ai, axis=1, keepdims=True)
             uj = aj / np.linalg.norm(aj, axis=1, keepdims=True)
             out["level"] = np.einsum("wia,wi->wa", d.level_basis,
                                      uj - np.einsum("wji,wj->wi", dr, ui))
         if "zupt" in families:
-            span = np.array([d.t[k1] - d.t[k0] for _, _, k0, k1 in d.intervals])
-            out["zupt"] = dv - ai * span[:, None]
+            out["zupt"] = tr.delta_v(k0, k1) - ai * (d.t[k1] - d.t[k0])[:, None]
     if d.mag is not None and "mag" in families:
-        mc = correct_mag(d.mag, m)
-        parts = []
-        for idx in d.windows:
-            dr, _ = integrate(step_rot, idx)
-            parts.append((mc[idx[:, -1]] - np.einsum("wji,wj->wi", dr, mc[idx[:, 0]]))
-                         @ m["D_m"].T)
-        out["mag"] = np.concatenate(parts) if parts else np.zeros((0, 3))
+        mc = tr.mc
+        s, e = window_ends(d)
+        dr = tr.rotation(s, e)
+        out["mag"] = (mc[e] - np.einsum("wji,wj->wi", dr, mc[s])) @ tr.mats["D_m"].T
         if "mag_datum" in families:
             out["mag_datum"] = np.array([[np.linalg.norm(mc, axis=1).mean() - d.field]])
     return out
+
+
+def window_ends(d: JointData) -> tuple[np.ndarray, np.ndarray]:
+    """First and last sample (W,) of every magnetometer window, all window lengths in turn.
+
+    Parameters
+    ----------
+    d : JointData
+
+    Returns
+    -------
+    s, e : (W,) int arrays
+    """
+    if not d.windows:
+        return np.zeros(0, int), np.zeros(0, int)
+    return (np.concatenate([idx[:, 0] for idx in d.windows]),
+            np.concatenate([idx[:, -1] for idx in d.windows]))

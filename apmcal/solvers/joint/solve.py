@@ -8,7 +8,9 @@ of [Chow] §3.3 on the conditions of §3.2 (:mod:`apmcal.solvers.joint.residuals
   whose solution is the weighted least squares of the misclosures w with weight (B·C_l·Bᵀ)⁻¹.
   Each outer iteration evaluates B·C_l·Bᵀ at the current X and minimises the whitened
   misclosures over X with ``scipy.optimize.least_squares`` (its trust-region Gauss-Newton is
-  the Gauss-Helmert iteration with a step control); only X (42 values) is ever unknown.
+  the Gauss-Helmert iteration with a step control), the design matrix of the pass's start
+  held fixed and the problem compressed to 43 rows (:class:`_Compressed`); only X (42
+  values) is ever unknown.
 * Robustness (§3.3): Huber weights for the accelerometer's conditions (static norm, levelling,
   ZUPT), Tukey's biweight for the magnetometer's, re-computed each outer iteration; each
   family's variance factor is re-estimated from its residuals over its redundancy (variance
@@ -33,7 +35,8 @@ from apmcal.core.errors import ApmcalError
 from apmcal.solvers.joint import model as jm
 from apmcal.solvers.joint.covariance import Whitener
 from apmcal.solvers.joint.jacobian import jacobian
-from apmcal.solvers.joint.residuals import DIM, interval_rows, layout, misclosures
+from apmcal.solvers.joint.residuals import DIM, layout, misclosures
+from apmcal.solvers.joint.trajectory import Trajectory
 from apmcal.solvers.report_types import CalibrationReport, JointFit, MagneticField
 from apmcal.solvers.result import Calibration
 
@@ -78,7 +81,8 @@ def joint_calibration(t, acc, gyr, mag, holds, *, gravity: float,
     Raises
     ------
     ApmcalError
-        Without gyro samples, or when the session has no turns between still poses.
+        Without gyro samples, when the session has no turns between still poses, or when the
+        t-test finds no parameter significant.
     """
     from apmcal.solvers.ellipsoid.fit import fit_ellipsoid_robust, sphere_fit
 
@@ -102,6 +106,11 @@ def joint_calibration(t, acc, gyr, mag, holds, *, gravity: float,
     dropped: list[str] = []
     if t_test:
         insignificant = free & (fit["t"] < fit["t_crit"])
+        if np.array_equal(insignificant, free):
+            raise ApmcalError(f"joint calibration: none of the {int(free.sum())} parameters "
+                              f"differs from an error-free sensor at 95 % confidence; the session "
+                              f"does not determine them (hold more still poses in other "
+                              f"orientations, with turns between them)")
         if insignificant.any():
             dropped = [jm.NAMES[i] for i in np.flatnonzero(insignificant)]
             x1 = fit["x"].copy()
@@ -169,9 +178,26 @@ def _solve(d, x0: np.ndarray, free: np.ndarray, consider=None, start=None) -> di
     weights and variance factors of an earlier fit to begin with (the t-test's refit).
     """
     families = _families(d)
-    rows = interval_rows(d) if d.intervals else None
     x = x0.copy()
-    w0 = misclosures(x, d, families, rows)
+    memo: dict = {}
+
+    def at(xx):
+        """The Trajectory at ``xx``, kept for the last point asked: the Whitener, the design
+        matrix and the misclosures of one point share its integration."""
+        key = xx.tobytes()
+        if memo.get("x") != key:
+            memo.clear()
+            memo["x"], memo["traj"] = key, Trajectory(xx, d)
+        return memo["traj"]
+
+    def wmis(xx):
+        """The misclosures at ``xx``, kept with its Trajectory."""
+        at(xx)
+        if "w" not in memo:
+            memo["w"] = misclosures(xx, d, families, memo["traj"])
+        return memo["w"]
+
+    w0 = wmis(x)
     weights = {k: np.ones(len(v)) for k, v in w0.items()}
     factor = {k: 1.0 for k in w0}
     if start is not None:
@@ -182,22 +208,22 @@ def _solve(d, x0: np.ndarray, free: np.ndarray, consider=None, start=None) -> di
         xx[free] = xf
         return xx
 
-    memo: dict = {}
+    jmemo: dict = {}
 
     def raw_jacobian(xx, cols):
         """∂w/∂X at ``xx`` (unwhitened: the same for every Whitener), computed once per point:
         the end of one pass is the start of the next and the point of the statistics."""
         key = (xx.tobytes(), cols.tobytes())
-        if key not in memo:
-            memo.clear()
-            memo[key] = jacobian(xx, d, families, rows, cols)
-        return memo[key]
+        if key not in jmemo:
+            jmemo.clear()
+            jmemo[key] = jacobian(xx, d, families, cols, at(xx))
+        return jmemo[key]
 
     for outer in range(MAX_OUTER):
-        white = Whitener(x, d, families, rows, weights, factor)
+        white = Whitener(x, d, families, weights, factor, at(x))
 
         def fun(xf, white=white):
-            return white(misclosures(full(xf), d, families, rows))
+            return white(wmis(full(xf)))
 
         def jac(xf, white=white):
             return white.jacobian(raw_jacobian(full(xf), free))
@@ -206,24 +232,23 @@ def _solve(d, x0: np.ndarray, free: np.ndarray, consider=None, start=None) -> di
         # every Gauss-Newton step (a chord method; the misclosures are exact, and the last
         # passes start where they end, so the fixed point is the same to ~1e-3 σ,
         # benchmarks/joint_speed.py), one Jacobian per pass instead of one per step
-        j0 = jac(x[free])
-        res = least_squares(fun, x[free], jac=lambda xf, j0=j0: j0, x_scale="jac",
+        small = _Compressed(fun, jac(x[free]))
+        res = least_squares(small, x[free], jac=small.jacobian, x_scale="jac",
                             method="lm", xtol=1e-8, ftol=1e-8, max_nfev=MAX_INNER)
         step = res.x - x[free]
         x[free] = res.x
         old = dict(factor)
-        _variance_components(white, jac(res.x), fun(res.x),
-                             misclosures(x, d, families, rows), weights, factor)
+        _variance_components(white, jac(res.x), small.full(res.x), wmis(x), weights, factor)
         settled = all(abs(factor[k] / old[k] - 1) < 0.05 for k in factor)
-        if outer > 0 and settled and np.all(np.abs(step) <= 0.05 * np.sqrt(_diag_cov(res.jac))):
+        if outer > 0 and settled and np.all(np.abs(step) <= 0.05 * small.sigma):
             break
-    white = Whitener(x, d, families, rows, weights, factor)
+    white = Whitener(x, d, families, weights, factor, at(x))
     fit = _statistics(x, free, white.jacobian(raw_jacobian(x, free)),
-                      white(misclosures(x, d, families, rows)), weights, factor, families)
+                      white(wmis(x)), weights, factor, families)
     if consider is not None:
         mask, variances = consider
         both = free | mask
-        j = white.jacobian(jacobian(x, d, families, rows, both))
+        j = white.jacobian(jacobian(x, d, families, both, at(x)))
         jf, jc = j[:, free[both]], j[:, mask[both]]
         sens = -np.linalg.pinv(jf.T @ jf, hermitian=True) @ (jf.T @ jc)   # ∂x̂/∂c
         cc = np.diag(variances)
@@ -246,7 +271,7 @@ def _variance_components(white, j, r, w, weights, factor) -> None:
     noise. Weights: Huber or Tukey (:func:`_robust_weights`) of each condition's standardised
     residual.
     """
-    h = np.einsum("ip,pq,iq->i", j, np.linalg.pinv(j.T @ j, hermitian=True), j)
+    h = np.sum((j @ np.linalg.pinv(j.T @ j, hermitian=True)) * j, axis=1)
     for k, rows in white.family_rows(w).items():
         if k == "mag_datum":
             continue
@@ -262,8 +287,64 @@ def _variance_components(white, j, r, w, weights, factor) -> None:
         weights[k] = _robust_weights(white.standardised(w, k) / factor[k], k)
 
 
-def _diag_cov(j) -> np.ndarray:
-    return np.diag(np.linalg.pinv(j.T @ j, hermitian=True))
+class _Compressed:
+    """The whitened residuals r(x) (N rows) of a pass, seen by the least squares through the
+    pass's fixed design matrix J₀ as p + 1 rows: r̃ = [R⁻ᵀ·J₀ᵀ·r; |r − J₀·(J₀ᵀJ₀)⁺·J₀ᵀ·r|]
+    with RᵀR = J₀ᵀJ₀, and Jacobian [R; 0].
+
+    Why: MINPACK's Levenberg-Marquardt re-factors the Jacobian it is given (Householder QR,
+    N × p) at every iteration, most of the fit's time with N in the thousands, though the
+    matrix does not change within a pass. Its steps depend on the Jacobian only through JᵀJ,
+    Jᵀr and the column norms, and on the residuals through |r|; r̃ and [R; 0] give the same
+    (|r̃| = |r|, [R; 0]ᵀ·r̃ = J₀ᵀ·r, RᵀR = J₀ᵀJ₀, so the same column norms): the same
+    iterations, on a (p + 1) × p matrix. R = Λ^½·Vᵀ·S⁻¹ from the eigen-decomposition V·Λ·Vᵀ
+    of J₀ᵀJ₀ equilibrated by its diagonal S⁻²; directions with no information (λ below
+    1e-15·λ_max, as a pseudo-inverse) get none in r̃ either.
+
+    Parameters
+    ----------
+    fun : callable
+        x (p,) → whitened residuals r (N,).
+    j0 : (N, p) array
+        The pass's design matrix.
+
+    Attributes
+    ----------
+    sigma : (p,) array
+        √diag((J₀ᵀJ₀)⁺): σ of x for unit-variance residuals.
+    """
+
+    def __init__(self, fun, j0: np.ndarray):
+        self.fun, self.j0 = fun, j0
+        g = j0.T @ j0
+        scale = 1.0 / np.sqrt(np.maximum(np.diag(g), 1e-300))
+        lam, vec = np.linalg.eigh(g * np.outer(scale, scale))
+        keep = lam > 1e-15 * max(float(lam.max()), 1e-300)
+        root = np.sqrt(np.where(keep, lam, 0.0))
+        self.r = root[:, None] * vec.T / scale                      # R, (p, p)
+        self.project = np.where(keep, 1.0 / np.where(keep, root, 1.0), 0.0)[:, None] * (
+            vec.T * scale)                                           # R⁻ᵀ, (p, p)
+        self.sigma = np.sqrt(np.clip(np.einsum("ij,j,ij->i", vec, np.where(
+            keep, 1.0 / np.where(keep, lam, 1.0), 0.0), vec), 0, None)) * scale
+        self._last = (None, None)
+
+    def full(self, x: np.ndarray) -> np.ndarray:
+        """r(x), (N,): kept for the last point asked."""
+        key = x.tobytes()
+        if self._last[0] != key:
+            self._last = (key, self.fun(x))
+        return self._last[1]
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        """r̃(x), (p + 1,)."""
+        r = self.full(x)
+        head = self.project @ (self.j0.T @ r)
+        rest = max(float(r @ r) - float(head @ head), 0.0)
+        return np.append(head, np.sqrt(rest))
+
+    def jacobian(self, x: np.ndarray) -> np.ndarray:
+        """[R; 0], (p + 1, p), whatever ``x``."""
+        return np.vstack([self.r, np.zeros((1, self.r.shape[1]))])
 
 
 def _statistics(x, free, j, r, weights, factor, families) -> dict:
