@@ -52,6 +52,8 @@ def _diagnosed(tmp_path, seed: int, gyro_scale=None):
     return diagnose(session, seed=seed).result
 
 
+@pytest.mark.timeout(900)   # 20 diagnoses: about a minute on an idle two-core machine, far
+                            # more while the rest of the suite shares the cores
 def test_independent_clean_sessions_hold_the_false_alarm_rate(tmp_path):
     alarms = {}
     for seed in CLEAN_SEEDS:
