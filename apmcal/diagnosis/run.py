@@ -187,7 +187,7 @@ def _calibrated(ev: Evaluator, ranked, family: int, stage=None, base=(), scored_
     distributions on this session (:mod:`apmcal.diagnosis.scoring.null`)."""
     draws = null.calibrate(ev, ranked, family, stage=stage, base=base,
                            say=lambda text: say(text) if say else None)
-    return null.apply(ranked, draws, scored_by or ev)
+    return null.apply(ranked, draws, scored_by or ev, family)
 
 
 def _effect_entry(s, selection, params: dict) -> dict:
@@ -205,6 +205,8 @@ def _effect_entry(s, selection, params: dict) -> dict:
         entry["confounded_with"] = selection.confounded[s.name]
     if s.name in selection.stand_in:
         entry["stands_in_for"] = selection.stand_in[s.name]
+    if s.name in selection.chance:
+        entry["chance_on_top_p_value"] = selection.chance[s.name]
     if s.tested:
         entry.update({"shrink_heldout": s.shrink_out, "shrink_in_sample": s.shrink_in,
                       "gap_heldout": s.gap_out, "gap_in_sample": s.gap_in,

@@ -244,6 +244,9 @@ class Evaluator:
         # evidence [nats] each candidate must reach, where the null calibration set one
         # (apmcal.diagnosis.scoring.null); MIN_EVIDENCE_NATS elsewhere
         self.min_evidence: dict[str, float] = {}
+        self.null_family: int | None = None     # candidates tested, once calibrated
+        self._drawn_from: dict = {}     # (effects, fold) -> the fit and noise null sessions
+                                        # are drawn from (model_draw)
         self._cache: dict[frozenset, Evaluation] = {}
         self._summaries: dict[frozenset, Summary] = {}
         self._motion: dict = {}     # per fold: the real motion (poses, moves, hold motion)
@@ -360,8 +363,19 @@ class Evaluator:
         temperatures and current, its readings simulated afresh from the nominal fit of fold
         ``draw % 2`` with noise seed ``NULL_SEEDS + draw`` (none of the twins' seeds) — a
         session in which no candidate effect exists (:mod:`apmcal.diagnosis.scoring.null`)."""
-        fold = draw % 2
-        fit, noise = self._nominal(fold)
+        return self.model_draw((), draw)
+
+    def model_draw(self, effects, draw: int):
+        """:meth:`nominal_draw` from the model nominal + ``effects`` fitted on fold
+        ``draw % 2``: a session in which exactly those effects exist."""
+        fold, key = draw % 2, frozenset(effects)
+        if not key:
+            fit, noise = self._nominal(fold)
+        else:
+            if (key, fold) not in self._drawn_from:
+                self._drawn_from[(key, fold)] = self.fit(self.session, self.reduced, key, fold,
+                                                         with_sigma=False)[:2]
+            fit, noise = self._drawn_from[(key, fold)]
         session, _ = simulate(self.session, fit, noise, seed=NULL_SEEDS + draw,
                               motion_path=self._motion_path(fold))
         return session

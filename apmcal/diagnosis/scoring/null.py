@@ -156,7 +156,37 @@ def calibrate(evaluator, ranked: list, family: int, stage=None, base: tuple = ()
     return draws
 
 
-def apply(ranked: list, draws: dict, evaluator) -> list:
+def on_top(evaluator, model: tuple, trial) -> NullDraws | None:
+    """The null draws of ``trial`` (an EffectScore of a candidate scored on top of
+    ``model``, a tuple of effects) on sessions drawn from ``model`` itself: what chance gives
+    it where the effects already chosen exist (a random walk's one realisation can pass for a
+    triangle drift on top of it; the nominal model's null cannot say so). None when the
+    evaluator's candidates were not calibrated (:func:`apply` not run on it).
+
+    Returns
+    -------
+    NullDraws or None
+    """
+    from apmcal.diagnosis.scoring.evaluate import Evaluator
+    from apmcal.diagnosis.scoring.select import score, testable
+
+    if evaluator.null_family is None:
+        return None
+    model = tuple(model)
+    draws = NullDraws(trial.name, [], evaluator.null_family)
+    for draw in range(MAX_DRAWS):
+        if draws.decided(trial.evidence):
+            break
+        null_ev = Evaluator(evaluator.model_draw(model, draw), evaluator.seed)
+        if not testable(null_ev, [trial.name]):
+            draws.evidence.append(float("nan"))
+            continue
+        null_ev.prefetch([model, model + (trial.name,)])
+        draws.evidence.append(score(null_ev, model, trial.name).evidence)
+    return draws
+
+
+def apply(ranked: list, draws: dict, evaluator, family: int) -> list:
     """``ranked`` with each calibrated candidate's p-value and threshold filled in, supported
     only when its p-value is below α / M; the thresholds set on ``evaluator`` (what the
     stepwise selection then asks of each candidate). Re-ranked.
@@ -168,6 +198,8 @@ def apply(ranked: list, draws: dict, evaluator) -> list:
         :func:`calibrate`'s result.
     evaluator : Evaluator
         The real session's evaluator the candidates were scored by.
+    family : int
+        Candidates tested on the session in all (M).
 
     Returns
     -------
@@ -175,6 +207,7 @@ def apply(ranked: list, draws: dict, evaluator) -> list:
     """
     from apmcal.diagnosis.scoring.select import rank
 
+    evaluator.null_family = family
     for s in ranked:
         d = draws.get(s.name)
         if d is None:

@@ -206,6 +206,10 @@ class Selection:
         adding to it, with that effect.
     required : dict of str to float
         The evidence each candidate must reach [nats] (:func:`required_evidence`).
+    chance : dict of str to float
+        Effects left out because sessions drawn from the combination they were to join gave
+        them as much evidence by chance, with that p-value
+        (:func:`apmcal.diagnosis.scoring.null.on_top`).
     """
 
     selected: list[str]
@@ -222,11 +226,14 @@ class Selection:
                                   # deterministic one whose place it took (removed)
     required: dict[str, float] = field(default_factory=dict)  # evidence each candidate must
                                   # reach, where its null set it above MIN_EVIDENCE_NATS
+    chance: dict[str, float] = field(default_factory=dict)    # effect -> its p-value on top
+                                  # of the combination it was to join, when chance gave as
+                                  # much there (left out)
 
     def significant(self, name: str) -> bool:
         """Part of the combination, or still supported on top of it (a stochastic effect
         removed as a stand-in never is)."""
-        if name in self.stand_in or name in self.confounded:
+        if name in self.stand_in or name in self.confounded or name in self.chance:
             return name in self.selected
         return name in self.selected or \
             self.beyond.get(name, -np.inf) >= self.required.get(name, MIN_EVIDENCE_NATS)
@@ -253,7 +260,9 @@ def forward_selection(evaluator, ranked: list[EffectScore], max_rounds: int = MA
     joined: dict[str, float] = {}
     dropped: list[str] = []
     stand_in: dict[str, str] = {}
-    for _ in range(2 * max_rounds + 1):     # each effect is added once and dropped at most once
+    chance: dict[str, float] = {}
+    # each effect is added once and dropped at most once, or refused once by its null
+    for _ in range(2 * max_rounds + 1 + len(pool)):
         others = [n for n in pool if n not in selected]
         evaluator.prefetch([base + tuple(selected) + (n,) for n in others])
         trials = [score(evaluator, base + tuple(selected), n) for n in others]
@@ -261,6 +270,11 @@ def forward_selection(evaluator, ranked: list[EffectScore], max_rounds: int = MA
         best = simplest_best([s for s in trials if s.name not in dropped])
         if best is None or not best.supported or len(base) + len(selected) >= max_rounds:
             break
+        p = _chance_on_top(evaluator, base + tuple(selected), best)
+        if p is not None:
+            chance[best.name] = p
+            dropped.append(best.name)
+            continue
         selected.append(best.name)
         joined[best.name] = best.evidence
         weakest = weakest_unsupported(evaluator, selected, base)
@@ -276,7 +290,23 @@ def forward_selection(evaluator, ranked: list[EffectScore], max_rounds: int = MA
             joined.pop(weakest)
             dropped.append(weakest)
     return Selection(selected, joined, beyond, leave_one_out(evaluator, selected, base),
-                     confounded, stand_in, {n: required_evidence(evaluator, n) for n in pool})
+                     confounded, stand_in, {n: required_evidence(evaluator, n) for n in pool},
+                     chance)
+
+
+def _chance_on_top(evaluator, model: tuple, trial: EffectScore) -> float | None:
+    """The p-value of ``trial`` on sessions drawn from ``model`` when chance gives it as much
+    there (it must not join), else None. On top of nothing the nominal model's null has
+    already judged it (:mod:`apmcal.diagnosis.scoring.null`)."""
+    from apmcal.diagnosis.scoring.null import on_top
+
+    if not model:
+        return None
+    draws = on_top(evaluator, model, trial)
+    if draws is None:
+        return None
+    p = draws.p_value(trial.evidence)
+    return p if p is not None and p >= draws.level else None
 
 
 def simplest_best(trials: list[EffectScore]) -> EffectScore | None:
@@ -349,4 +379,4 @@ def merged(slow: Selection, fine: Selection) -> Selection:
     return Selection(slow.selected + fine.selected, {**slow.joined, **fine.joined},
                      {**slow.beyond, **fine.beyond}, {**slow.needed, **fine.needed},
                      {**slow.confounded, **fine.confounded}, {**slow.stand_in, **fine.stand_in},
-                     {**slow.required, **fine.required})
+                     {**slow.required, **fine.required}, {**slow.chance, **fine.chance})
