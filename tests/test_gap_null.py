@@ -74,3 +74,13 @@ def test_an_injected_gyro_scale_is_still_found(tmp_path):
     assert entry["null_p_value"] < ALPHA / 10 and entry["null_sessions"] >= MIN_DRAWS
     scale = np.asarray(entry["params"]["scale"]["value"])
     assert np.allclose(scale, [1.01, 0.99, 1.005], atol=1e-3)
+
+
+def test_an_effect_refused_on_top_of_the_selection_is_not_significant():
+    from apmcal.diagnosis.scoring.select import Selection
+
+    selection = Selection(["bias_random_walk"], {"bias_random_walk": 900.0},
+                          beyond={"triangle_drift": 40.0}, chance={"triangle_drift": 0.2})
+    assert not selection.significant("triangle_drift")      # 40 nats, but chance gives as much
+    assert Selection(["bias_random_walk"], {"bias_random_walk": 900.0},
+                     beyond={"triangle_drift": 40.0}).significant("triangle_drift")

@@ -10,7 +10,8 @@ Schema 1 (every gap in nats per sample, see :mod:`apmcal.diagnosis.scoring.gap`)
                   "supported_alone", "significant", "evidence_when_selected_nats",
                   "evidence_beyond_selection_nats", "params", "not_tested",
                   "implausible", "parameters_p_value", "null_p_value", "null_threshold_nats",
-                  "null_sessions", "scored_at_hz", "confounded_with", "stands_in_for"}, ...]
+                  "null_sessions", "scored_at_hz", "confounded_with", "stands_in_for",
+                  "chance_on_top_p_value"}, ...]
                  (best first),
      "selected": [names], "after": {"total", "heldout", "breakdown", "breakdown_heldout",
                                     "noise_ratio_heldout"},
@@ -27,7 +28,10 @@ reaches it; "significant" means selected, or still supported
 on top of the selected combination (see :mod:`apmcal.diagnosis.scoring.select`);
 "confounded_with" (only when so) names the effect that explains this one where their shapes
 part (:func:`apmcal.diagnosis.scoring.select.confounded_effects`); "stands_in_for" (only when
-so) the deterministic effect whose place a stochastic one took (removed from the selection). "scored_at_hz" is
+so) the deterministic effect whose place a stochastic one took (removed from the selection);
+"chance_on_top_p_value" (only when so) the p-value of an effect left out of the combination
+because sessions drawn from the combination it was to join gave it as much evidence by chance
+(:func:`apmcal.diagnosis.scoring.null.on_top`). "scored_at_hz" is
 the sample rate the effect was scored at: the recording's, or for a slow effect in a recording
 faster than 200 Hz the block means' (:mod:`apmcal.diagnosis.session.decimate`), whose gaps are per
 averaged sample; there a slow effect is scored "alone" on top of the low-pass filter when the

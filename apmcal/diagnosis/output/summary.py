@@ -138,7 +138,12 @@ def print_effects(result, console) -> None:
                       "of it): " + ", ".join(f"{e['name']} {_shrink(e)} "
                                              f"({e.get('evidence_beyond_selection_nats', 0):.0f}"
                                              + (f"; stands in for {e['stands_in_for']}"
-                                                if e.get("stands_in_for") else "") + ")"
+                                                if e.get("stands_in_for") else "")
+                                             + (f"; chance gives as much on sessions drawn "
+                                                f"from the selection: p "
+                                                f"{e['chance_on_top_p_value']:.2g}"
+                                                if e.get("chance_on_top_p_value") is not None
+                                                else "") + ")"
                                              for e in redundant))
     odd = [e for e in tested if e.get("implausible")]
     if odd:

@@ -29,8 +29,10 @@ test) need the null: the others are not supported whatever it says. Draws stop e
 candidate, once the decision is plain (p below α/M/``DECISIVE`` or above ``DECISIVE``·α/M
 after ``MIN_DRAWS`` draws) [Besag]: an effect with thousands of nats of evidence needs the
 fewest. The resulting evidence threshold of each candidate (the evidence at which p = α/M) is
-also what it must reach on top of other effects in the stepwise selection — the null of an
-effect added to a larger model is taken to be the one it has added to the nominal model.
+also what it must reach on top of other effects in the stepwise selection; and the effect a
+round of that selection is about to add to a combination is tested once more, against
+sessions drawn from that combination itself (:func:`on_top`): a random walk's one realisation
+can pass for a triangle drift on top of it, which the nominal model's null cannot show.
 """
 from __future__ import annotations
 
