@@ -49,7 +49,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from apmcal.core.constants import GAUSS_TO_MGAUSS, MG_TO_MS2, MRAD_TO_RAD
 from apmcal.core.errors import ApmcalError
 from apmcal.core.recording import LogContents
-from apmcal.sources import _fastscan, _framing
+from apmcal.sources import _fastscan, _tlogwalk
 from apmcal.sources._common import (
     MAX_DAMAGE_OFFSETS,
     _params,
@@ -120,8 +120,8 @@ def _index(buf: np.ndarray, wanted: np.ndarray):
     fast = _fastscan.scan_tlog(buf, crc, max_len, wanted)
     if fast is not None:            # undamaged and up to 32 MB: one vectorised pass
         return (*fast, 0, [])
-    (off, ln, mid), skipped, damage = _framing.scan_tlog(buf, crc, max_len, wanted,
-                                                         MAX_DAMAGE_OFFSETS)
+    (off, ln, mid), skipped, damage = _tlogwalk.scan_tlog(buf, crc, max_len, wanted,
+                                                          MAX_DAMAGE_OFFSETS)
     return off, ln, mid, skipped, damage
 
 

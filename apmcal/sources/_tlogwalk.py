@@ -1,0 +1,357 @@
+"""Framing of big or damaged .tlog files by many walkers stepping in lockstep (numpy).
+
+Why: the chunked scan of :mod:`apmcal.sources._framing` examines every byte where a frame could
+start (a MAVLink magic byte 8 bytes on); a .tlog has a frame every ~40 bytes and a false
+candidate every ~128, so most of its time goes to candidates. Here the file is cut into
+segments of ``SEGMENT`` bytes and one walker per segment follows frame lengths, all walkers
+one step at a time in a single numpy operation (a step reads the magic, payload length and
+signature flag of every walker's frame with one 32-bit gather and one table look-up). The
+work is then proportional to the frames, not to the bytes, and there are ~40× fewer numpy
+calls than steps of a byte loop per walker.
+
+A walker starts ``PREROLL`` bytes before its segment (by then it has found the frame chain:
+false starts die within a frame or two) and records the positions it stands on inside its
+segment; on a byte that cannot start a frame it steps one byte. The recorded positions are
+only proposals: each is then validated at once by the rule of the sequential scan (the same
+as ``_framing._tlog_chunk``: lengths, the next-frame test, the MAVLink CRC where pymavlink
+checks it), and the sequential scan is replayed over them (:func:`_replay`): from a valid
+proposal it takes the run of proposals that follow one another and are valid; where it stands
+on a byte no valid proposal covers (damage, a segment whose walker had not found its feet, the
+file's tail) the exact chunked scan of :mod:`apmcal.sources._framing` runs from there until
+it takes a frame that is a valid proposal. The result is therefore the sequential scan's, byte
+for byte, whatever the walkers proposed (tests/test_tlog_walk_reader.py compares it with a
+byte-by-byte loop, with small segments so damage straddles segment ends); the walkers only
+decide how fast it is found.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from apmcal.sources import _framing
+from apmcal.sources._fastscan import MAV1_MAGIC, MAV2_MAGIC
+
+SEGMENT = 16 << 10          # bytes per walker
+PREROLL = 512               # bytes a walker walks before its segment (finding its feet)
+_CHECK_EVERY = 8            # steps between tests whether every walker is done
+_WINDOW = 2048              # bytes of the first exact scan where no proposal is valid
+_MAX_WINDOW = _framing.CHUNK
+
+
+def _step_table() -> np.ndarray:
+    """int32[2**17]: frame length (8-byte stamp included) indexed by the magic byte, the
+    payload length byte and bit 0 of the next byte (MAVLink 2 incompat flags: signed, 13 more
+    bytes); 1 where the magic byte is not MAVLink's (the walker steps one byte)."""
+    idx = np.arange(1 << 17, dtype=np.int64)
+    magic, plen, signed = idx & 0xFF, (idx >> 8) & 0xFF, idx >> 16
+    out = np.ones(1 << 17, dtype=np.int32)
+    out[magic == MAV1_MAGIC] = (8 + 6 + 2 + plen[magic == MAV1_MAGIC])
+    v2 = magic == MAV2_MAGIC
+    out[v2] = 8 + 10 + 2 + plen[v2] + 13 * signed[v2]
+    return out
+
+
+_STEP = _step_table()
+
+
+def _at_every_byte(buf: np.ndarray, dtype: str) -> np.ndarray:
+    """``buf`` as ``dtype`` items starting at every byte (a stride-1 view, no copy)."""
+    size = np.dtype(dtype).itemsize
+    return np.ndarray(shape=(max(buf.shape[0] - size + 1, 0),), dtype=dtype, buffer=buf,
+                      strides=(1,))
+
+
+def propose(buf: np.ndarray, segment: int = SEGMENT, preroll: int = PREROLL) -> np.ndarray:
+    """Sorted offsets (int64) where the walkers stood.
+
+    Walker k starts at ``k * segment - preroll`` (walker 0 at byte 0) and records the positions
+    in ``[k * segment, (k + 1) * segment)``; positions are therefore unique and, read walker by
+    walker, in file order. A step reads the frame length at the walker's position (one byte
+    on where no MAVLink magic byte is, or where the stamp's two top bytes are not those of the
+    file's first stamp: they change once in 8.9 years of µs). Without the stamp test a walker
+    finding its feet one byte at a time (at its start, after damage) stops on a 0xFD inside
+    the stamp before a frame (3 bytes before it, so met first) and can stay off the chain for
+    a whole segment. A walker stops once past its segment or after as many
+    steps as its span could hold frames (a run of bytes that are no frame leaves the rest of
+    its segment to the exact scan); walkers that are done are dropped from the arrays every
+    ``_CHECK_EVERY`` steps.
+    """
+    n = buf.shape[0]
+    if n < 16:
+        return np.empty(0, np.int64)
+    k = -(-n // segment)
+    seg_start = np.arange(k, dtype=np.int64) * segment
+    words = _at_every_byte(buf, "<u4")
+    tops = _at_every_byte(buf, "<u2")
+    top = tops[0]
+    cap = (segment + preroll) // 16 + 2
+    small = n < (1 << 31) - 1024
+    at = np.full((cap, k), -1, dtype=np.int32 if small else np.int64)
+    ids = np.arange(k)
+    pos = np.maximum(seg_start - preroll, 0)
+    end = np.minimum(seg_start + segment, n)
+    idx = np.empty(k, dtype=np.int64)
+    step = 0
+    for step in range(cap):
+        if step % _CHECK_EVERY == 0:
+            going = pos < end
+            if not going.any():
+                break
+            if going.sum() < 0.75 * len(ids):
+                ids, pos, end = ids[going], pos[going], end[going]
+                idx = np.empty(len(ids), dtype=np.int64)
+        np.add(pos, 8, out=idx)
+        np.minimum(idx, n - 4, out=idx)
+        flen = _STEP[words[idx] & 0x1FFFF]
+        np.subtract(idx, 8, out=idx)
+        flen[tops[idx] != top] = 1
+        at[step, ids] = pos
+        pos += flen
+    at = at[:step + 1].T                                   # (walker, step): file order
+    inside = (at - seg_start[:, None].astype(at.dtype)).view(
+        np.uint32 if small else np.uint64) < segment       # -1 and past the end: huge
+    return at[inside].astype(np.int64)
+
+
+def _validate(buf, at, crc_extra, max_len, wanted):
+    """Per proposal: (valid, frame end, payload length, msgid), by the sequential scan's rule
+    (that of ``_framing._tlog_chunk``, with every CRC it would need computed), and the indices
+    of the valid frames of wanted messages (all of which needed their CRC).
+
+    The next-frame test is read from the proposals where a frame ends on the next one (almost
+    everywhere), from the file elsewhere. MAVLink 1 frames (msgid < 256, payload < 256) are
+    classed by one table look-up on (msgid, payload length); MAVLink 2 ones field by field.
+    """
+    n = buf.shape[0]
+    m = len(at)
+    hdr = _at_every_byte(buf, "<u4")[np.minimum(at + 8, n - 4)]
+    flen = _STEP[hdr & 0x1FFFF]
+    end = at + flen
+    framed = (flen > 1) & (end <= n)
+    plen = (hdr >> 8) & 0xFF
+    nxt = np.zeros(m, dtype=bool)
+    nxt[:-1] = (end[:-1] == at[1:]) & (flen[1:] > 1)
+    rest = np.flatnonzero((~nxt | (end > n - 12)) & framed)
+    if len(rest):
+        q = end[rest]
+        nxt[rest] = (q == n) | ((q + 9 <= n) & (buf[np.minimum(q + 8, n - 1)] - np.uint8(MAV2_MAGIC) < 2))
+    v2 = (hdr & 0xFF) == MAV2_MAGIC
+    msgid = buf[np.minimum(at + 13, n - 1)].astype(np.int32)
+    code = _classes(crc_extra, max_len, wanted)[msgid << 8 | plen.astype(np.int32)]
+    two = np.flatnonzero(v2 & framed)
+    if len(two):
+        b = _at_every_byte(buf, "<u4")[np.minimum(at[two] + 14, n - 4)]
+        msgid[two] = (b >> 8).astype(np.int32)
+        kid = np.where(msgid[two] < crc_extra.shape[0], msgid[two], 0)
+        known = (msgid[two] < crc_extra.shape[0]) & (crc_extra[kid] >= 0)
+        light = (plen[two] <= max_len[kid]) & ~wanted[kid]
+        code[two] = np.where(known, np.where(light, _FREE, _NEED), _UNKNOWN)
+    valid = framed & (((code == _UNKNOWN) | (code == _FREE)) & nxt)
+    need = np.flatnonzero(framed & ((code == _NEED) | ((code == _FREE) & ~nxt)))
+    kid = np.minimum(msgid[need], crc_extra.shape[0] - 1)
+    passed = crc_matches(buf, at[need], np.where(v2[need], 10, 6), plen[need].astype(np.int64),
+                         crc_extra[kid])
+    valid[need] = passed
+    return valid, end, plen, msgid, need[passed & wanted[kid]]
+
+
+_UNKNOWN, _FREE, _NEED = 0, 1, 2
+
+
+def _classes(crc_extra, max_len, wanted) -> np.ndarray:
+    """uint8[65536] indexed by msgid << 8 | payload length (MAVLink 1): _UNKNOWN (not in the
+    dialect: the next-frame test decides), _FREE (known, not wanted, length within the
+    dialect's: accepted when the next frame follows, else its CRC decides), _NEED (its CRC
+    decides)."""
+    key = (crc_extra[:256].tobytes(), max_len[:256].tobytes(), wanted[:256].tobytes())
+    hit = _CLASS_CACHE.get(key)
+    if hit is None:
+        mid = np.arange(1 << 16) >> 8
+        plen = np.arange(1 << 16) & 0xFF
+        known = crc_extra[mid] >= 0
+        light = (plen <= max_len[mid]) & ~wanted[mid]
+        hit = np.where(known, np.where(light, _FREE, _NEED), _UNKNOWN).astype(np.uint8)
+        _CLASS_CACHE.clear()
+        _CLASS_CACHE[key] = hit
+    return hit
+
+
+_CLASS_CACHE: dict = {}
+
+
+def crc_matches(buf, off, hlen, plen, extra) -> np.ndarray:
+    """Per frame at ``off`` (its stamp): its MAVLink CRC (bytes after the magic through the
+    payload, then CRC_EXTRA) equals the two bytes after its payload. The same CRC as
+    ``_framing._crc_matches`` (tests compare them), faster on many frames: frames of one span
+    are copied as rows in one gather (file order, so memory is read forward) and their CRC
+    runs two bytes a step down the columns of those rows."""
+    n = buf.shape[0]
+    good = np.empty(len(off), dtype=bool)
+    span = (hlen - 1 + plen).astype(np.int16)
+    order = np.argsort(span, kind="stable")        # a radix sort on int16
+    cuts = np.flatnonzero(np.diff(span[order])) + 1
+    for sel in np.split(order, cuts):
+        m = int(span[sel[0]])
+        width = m + 2 + (m % 2)             # the span, the two CRC bytes, even
+        start = off[sel] + 9
+        ok = start + width <= n
+        if not ok.all():                    # rows that would run off the file: the other CRC
+            few = sel[~ok]
+            good[few] = _framing._crc_matches(buf, off[few], hlen[few], plen[few], extra[few])
+            sel, start = sel[ok], start[ok]
+            if not len(sel):
+                continue
+        rows = _at_every_byte(buf, f"V{width}")[start].view(np.uint8).reshape(-1, width)
+        words = np.ascontiguousarray(rows.view("<u2")[:, :m // 2].T)     # a column a row
+        crc = np.full(len(sel), 0xFFFF, dtype=np.uint16)
+        for j in range(m // 2):
+            crc = _CRC16[crc ^ words[j]]
+        if m % 2:
+            crc = (crc >> 8) ^ _CRC8[(crc ^ rows[:, m - 1]) & 0xFF]
+        crc = (crc >> 8) ^ _CRC8[(crc ^ extra[sel].astype(np.uint16)) & 0xFF]
+        good[sel] = ((crc & 0xFF) == rows[:, m]) & ((crc >> 8) == rows[:, m + 1])
+    return good
+
+
+_CRC8, _CRC16 = _framing._CRC8, _framing._CRC16
+
+
+def _exact(buf, a, width, crc_extra, max_len, wanted):
+    """The chunked scan's records taken from byte ``a`` over candidates in ``[a, a + width)``:
+    (starts, ends, payload lengths, msgids)."""
+    n = buf.shape[0]
+    b = min(n, a + width)
+    hi = min(b, n - 8)
+    cand = _framing._tlog_candidates(buf, a, hi) if hi > a else np.empty(0, np.int64)
+    take, end, plen, msgid = _framing._tlog_chunk(buf, cand, crc_extra, max_len, wanted)
+    return cand[take], end[take], plen[take], msgid[take], b
+
+
+def _gap_frames(buf, at, valid, end, crc_extra, max_len, wanted):
+    """The frames that can start in the bytes after the runs of valid proposals, all at once.
+
+    Where a run ends and the next valid proposal does not follow, the replay needs the
+    sequential scan from there on until it meets a valid proposal again (a damaged stretch,
+    typically a few hundred bytes). Every byte in ``_WINDOW`` bytes after each run end is
+    examined here in one vectorised pass: the candidates there (a MAVLink magic byte 8 on) are
+    validated by the same rule as the proposals. Returns (interval starts, interval ends: the
+    examined bytes, merged; the valid candidates' starts, ends, payload lengths, msgids).
+    """
+    n = buf.shape[0]
+    link = valid[:-1] & valid[1:] & (end[:-1] == at[1:])
+    q = end[np.flatnonzero(valid & np.append(~link, True))]
+    q = np.concatenate(([0], q[q < n]))
+    lo = np.unique(q)
+    hi = np.minimum(lo + _WINDOW, n)
+    keep = np.ones(len(lo), dtype=bool)                 # merge overlapping windows
+    reach = np.maximum.accumulate(hi)
+    keep[1:] = lo[1:] > reach[:-1]
+    starts = lo[keep]
+    ends = reach[np.append(np.flatnonzero(keep)[1:] - 1, len(lo) - 1)]
+    span = np.minimum(ends, n - 8) - starts
+    span = np.maximum(span, 0)
+    total = int(span.sum())
+    if total == 0:
+        e = np.empty(0, np.int64)
+        return starts, ends, e, e, e, e
+    rel = np.arange(total) - np.repeat(np.cumsum(span) - span, span)
+    pos = np.repeat(starts, span) + rel
+    cand = pos[(buf[pos + 8] - np.uint8(MAV2_MAGIC)) < 2]
+    ok, cend, plen, msgid, _ = _validate(buf, cand, crc_extra, max_len, wanted)
+    g = np.flatnonzero(ok)
+    return starts, ends, cand[g], cend[g], plen[g], msgid[g]
+
+
+def _replay(buf, at, valid, end, crc_extra, max_len, wanted):
+    """Records of the sequential scan over the proposals ``at`` (sorted; valid ones end at
+    ``end``), as pieces in file order: index ranges ``(i, j)`` of ``at`` (runs of valid
+    proposals each ending where the next begins) and (starts, ends, payload lengths, msgids)
+    of the records between them.
+
+    Between runs the sequential scan is followed frame by frame over the valid frames of
+    :func:`_gap_frames` while it stays inside the bytes examined there, else by the exact
+    chunked scan of :mod:`apmcal.sources._framing` (a long damaged stretch).
+    """
+    n = buf.shape[0]
+    m = len(at)
+    link = valid[:-1] & valid[1:] & (end[:-1] == at[1:])
+    run_last = np.flatnonzero(np.append(~link, True))
+    lo, hi, gs, ge, gp, gm = _gap_frames(buf, at, valid, end, crc_extra, max_len, wanted)
+    pieces, loose = [], []                 # loose: gap frames taken one by one (indices)
+
+    def flush():
+        if loose:
+            sel = np.array(loose)
+            pieces.append((gs[sel], ge[sel], gp[sel], gm[sel]))
+            loose.clear()
+
+    pos = 0
+    width = _WINDOW
+    while pos < n:
+        i = int(np.searchsorted(at, pos))
+        if i < m and at[i] == pos and valid[i]:
+            flush()
+            j = int(run_last[np.searchsorted(run_last, i)])
+            pieces.append((i, j + 1))
+            pos = int(end[j])
+            width = _WINDOW
+            continue
+        w = int(np.searchsorted(lo, pos, side="right")) - 1
+        if w >= 0 and pos < hi[w]:                     # inside examined bytes
+            c = int(np.searchsorted(gs, pos))
+            if c < len(gs) and gs[c] < hi[w]:
+                if gs[c] > pos:                        # bytes skipped up to a valid frame
+                    pos = int(gs[c])
+                    continue                           # (it may be a valid proposal)
+                loose.append(c)
+                pos = int(ge[c])
+            else:
+                pos = int(hi[w])                       # no frame starts in the rest
+            continue
+        flush()
+        s, e, pl, mid, b = _exact(buf, pos, width, crc_extra, max_len, wanted)
+        if len(s):
+            k = np.minimum(np.searchsorted(at, s), m - 1)
+            land = np.flatnonzero((at[k] == s) & valid[k]) if m else k
+            cut = int(land[0]) if len(land) else len(s)
+            if cut:
+                pieces.append((s[:cut], e[:cut], pl[:cut], mid[:cut]))
+            pos = int(s[cut]) if len(land) else int(e[-1])
+        else:
+            pos = b
+        width = min(2 * width, _MAX_WINDOW)      # long damage: fewer, larger exact scans
+    flush()
+    return pieces
+
+
+def scan_tlog(buf: np.ndarray, crc_extra: np.ndarray, max_len: np.ndarray, wanted: np.ndarray,
+              max_damage: int, segment: int = SEGMENT):
+    """Frame a whole tlog as the sequential scan does; the same result as
+    ``_framing.scan_tlog`` (see there for the parameters and the return)."""
+    n = buf.shape[0]
+    at = propose(buf, segment)
+    valid, end, plen, msgid, want = _validate(buf, at, crc_extra, max_len, wanted)
+    spans, offs, lens, mids = [], [], [], []
+    for p in _replay(buf, at, valid, end, crc_extra, max_len, wanted):
+        if len(p) == 2:                     # a run: no gap inside, its wanted frames known
+            i, j = p
+            spans.append((at[i:i + 1], end[j - 1:j]))
+            w = want[np.searchsorted(want, i):np.searchsorted(want, j)]
+            offs.append(at[w])
+            lens.append(plen[w])
+            mids.append(msgid[w])
+        else:
+            s, e, pl, mid = p
+            spans.append((s, e))
+            w = np.flatnonzero((mid < wanted.shape[0])
+                               & wanted[np.minimum(mid, wanted.shape[0] - 1)])
+            offs.append(s[w])
+            lens.append(pl[w])
+            mids.append(mid[w])
+    st = _framing._Scan(max_damage)
+    if spans:
+        st.take(np.concatenate([a for a, _ in spans]), np.concatenate([b for _, b in spans]), n)
+    st.finish(n)
+    if not offs:
+        return (np.empty(0, np.int64), np.empty(0, np.int16), np.empty(0, np.int32)), 0, []
+    return ((np.concatenate(offs), np.concatenate(lens).astype(np.int16),
+             np.concatenate(mids).astype(np.int32)), st.skipped, st.damage)
