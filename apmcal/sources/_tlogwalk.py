@@ -35,6 +35,7 @@ PREROLL = 512               # bytes a walker walks before its segment (finding i
 _CHECK_EVERY = 8            # steps between tests whether every walker is done
 _WINDOW = 2048              # bytes of the first exact scan where no proposal is valid
 _MAX_WINDOW = _framing.CHUNK
+_ROWS_MIN = 64              # frames of one span worth a gather of rows (crc_matches)
 
 
 def _step_table() -> np.ndarray:
@@ -60,84 +61,112 @@ def _at_every_byte(buf: np.ndarray, dtype: str) -> np.ndarray:
                       strides=(1,))
 
 
-def propose(buf: np.ndarray, segment: int = SEGMENT, preroll: int = PREROLL) -> np.ndarray:
-    """Sorted offsets (int64) where the walkers stood.
+def _pack(w: np.ndarray) -> np.ndarray:
+    """The header word of a frame from the 8 bytes after its stamp (little-endian uint64):
+    bits 0-16 the magic byte, payload length and bit 0 of the next byte (:data:`_STEP`'s
+    index), bits 17-24 byte 13 of the frame (the msgid of a MAVLink 1 frame)."""
+    return ((w & 0x1FFFF) | ((w >> 23) & 0x1FE0000)).astype(np.uint32)
+
+
+def _heads(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """:func:`_pack` of the frames at ``at`` (reads past the file's end are clipped: such
+    frames cannot be complete, and the lengths read make them end past it all the same)."""
+    n = buf.shape[0]
+    if n < 16:
+        return np.zeros(len(at), dtype=np.uint32)
+    return _pack(_at_every_byte(buf, "<u8")[np.minimum(at + 8, n - 8)])
+
+
+def propose(buf: np.ndarray, segment: int = SEGMENT,
+            preroll: int = PREROLL) -> tuple[np.ndarray, np.ndarray]:
+    """Sorted offsets (int64) where the walkers stood, and the :func:`_pack` header word
+    read there.
 
     Walker k starts at ``k * segment - preroll`` (walker 0 at byte 0) and records the positions
     in ``[k * segment, (k + 1) * segment)``; positions are therefore unique and, read walker by
     walker, in file order. A step reads the frame length at the walker's position (one byte
-    on where no MAVLink magic byte is, or where the stamp's two top bytes are not those of the
-    file's first stamp: they change once in 8.9 years of µs). Without the stamp test a walker
-    finding its feet one byte at a time (at its start, after damage) stops on a 0xFD inside
-    the stamp before a frame (3 bytes before it, so met first) and can stay off the chain for
-    a whole segment. A walker stops once past its segment or after as many
-    steps as its span could hold frames (a run of bytes that are no frame leaves the rest of
-    its segment to the exact scan); walkers that are done are dropped from the arrays every
-    ``_CHECK_EVERY`` steps.
+    on where no MAVLink magic byte is). A walker finding its feet (at its start, and after
+    each one-byte step) also demands that the stamp's two top bytes be those of the file's
+    first stamp (they change once in 8.9 years of µs): without that it would stop on a 0xFD
+    inside the stamp before a frame (3 bytes before it, so met first when stepping byte by
+    byte) and could stay off the chain for a whole segment. A walker stops once past its
+    segment or after as many steps as its span could hold frames (a run of bytes that are no
+    frame leaves the rest of its segment to the exact scan); walkers that are done are
+    dropped from the arrays every ``_CHECK_EVERY`` steps.
     """
     n = buf.shape[0]
     if n < 16:
-        return np.empty(0, np.int64)
+        return np.empty(0, np.int64), np.empty(0, np.uint32)
     k = -(-n // segment)
     seg_start = np.arange(k, dtype=np.int64) * segment
-    words = _at_every_byte(buf, "<u4")
+    words = _at_every_byte(buf, "<u8")
     tops = _at_every_byte(buf, "<u2")
     top = tops[0]
     cap = (segment + preroll) // 16 + 2
     small = n < (1 << 31) - 1024
-    at = np.full((cap, k), -1, dtype=np.int32 if small else np.int64)
+    at = np.empty((cap, k), dtype=np.int32 if small else np.int64)     # rows filled as used
+    head = np.empty((cap, k), dtype=np.uint32)
     ids = np.arange(k)
     pos = np.maximum(seg_start - preroll, 0)
     end = np.minimum(seg_start + segment, n)
+    lost = np.ones(k, dtype=bool)              # finding its feet: the stamp is tested too
     idx = np.empty(k, dtype=np.int64)
-    step = 0
+    rows = 0                                               # rows of ``at`` written
     for step in range(cap):
         if step % _CHECK_EVERY == 0:
             going = pos < end
             if not going.any():
                 break
             if going.sum() < 0.75 * len(ids):
-                ids, pos, end = ids[going], pos[going], end[going]
+                ids, pos, end, lost = ids[going], pos[going], end[going], lost[going]
                 idx = np.empty(len(ids), dtype=np.int64)
         np.add(pos, 8, out=idx)
-        np.minimum(idx, n - 4, out=idx)
-        flen = _STEP[words[idx] & 0x1FFFF]
-        np.subtract(idx, 8, out=idx)
-        flen[tops[idx] != top] = 1
+        np.minimum(idx, n - 8, out=idx)
+        w = words[idx]
+        head[step, ids] = _pack(w)
+        flen = _STEP[w & 0x1FFFF]
+        seek = np.flatnonzero(lost)
+        if len(seek):
+            flen[seek[tops[idx[seek] - 8] != top]] = 1
+        np.equal(flen, 1, out=lost)
+        at[step] = -1                                      # walkers done: nothing
         at[step, ids] = pos
         pos += flen
-    at = at[:step + 1].T                                   # (walker, step): file order
+        rows = step + 1
+    at = at[:rows].T                                       # (walker, step): file order
     inside = (at - seg_start[:, None].astype(at.dtype)).view(
         np.uint32 if small else np.uint64) < segment       # -1 and past the end: huge
-    return at[inside].astype(np.int64)
+    return at[inside].astype(np.int64), head[:rows].T[inside]
 
 
-def _validate(buf, at, crc_extra, max_len, wanted):
+def _validate(buf, at, crc_extra, max_len, wanted, head=None):
     """Per proposal: (valid, frame end, payload length, msgid), by the sequential scan's rule
     (that of ``_framing._tlog_chunk``, with every CRC it would need computed), and the indices
     of the valid frames of wanted messages (all of which needed their CRC).
 
-    The next-frame test is read from the proposals where a frame ends on the next one (almost
-    everywhere), from the file elsewhere. MAVLink 1 frames (msgid < 256, payload < 256) are
-    classed by one table look-up on (msgid, payload length); MAVLink 2 ones field by field.
+    ``head``: the :func:`_pack` header words (read here when None). The next-frame test is
+    read from the proposals where a frame ends on the next one (almost everywhere), from the
+    file elsewhere. MAVLink 1 frames are classed by one table look-up on (msgid, payload
+    length); MAVLink 2 ones field by field.
     """
     n = buf.shape[0]
     m = len(at)
-    hdr = _at_every_byte(buf, "<u4")[np.minimum(at + 8, n - 4)]
-    flen = _STEP[hdr & 0x1FFFF]
+    if head is None:
+        head = _heads(buf, at)
+    flen = _STEP[head & 0x1FFFF]
     end = at + flen
     framed = (flen > 1) & (end <= n)
-    plen = (hdr >> 8) & 0xFF
     nxt = np.zeros(m, dtype=bool)
     nxt[:-1] = (end[:-1] == at[1:]) & (flen[1:] > 1)
     rest = np.flatnonzero((~nxt | (end > n - 12)) & framed)
     if len(rest):
         q = end[rest]
-        nxt[rest] = (q == n) | ((q + 9 <= n) & (buf[np.minimum(q + 8, n - 1)] - np.uint8(MAV2_MAGIC) < 2))
-    v2 = (hdr & 0xFF) == MAV2_MAGIC
-    msgid = buf[np.minimum(at + 13, n - 1)].astype(np.int32)
-    code = _classes(crc_extra, max_len, wanted)[msgid << 8 | plen.astype(np.int32)]
-    two = np.flatnonzero(v2 & framed)
+        nxt[rest] = (q == n) | ((q + 9 <= n)
+                               & (buf[np.minimum(q + 8, n - 1)] - np.uint8(MAV2_MAGIC) < 2))
+    plen = ((head >> 8) & 0xFF).astype(np.int32)
+    msgid = (head >> 17).astype(np.int32)
+    code = _classes(crc_extra, max_len, wanted)[(msgid << 8) | plen]
+    two = np.flatnonzero(((head & 0xFF) == MAV2_MAGIC) & framed)
     if len(two):
         b = _at_every_byte(buf, "<u4")[np.minimum(at[two] + 14, n - 4)]
         msgid[two] = (b >> 8).astype(np.int32)
@@ -148,8 +177,8 @@ def _validate(buf, at, crc_extra, max_len, wanted):
     valid = framed & (((code == _UNKNOWN) | (code == _FREE)) & nxt)
     need = np.flatnonzero(framed & ((code == _NEED) | ((code == _FREE) & ~nxt)))
     kid = np.minimum(msgid[need], crc_extra.shape[0] - 1)
-    passed = crc_matches(buf, at[need], np.where(v2[need], 10, 6), plen[need].astype(np.int64),
-                         crc_extra[kid])
+    hlen = np.where((head[need] & 0xFF) == MAV2_MAGIC, 10, 6)
+    passed = crc_matches(buf, at[need], hlen, plen[need].astype(np.int64), crc_extra[kid])
     valid[need] = passed
     return valid, end, plen, msgid, need[passed & wanted[kid]]
 
@@ -181,25 +210,30 @@ _CLASS_CACHE: dict = {}
 def crc_matches(buf, off, hlen, plen, extra) -> np.ndarray:
     """Per frame at ``off`` (its stamp): its MAVLink CRC (bytes after the magic through the
     payload, then CRC_EXTRA) equals the two bytes after its payload. The same CRC as
-    ``_framing._crc_matches`` (tests compare them), faster on many frames: frames of one span
-    are copied as rows in one gather (file order, so memory is read forward) and their CRC
-    runs two bytes a step down the columns of those rows."""
+    ``_framing._crc_matches`` (tests compare them), faster on many frames: the frames of a
+    span shared by at least ``_ROWS_MIN`` frames are copied as rows in one gather (in file
+    order, so memory is read forward), the rows turned into columns, and the CRC run two bytes
+    a step down the columns; the other frames (damage: false frames of every length) go to
+    ``_framing._crc_matches`` together."""
     n = buf.shape[0]
-    good = np.empty(len(off), dtype=bool)
+    good = np.zeros(len(off), dtype=bool)
+    if not len(off):
+        return good
     span = (hlen - 1 + plen).astype(np.int16)
     order = np.argsort(span, kind="stable")        # a radix sort on int16
     cuts = np.flatnonzero(np.diff(span[order])) + 1
+    rest = []
     for sel in np.split(order, cuts):
         m = int(span[sel[0]])
         width = m + 2 + (m % 2)             # the span, the two CRC bytes, even
         start = off[sel] + 9
-        ok = start + width <= n
-        if not ok.all():                    # rows that would run off the file: the other CRC
-            few = sel[~ok]
-            good[few] = _framing._crc_matches(buf, off[few], hlen[few], plen[few], extra[few])
+        ok = start + width <= n             # rows that would run off the file: the other CRC
+        if len(sel) < _ROWS_MIN or not ok.any():
+            rest.append(sel)
+            continue
+        if not ok.all():
+            rest.append(sel[~ok])
             sel, start = sel[ok], start[ok]
-            if not len(sel):
-                continue
         rows = _at_every_byte(buf, f"V{width}")[start].view(np.uint8).reshape(-1, width)
         words = np.ascontiguousarray(rows.view("<u2")[:, :m // 2].T)     # a column a row
         crc = np.full(len(sel), 0xFFFF, dtype=np.uint16)
@@ -209,6 +243,9 @@ def crc_matches(buf, off, hlen, plen, extra) -> np.ndarray:
             crc = (crc >> 8) ^ _CRC8[(crc ^ rows[:, m - 1]) & 0xFF]
         crc = (crc >> 8) ^ _CRC8[(crc ^ extra[sel].astype(np.uint16)) & 0xFF]
         good[sel] = ((crc & 0xFF) == rows[:, m]) & ((crc >> 8) == rows[:, m + 1])
+    if rest:
+        few = np.concatenate(rest)
+        good[few] = _framing._crc_matches(buf, off[few], hlen[few], plen[few], extra[few])
     return good
 
 
@@ -328,8 +365,8 @@ def scan_tlog(buf: np.ndarray, crc_extra: np.ndarray, max_len: np.ndarray, wante
     """Frame a whole tlog as the sequential scan does; the same result as
     ``_framing.scan_tlog`` (see there for the parameters and the return)."""
     n = buf.shape[0]
-    at = propose(buf, segment)
-    valid, end, plen, msgid, want = _validate(buf, at, crc_extra, max_len, wanted)
+    at, head = propose(buf, segment)
+    valid, end, plen, msgid, want = _validate(buf, at, crc_extra, max_len, wanted, head)
     spans, offs, lens, mids = [], [], [], []
     for p in _replay(buf, at, valid, end, crc_extra, max_len, wanted):
         if len(p) == 2:                     # a run: no gap inside, its wanted frames known
@@ -352,6 +389,7 @@ def scan_tlog(buf: np.ndarray, crc_extra: np.ndarray, max_len: np.ndarray, wante
         st.take(np.concatenate([a for a, _ in spans]), np.concatenate([b for _, b in spans]), n)
     st.finish(n)
     if not offs:
-        return (np.empty(0, np.int64), np.empty(0, np.int16), np.empty(0, np.int32)), 0, []
+        empty = (np.empty(0, np.int64), np.empty(0, np.int16), np.empty(0, np.int32))
+        return empty, st.skipped, st.damage
     return ((np.concatenate(offs), np.concatenate(lens).astype(np.int16),
              np.concatenate(mids).astype(np.int32)), st.skipped, st.damage)

@@ -189,9 +189,12 @@ def _scan(buf: np.ndarray, names):
         ids[msgid] = (nm, dt)
     off, ln, mid, skipped, damaged = _index(buf, wanted)
     payload = off + 8 + _header_len(buf, off)
+    order = np.argsort(mid.astype(np.uint16), kind="stable")   # a radix sort; file order kept
+    ids_sorted = mid[order]
     decoded, offsets = {}, {}
     for msgid, (nm, dt) in ids.items():
-        sel = np.flatnonzero(mid == msgid)
+        lo, hi = np.searchsorted(ids_sorted, [msgid, msgid + 1])
+        sel = order[lo:hi]
         rows = _fastscan.gather(buf, payload[sel], ln[sel], dt.itemsize)
         decoded[nm] = rows.view(dt).reshape(-1)
         offsets[nm] = off[sel]
@@ -406,10 +409,39 @@ def _keep_autopilot_params(out: LogContents, buf: np.ndarray, dec: dict[str, np.
         dec["PARAM_VALUE"], offsets["PARAM_VALUE"] = pv[mine], offsets["PARAM_VALUE"][mine]
 
 
+_MIX = np.uint64(0x9E3779B97F4A7C15)       # odd 64-bit constant (Fibonacci hashing)
+
+
+def _last_per_name(names: np.ndarray) -> np.ndarray:
+    """Sorted indices of the last row of each distinct 16-byte ``param_id``.
+
+    What ``_common._params`` keeps of a parameter list repeated many times, found faster:
+    each name's two 64-bit words are mixed into one key and the keys sorted as integers
+    (``np.unique`` on the names themselves sorts 16-byte strings, the slower part of reading
+    a big .tlog). A key shared by two different names (a hash collision) is detected and the
+    names are then compared as strings.
+    """
+    if names.dtype.itemsize != 16 or len(names) == 0:
+        _, first = np.unique(names[::-1], return_index=True)
+        return np.sort(len(names) - 1 - first)
+    words = np.ascontiguousarray(names).view("<u8").reshape(-1, 2)
+    key = words[:, 0] ^ (words[:, 1] * _MIX)
+    _, first, inverse = np.unique(key[::-1], return_index=True, return_inverse=True)
+    rep = len(names) - 1 - first
+    if not np.array_equal(names[rep[inverse]][::-1], names):     # a collision
+        _, first = np.unique(names[::-1], return_index=True)
+        rep = len(names) - 1 - first
+    return np.sort(rep)
+
+
 def _metadata(out: LogContents, dec: dict[str, np.ndarray]) -> None:
     """Parameters, STATUSTEXT messages, vehicle and firmware."""
     pv = dec["PARAM_VALUE"]
-    _params(out, pv["param_id"], pv["param_value"], "PARAM_VALUE")
+    names, values = pv["param_id"], pv["param_value"]
+    if np.isfinite(values).all():       # the same params, in the same order, from fewer rows
+        last = _last_per_name(names)
+        names, values = names[last], values[last]
+    _params(out, names, values, "PARAM_VALUE")
     for s in dec["STATUSTEXT"]:
         text = cstr(s["text"])
         out.messages.append(text)
