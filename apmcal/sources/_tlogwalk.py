@@ -106,7 +106,7 @@ def propose(buf: np.ndarray, segment: int = SEGMENT,
     small = n < (1 << 31) - 1024
     at = np.empty((cap, k), dtype=np.int32 if small else np.int64)     # rows filled as used
     head = np.empty((cap, k), dtype=np.uint32)
-    ids = np.arange(k)
+    ids = slice(None)                          # all walkers; an index array once some are done
     pos = np.maximum(seg_start - preroll, 0)
     end = np.minimum(seg_start + segment, n)
     lost = np.ones(k, dtype=bool)              # finding its feet: the stamp is tested too
@@ -117,20 +117,27 @@ def propose(buf: np.ndarray, segment: int = SEGMENT,
             going = pos < end
             if not going.any():
                 break
-            if going.sum() < 0.75 * len(ids):
-                ids, pos, end, lost = ids[going], pos[going], end[going], lost[going]
-                idx = np.empty(len(ids), dtype=np.int64)
+            if going.sum() < 0.75 * len(pos):
+                keep = np.flatnonzero(going)
+                ids = keep if isinstance(ids, slice) else ids[keep]
+                pos, end, lost = pos[keep], end[keep], lost[keep]
+                idx = np.empty(len(pos), dtype=np.int64)
         np.add(pos, 8, out=idx)
         np.minimum(idx, n - 8, out=idx)
         w = words[idx]
-        head[step, ids] = _pack(w)
-        flen = _STEP[w & 0x1FFFF]
+        low = w & 0x1FFFF
+        flen = _STEP[low]
+        w >>= 23                                           # :func:`_pack`, in place
+        w &= 0x1FE0000
+        w |= low
         seek = np.flatnonzero(lost)
         if len(seek):
             flen[seek[tops[idx[seek] - 8] != top]] = 1
         np.equal(flen, 1, out=lost)
-        at[step] = -1                                      # walkers done: nothing
+        if not isinstance(ids, slice):
+            at[step] = -1                                  # walkers done: nothing
         at[step, ids] = pos
+        head[step, ids] = w
         pos += flen
         rows = step + 1
     at = at[:rows].T                                       # (walker, step): file order
@@ -139,10 +146,23 @@ def propose(buf: np.ndarray, segment: int = SEGMENT,
     return at[inside].astype(np.int64), head[:rows].T[inside]
 
 
+def _fields(buf: np.ndarray, at: np.ndarray, head: np.ndarray):
+    """(payload length, msgid) as int32 of the frames at ``at`` with header words ``head``
+    (a MAVLink 2 msgid, three bytes, is read from the file)."""
+    n = buf.shape[0]
+    plen = ((head >> 8) & 0xFF).astype(np.int32)
+    msgid = (head >> 17).astype(np.int32)
+    two = np.flatnonzero((head & 0xFF) == MAV2_MAGIC)
+    if len(two):
+        b = _at_every_byte(buf, "<u4")[np.minimum(at[two] + 14, n - 4)]
+        msgid[two] = (b >> 8).astype(np.int32)
+    return plen, msgid
+
+
 def _validate(buf, at, crc_extra, max_len, wanted, head=None):
-    """Per proposal: (valid, frame end, payload length, msgid), by the sequential scan's rule
-    (that of ``_framing._tlog_chunk``, with every CRC it would need computed), and the indices
-    of the valid frames of wanted messages (all of which needed their CRC).
+    """Per proposal: (valid, frame end), by the sequential scan's rule (that of
+    ``_framing._tlog_chunk``, with every CRC it would need computed); the header words; the
+    indices of the valid frames of wanted messages (all of which needed their CRC).
 
     ``head``: the :func:`_pack` header words (read here when None). The next-frame test is
     read from the proposals where a frame ends on the next one (almost everywhere), from the
@@ -163,39 +183,37 @@ def _validate(buf, at, crc_extra, max_len, wanted, head=None):
         q = end[rest]
         nxt[rest] = (q == n) | ((q + 9 <= n)
                                & (buf[np.minimum(q + 8, n - 1)] - np.uint8(MAV2_MAGIC) < 2))
-    plen = ((head >> 8) & 0xFF).astype(np.int32)
-    msgid = (head >> 17).astype(np.int32)
-    code = _classes(crc_extra, max_len, wanted)[(msgid << 8) | plen]
+    code = _classes(crc_extra, max_len, wanted)[head >> 8]
     two = np.flatnonzero(((head & 0xFF) == MAV2_MAGIC) & framed)
     if len(two):
-        b = _at_every_byte(buf, "<u4")[np.minimum(at[two] + 14, n - 4)]
-        msgid[two] = (b >> 8).astype(np.int32)
-        kid = np.where(msgid[two] < crc_extra.shape[0], msgid[two], 0)
-        known = (msgid[two] < crc_extra.shape[0]) & (crc_extra[kid] >= 0)
-        light = (plen[two] <= max_len[kid]) & ~wanted[kid]
+        plen, msgid = _fields(buf, at[two], head[two])
+        kid = np.where(msgid < crc_extra.shape[0], msgid, 0)
+        known = (msgid < crc_extra.shape[0]) & (crc_extra[kid] >= 0)
+        light = (plen <= max_len[kid]) & ~wanted[kid]
         code[two] = np.where(known, np.where(light, _FREE, _NEED), _UNKNOWN)
     valid = framed & (((code == _UNKNOWN) | (code == _FREE)) & nxt)
     need = np.flatnonzero(framed & ((code == _NEED) | ((code == _FREE) & ~nxt)))
-    kid = np.minimum(msgid[need], crc_extra.shape[0] - 1)
+    plen, msgid = _fields(buf, at[need], head[need])
+    kid = np.minimum(msgid, crc_extra.shape[0] - 1)
     hlen = np.where((head[need] & 0xFF) == MAV2_MAGIC, 10, 6)
-    passed = crc_matches(buf, at[need], hlen, plen[need].astype(np.int64), crc_extra[kid])
+    passed = crc_matches(buf, at[need], hlen, plen.astype(np.int64), crc_extra[kid])
     valid[need] = passed
-    return valid, end, plen, msgid, need[passed & wanted[kid]]
+    return valid, end, head, need[passed & wanted[kid]]
 
 
 _UNKNOWN, _FREE, _NEED = 0, 1, 2
 
 
 def _classes(crc_extra, max_len, wanted) -> np.ndarray:
-    """uint8[65536] indexed by msgid << 8 | payload length (MAVLink 1): _UNKNOWN (not in the
-    dialect: the next-frame test decides), _FREE (known, not wanted, length within the
-    dialect's: accepted when the next frame follows, else its CRC decides), _NEED (its CRC
-    decides)."""
+    """uint8[2**17] indexed by a MAVLink 1 frame's header word >> 8 (bits 0-7 payload length,
+    bit 8 ignored, bits 9-16 msgid): _UNKNOWN (not in the dialect: the next-frame test
+    decides), _FREE (known, not wanted, length within the dialect's: accepted when the next
+    frame follows, else its CRC decides), _NEED (its CRC decides)."""
     key = (crc_extra[:256].tobytes(), max_len[:256].tobytes(), wanted[:256].tobytes())
     hit = _CLASS_CACHE.get(key)
     if hit is None:
-        mid = np.arange(1 << 16) >> 8
-        plen = np.arange(1 << 16) & 0xFF
+        i = np.arange(1 << 17)
+        mid, plen = i >> 9, i & 0xFF
         known = crc_extra[mid] >= 0
         light = (plen <= max_len[mid]) & ~wanted[mid]
         hit = np.where(known, np.where(light, _FREE, _NEED), _UNKNOWN).astype(np.uint8)
@@ -293,9 +311,9 @@ def _gap_frames(buf, at, valid, end, crc_extra, max_len, wanted):
     rel = np.arange(total) - np.repeat(np.cumsum(span) - span, span)
     pos = np.repeat(starts, span) + rel
     cand = pos[(buf[pos + 8] - np.uint8(MAV2_MAGIC)) < 2]
-    ok, cend, plen, msgid, _ = _validate(buf, cand, crc_extra, max_len, wanted)
+    ok, cend, head, _ = _validate(buf, cand, crc_extra, max_len, wanted)
     g = np.flatnonzero(ok)
-    return starts, ends, cand[g], cend[g], plen[g], msgid[g]
+    return (starts, ends, cand[g], cend[g], *_fields(buf, cand[g], head[g]))
 
 
 def _replay(buf, at, valid, end, crc_extra, max_len, wanted):
@@ -366,16 +384,17 @@ def scan_tlog(buf: np.ndarray, crc_extra: np.ndarray, max_len: np.ndarray, wante
     ``_framing.scan_tlog`` (see there for the parameters and the return)."""
     n = buf.shape[0]
     at, head = propose(buf, segment)
-    valid, end, plen, msgid, want = _validate(buf, at, crc_extra, max_len, wanted, head)
+    valid, end, head, want = _validate(buf, at, crc_extra, max_len, wanted, head)
     spans, offs, lens, mids = [], [], [], []
     for p in _replay(buf, at, valid, end, crc_extra, max_len, wanted):
         if len(p) == 2:                     # a run: no gap inside, its wanted frames known
             i, j = p
             spans.append((at[i:i + 1], end[j - 1:j]))
             w = want[np.searchsorted(want, i):np.searchsorted(want, j)]
+            plen, msgid = _fields(buf, at[w], head[w])
             offs.append(at[w])
-            lens.append(plen[w])
-            mids.append(msgid[w])
+            lens.append(plen)
+            mids.append(msgid)
         else:
             s, e, pl, mid = p
             spans.append((s, e))
