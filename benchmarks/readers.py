@@ -4,7 +4,8 @@
                                                           damaged ones with its --damage N)
 
 For each file: apmcal is run cold (first call in the process) and warm (best of 3); an undamaged
-file up to 32 MB is framed in one numpy pass, a larger or damaged one by the chunked numpy scan.
+file up to 32 MB is framed in one numpy pass, a larger or damaged .bin by the chunked numpy scan
+(``_framing``), a larger or damaged .tlog by lockstep walkers (``_tlogwalk``).
 pymavlink reads the IMU messages with mavutil.mavlink_connection + recv_match (DFReader for
 .bin/.log); the IMU values of both are asserted identical (exact float64 equality, after the
 documented unit conversion; on a damaged file, where the two resynchronise differently, on the

@@ -62,6 +62,9 @@ def gather(buf: np.ndarray, off: np.ndarray, lens: np.ndarray, width: int) -> np
         out[idx] = gather_fixed(buf, off[idx], 0, width)
         for i in np.flatnonzero(~inside):
             out[i, :lens[i]] = buf[off[i]:off[i] + lens[i]]
+    if len(lens) and lens[0] == lens.min() == lens.max():      # one length (MAVLink 1): a slice
+        out[:, int(lens[0]):] = 0
+        return out
     for length in np.unique(lens[lens < width]):
         out[lens == length, length:] = 0
     return out

@@ -3,7 +3,8 @@
 A .tlog is a sequence of frames: an 8-byte big-endian timestamp [µs since 1970] followed by one
 MAVLink v1 (0xFE) or v2 (0xFD) packet. Framing and the CRC check (with the dialect's CRC_EXTRA)
 run with numpy (an undamaged log up to 32 MB in one pass, :mod:`apmcal.sources._fastscan`, else
-the chunked, resynchronising ``_framing.scan_tlog``); the wanted messages are then gathered into a
+the resynchronising walkers of :mod:`apmcal.sources._tlogwalk`, which fall back on the chunked
+``_framing`` scan only across damage); the wanted messages are then gathered into a
 zero-padded (n, wire_length) byte array and decoded all at once through a numpy structured dtype
 built from pymavlink's own message definition (same field order and types as pymavlink), so the
 values are bit-identical to pymavlink's.
