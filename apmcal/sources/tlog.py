@@ -246,7 +246,9 @@ def _imu_recordings(out: LogContents, dec: dict[str, np.ndarray], buf: np.ndarra
         if name in _SCALED_INSTANCE:
             groups = {_SCALED_INSTANCE[name]: slice(None)}
         else:  # RAW_IMU / HIGHRES_IMU carry an instance "id" (extension, 0 when absent)
-            groups = {int(i): a["id"] == i for i in np.unique(a["id"])}
+            ids = np.unique(a["id"])
+            groups = ({int(ids[0]): slice(None)} if len(ids) == 1
+                      else {int(i): a["id"] == i for i in ids})
         for inst, sel in groups.items():
             g = a[sel]
             if name == "HIGHRES_IMU":
@@ -321,7 +323,7 @@ def _sys_status_current(out: LogContents, buf: np.ndarray, dec: dict[str, np.nda
         if not mine.all():
             out.messages.append(f"note: {int(np.sum(~mine))} SYS_STATUS from components other "
                                 f"than the autopilot ({source >> 8}/{source & 255}) ignored")
-        ss, off = ss[mine], off[mine]
+            ss, off = ss[mine], off[mine]
     if len(ss) == 0:
         return None
     measured = ss["current_battery"] != CURRENT_NOT_MEASURED
