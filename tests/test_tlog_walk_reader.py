@@ -149,11 +149,11 @@ def test_undamaged_equals_one_pass_scan(shared_data, name):
 
 @pytest.mark.parametrize("name", TLOGS)
 def test_read_tlog_same_through_either_path(shared_data, name, monkeypatch):
-    """read_tlog of an undamaged log: the one-pass path (≤ 32 MB) and the walker path (what a
+    """read_tlog of an undamaged log: the one-pass path (≤ 2 MB) and the walker path (what a
     bigger file takes) give the same LogContents."""
     path = shared_data / name
     one = read_tlog(path)
-    monkeypatch.setattr(_fastscan, "MAX_BYTES", 0)
+    monkeypatch.setattr(tlog, "ONE_PASS_MAX_BYTES", 0)
     walk = read_tlog(path)
     assert [(r.message, r.instance) for r in one.recordings] == \
         [(r.message, r.instance) for r in walk.recordings]

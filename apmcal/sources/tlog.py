@@ -2,7 +2,7 @@
 
 A .tlog is a sequence of frames: an 8-byte big-endian timestamp [µs since 1970] followed by one
 MAVLink v1 (0xFE) or v2 (0xFD) packet. Framing and the CRC check (with the dialect's CRC_EXTRA)
-run with numpy (an undamaged log up to 32 MB in one pass, :mod:`apmcal.sources._fastscan`, else
+run with numpy (an undamaged log up to 2 MB in one pass, :mod:`apmcal.sources._fastscan`, else
 the resynchronising walkers of :mod:`apmcal.sources._tlogwalk`, which fall back on the chunked
 ``_framing`` scan only across damage); the wanted messages are then gathered into a
 zero-padded (n, wire_length) byte array and decoded all at once through a numpy structured dtype
@@ -115,12 +115,18 @@ def message_dtype(name: str) -> tuple[int, np.dtype]:
     return msgid, struct_dtype(list(cls.ordered_fieldnames), cls.unpacker.format)
 
 
+# undamaged .tlog files up to this size are framed in one pass (_fastscan), bigger ones by the
+# walkers, which are faster from a few MB on (``python benchmarks/readers.py --framing FILE``)
+ONE_PASS_MAX_BYTES = 2 << 20
+
+
 def _index(buf: np.ndarray, wanted: np.ndarray):
     """Frame offsets, payload lengths and msgids of wanted frames; bytes skipped; damage."""
     crc, max_len, _ = _tables()
-    fast = _fastscan.scan_tlog(buf, crc, max_len, wanted)
-    if fast is not None:            # undamaged and up to 32 MB: one vectorised pass
-        return (*fast, 0, [])
+    if buf.shape[0] <= ONE_PASS_MAX_BYTES:
+        fast = _fastscan.scan_tlog(buf, crc, max_len, wanted)
+        if fast is not None:        # undamaged: one vectorised pass
+            return (*fast, 0, [])
     (off, ln, mid), skipped, damage = _tlogwalk.scan_tlog(buf, crc, max_len, wanted,
                                                           MAX_DAMAGE_OFFSETS)
     return off, ln, mid, skipped, damage
