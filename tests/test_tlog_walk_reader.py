@@ -6,8 +6,9 @@ bytes skipped and damage offsets whatever they proposed. So damaged pieces of th
 framed with segments of 16 kB (the default), 1 kB and 333 bytes (so damage, frames and the
 bytes a walker spends finding its feet straddle segment ends), with damage put exactly on the
 segment ends, with long damaged runs (past the bytes examined after a run: the exact chunked
-scan takes over), with a first stamp unlike all others (no walker proposes anything), with
-MAVLink 2 and signed frames, and truncated. Undamaged logs must give the one-pass scan's result,
+scan takes over), with stamps of another epoch in half the file (the walkers' stamp test fails
+there: the exact scan frames it) and the head cut mid-frame, with MAVLink 2 and signed frames,
+and truncated. Undamaged logs must give the one-pass scan's result,
 and read_tlog the same LogContents through either path.
 """
 from __future__ import annotations
@@ -87,13 +88,27 @@ def test_long_damage_falls_back_to_the_chunked_scan(shared_data, segment, monkey
     assert calls                                        # the chunked scan did take over
 
 
-def test_first_stamp_unlike_the_others(shared_data):
-    """The walkers demand the first stamp's top bytes: with a first stamp of another epoch they
-    propose nothing that passes, and the exact scan must frame the whole file."""
-    b = bytearray((shared_data / TLOGS[0]).read_bytes()[:40_000])
-    b[0:2] = b"\xff\xee"
+def test_stamps_of_another_epoch(shared_data, monkeypatch):
+    """The walkers' stamp test wants the top bytes of most stamps at the start: where the stamps
+    have other top bytes (here the second half of the file) they propose nothing valid and the
+    exact scan must frame that part; a head cut mid-frame must not mislead the test."""
+    raw = (shared_data / TLOGS[0]).read_bytes()[:60_000]
+    crc, max_len, wanted = _tables()
+    starts = _loop_tlog(raw, crc, max_len, np.ones(1 << 16, dtype=bool))[0]
+    b = bytearray(raw)
+    for p in starts:
+        if p > 30_000:
+            b[p:p + 2] = b"\xff\xee"
+    calls = []
+    exact = _tlogwalk._exact
+    monkeypatch.setattr(_tlogwalk, "_exact", lambda *a: calls.append(a[1]) or exact(*a))
     off = _check(bytes(b), 4096, damaged=False)
-    assert len(off) > 100
+    assert len(off) > 100 and max(calls) > 40_000       # the exact scan framed the second half
+    cut = bytes(b[13:])                                                 # head cut mid-frame
+    assert _tlogwalk._stamp_top(np.frombuffer(cut, dtype=np.uint8),
+                                _tlogwalk._at_every_byte(np.frombuffer(cut, dtype=np.uint8),
+                                                         "<u2")) == raw[0] | raw[1] << 8
+    _check(cut, 4096)
 
 
 def _synthetic() -> bytes:

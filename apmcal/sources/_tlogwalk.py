@@ -77,6 +77,19 @@ def _heads(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
     return _pack(_at_every_byte(buf, "<u8")[np.minimum(at + 8, n - 8)])
 
 
+def _stamp_top(buf: np.ndarray, tops: np.ndarray) -> int:
+    """The two top bytes (as a little-endian uint16) most common among the stamps of the
+    positions in the first 64 kB whose byte 8 on is a MAVLink magic byte: frames outnumber
+    false candidates there, so a file whose first bytes are not a stamp (its head cut or
+    damaged) still gets its walkers' stamp test right."""
+    head = buf[8:min(buf.shape[0], (64 << 10) + 8)]
+    cand = np.flatnonzero((head - np.uint8(MAV2_MAGIC)) < 2)
+    if not len(cand):
+        return int(tops[0])
+    values, counts = np.unique(tops[cand], return_counts=True)
+    return int(values[np.argmax(counts)])
+
+
 def propose(buf: np.ndarray, segment: int = SEGMENT,
             preroll: int = PREROLL) -> tuple[np.ndarray, np.ndarray]:
     """Sorted offsets where the walkers stood (int32 in files under 2 GB: half the memory
@@ -86,8 +99,8 @@ def propose(buf: np.ndarray, segment: int = SEGMENT,
     in ``[k * segment, (k + 1) * segment)``; positions are therefore unique and, read walker by
     walker, in file order. A step reads the frame length at the walker's position (one byte
     on where no MAVLink magic byte is). A walker finding its feet (at its start, and after
-    each one-byte step) also demands that the stamp's two top bytes be those of the file's
-    first stamp (they change once in 8.9 years of µs): without that it would stop on a 0xFD
+    each one-byte step) also demands that the stamp's two top bytes be the file's
+    (:func:`_stamp_top`; they change once in 8.9 years of µs): without that it would stop on a 0xFD
     inside the stamp before a frame (3 bytes before it, so met first when stepping byte by
     byte) and could stay off the chain for a whole segment. A walker stops once past its
     segment or after as many steps as its span could hold frames (a run of bytes that are no
@@ -101,7 +114,7 @@ def propose(buf: np.ndarray, segment: int = SEGMENT,
     seg_start = np.arange(k, dtype=np.int64) * segment
     words = _at_every_byte(buf, "<u8")
     tops = _at_every_byte(buf, "<u2")
-    top = tops[0]
+    top = _stamp_top(buf, tops)
     cap = (segment + preroll) // 16 + 2
     small = n < (1 << 31) - 1024
     at = np.empty((cap, k), dtype=np.int32 if small else np.int64)     # rows filled as used
