@@ -193,7 +193,8 @@ def _validate(buf, at, crc_extra, max_len, wanted, head=None):
     nxt = np.zeros(m, dtype=bool)
     np.equal(end[:-1], at[1:], out=nxt[:-1])
     nxt[:-1] &= magic[1:]
-    tail = int(np.searchsorted(at, n - 320))       # frames that may run past the end
+    tail = int(np.searchsorted(at, at.dtype.type(max(n - 320, 0))))   # may run past the end
+    # (keys of ``at``'s dtype: else numpy converts all of ``at`` to search it)
     framed = magic.copy()
     framed[tail:] &= end[tail:] <= n
     rest = np.flatnonzero(~nxt & framed)
@@ -362,10 +363,11 @@ def _replay(buf, at, valid, end, crc_extra, max_len, wanted):
             pieces.append((gs[sel], ge[sel], gp[sel], gm[sel]))
             loose.clear()
 
+    key = at.dtype.type
     pos = 0
     width = _WINDOW
     while pos < n:
-        i = int(np.searchsorted(at, pos))
+        i = int(np.searchsorted(at, key(pos)))        # (a key of another dtype: a copy of at)
         if i < m and at[i] == pos and valid[i]:
             flush()
             j = int(run_last[np.searchsorted(run_last, i)])
@@ -388,7 +390,8 @@ def _replay(buf, at, valid, end, crc_extra, max_len, wanted):
         flush()
         s, e, pl, mid, b = _exact(buf, pos, width, crc_extra, max_len, wanted)
         if len(s):
-            k = np.minimum(np.searchsorted(at, s), m - 1)
+            # keys of ``at``'s dtype: else numpy converts all of ``at`` on every call
+            k = np.minimum(np.searchsorted(at, s.astype(at.dtype)), m - 1)
             land = np.flatnonzero((at[k] == s) & valid[k]) if m else k
             cut = int(land[0]) if len(land) else len(s)
             if cut:
