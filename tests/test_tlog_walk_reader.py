@@ -4,7 +4,8 @@ byte-by-byte loop of test_framing.py and against the other two scans.
 The walkers only propose where frames are; the replay must give the sequential scan's records,
 bytes skipped and damage offsets whatever they proposed. So damaged pieces of the real logs are
 framed with segments of 16 kB (the default), 1 kB and 333 bytes (so damage, frames and the
-bytes a walker spends finding its feet straddle segment ends), with damage put exactly on the
+bytes a walker spends finding its feet straddle segment ends), in blocks of a few kB, with
+int64 positions (files of 2 GB and more), with damage put exactly on the
 segment ends, with long damaged runs (past the bytes examined after a run: the exact chunked
 scan takes over), with stamps of another epoch in half the file (the walkers' stamp test fails
 there: the exact scan frames it) and the head cut mid-frame, with MAVLink 2 and signed frames,
@@ -54,6 +55,25 @@ def _check(b: bytes, segment: int, damaged: bool = True):
 @pytest.mark.parametrize("segment", SEGMENTS)
 def test_walk_scan_matches_byte_loop(shared_data, name, seed, segment):
     _check(_damaged((shared_data / name).read_bytes(), seed), segment)
+
+
+@pytest.mark.parametrize("name", TLOGS)
+@pytest.mark.parametrize("seed", [4, 5])
+@pytest.mark.parametrize("block", [5000, 8192])
+def test_blocks(shared_data, name, seed, block, monkeypatch):
+    """Files walked, validated and replayed in blocks (here of a few kB: damage, frames and the
+    exact scan straddle block ends, the scan carried from block to block)."""
+    monkeypatch.setattr(_tlogwalk, "BLOCK", block)
+    _check(_damaged((shared_data / name).read_bytes(), seed), 1024)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_int64_positions(shared_data, seed, monkeypatch):
+    """Files of 2 GB and more keep positions as int64: the same result."""
+    monkeypatch.setattr(_tlogwalk, "_INT32_MAX", 0)
+    raw = (shared_data / TLOGS[0]).read_bytes()
+    _check(_damaged(raw, seed), 4096)
+    _check(raw[:200_000], 4096, damaged=False)
 
 
 @pytest.mark.parametrize("name", TLOGS)

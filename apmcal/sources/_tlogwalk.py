@@ -31,6 +31,8 @@ from apmcal.sources import _framing
 from apmcal.sources._fastscan import MAV1_MAGIC, MAV2_MAGIC
 
 SEGMENT = 16 << 10          # bytes per walker
+BLOCK = 128 << 20           # bytes walked, validated and replayed at once (bounds memory)
+_INT32_MAX = (1 << 31) - 1024   # smaller files keep positions as int32
 PREROLL = 512               # bytes a walker walks before its segment (finding its feet)
 _CHECK_EVERY = 8            # steps between tests whether every walker is done
 _WINDOW = 2048              # bytes of the first exact scan where no proposal is valid
@@ -90,38 +92,41 @@ def _stamp_top(buf: np.ndarray, tops: np.ndarray) -> int:
     return int(values[np.argmax(counts)])
 
 
-def propose(buf: np.ndarray, segment: int = SEGMENT,
-            preroll: int = PREROLL) -> tuple[np.ndarray, np.ndarray]:
-    """Sorted offsets where the walkers stood (int32 in files under 2 GB: half the memory
-    traffic of int64 in every pass over them), and the :func:`_pack` header word read there.
+def propose(buf: np.ndarray, segment: int = SEGMENT, preroll: int = PREROLL, lo: int = 0,
+            hi: int | None = None, top: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Sorted offsets where the walkers stood in ``[lo, hi)`` (default: the whole file; int32
+    in files under 2 GB: half the memory traffic of int64 in every pass over them), and the
+    :func:`_pack` header word read there.
 
-    Walker k starts at ``k * segment - preroll`` (walker 0 at byte 0) and records the positions
-    in ``[k * segment, (k + 1) * segment)``; positions are therefore unique and, read walker by
-    walker, in file order. A step reads the frame length at the walker's position (one byte
-    on where no MAVLink magic byte is). A walker finding its feet (at its start, and after
-    each one-byte step) also demands that the stamp's two top bytes be the file's
-    (:func:`_stamp_top`; they change once in 8.9 years of µs): without that it would stop on a 0xFD
-    inside the stamp before a frame (3 bytes before it, so met first when stepping byte by
-    byte) and could stay off the chain for a whole segment. A walker stops once past its
-    segment or after as many steps as its span could hold frames (a run of bytes that are no
-    frame leaves the rest of its segment to the exact scan); walkers that are done are
-    dropped from the arrays every ``_CHECK_EVERY`` steps.
+    Walker k starts at ``lo + k * segment - preroll`` (walker 0 of the file at byte 0) and
+    records the positions in its segment ``lo + [k * segment, (k + 1) * segment)``; positions
+    are therefore unique and, read walker by walker, in file order. A step reads the frame
+    length at the walker's position (one byte on where no MAVLink magic byte is). A walker
+    finding its feet (at its start, and after each one-byte step) also demands that the
+    stamp's two top bytes be the file's (``top``, by default :func:`_stamp_top`; they change
+    once in 8.9 years of µs): without that it would stop on a 0xFD inside the stamp before a
+    frame (3 bytes before it, so met first when stepping byte by byte) and could stay off the
+    chain for a whole segment. A walker stops once past its segment or after as many steps as
+    its span could hold frames (a run of bytes that are no frame leaves the rest of its
+    segment to the exact scan); walkers that are done are dropped from the arrays every
+    ``_CHECK_EVERY`` steps.
     """
     n = buf.shape[0]
-    if n < 16:
+    hi = n if hi is None else hi
+    if n < 16 or hi <= lo:
         return np.empty(0, np.int64), np.empty(0, np.uint32)
-    k = -(-n // segment)
-    seg_start = np.arange(k, dtype=np.int64) * segment
+    k = -(-(hi - lo) // segment)
+    seg_start = lo + np.arange(k, dtype=np.int64) * segment
     words = _at_every_byte(buf, "<u8")
     tops = _at_every_byte(buf, "<u2")
-    top = _stamp_top(buf, tops)
+    top = _stamp_top(buf, tops) if top is None else top
     cap = (segment + preroll) // 16 + 2
-    small = n < (1 << 31) - 1024
+    small = n < _INT32_MAX
     at = np.empty((cap, k), dtype=np.int32 if small else np.int64)     # rows filled as used
     head = np.empty((cap, k), dtype=np.uint32)
     ids = slice(None)                          # all walkers; an index array once some are done
     pos = np.maximum(seg_start - preroll, 0)
-    end_all = end = np.minimum(seg_start + segment, n)
+    end_all = end = np.minimum(seg_start + segment, hi)
     lost = np.ones(k, dtype=bool)              # finding its feet: the stamp is tested too
     idx = np.empty(k, dtype=np.int64)
     rows = 0                                               # rows of ``at`` written
@@ -340,9 +345,10 @@ def _gap_frames(buf, at, valid, end, link, crc_extra, max_len, wanted):
     return (starts, ends, cand[g], cend[g], *_fields(buf, cand[g], head[g]))
 
 
-def _replay(buf, at, valid, end, crc_extra, max_len, wanted):
-    """Records of the sequential scan over the proposals ``at`` (sorted; valid ones end at
-    ``end``), as pieces in file order: index ranges ``(i, j)`` of ``at`` (runs of valid
+def _replay(buf, at, valid, end, crc_extra, max_len, wanted, pos: int, stop: int):
+    """Records of the sequential scan from byte ``pos`` until it passes ``stop``, over the
+    proposals ``at`` (sorted; valid ones end at ``end``): (pieces in file order, where the
+    scan stands after them). Pieces are index ranges ``(i, j)`` of ``at`` (runs of valid
     proposals each ending where the next begins) and (starts, ends, payload lengths, msgids)
     of the records between them.
 
@@ -350,7 +356,6 @@ def _replay(buf, at, valid, end, crc_extra, max_len, wanted):
     :func:`_gap_frames` while it stays inside the bytes examined there, else by the exact
     chunked scan of :mod:`apmcal.sources._framing` (a long damaged stretch).
     """
-    n = buf.shape[0]
     m = len(at)
     link = valid[:-1] & valid[1:] & (end[:-1] == at[1:])
     run_last = np.flatnonzero(np.append(~link, True))
@@ -364,9 +369,8 @@ def _replay(buf, at, valid, end, crc_extra, max_len, wanted):
             loose.clear()
 
     key = at.dtype.type
-    pos = 0
     width = _WINDOW
-    while pos < n:
+    while pos < stop:
         i = int(np.searchsorted(at, key(pos)))        # (a key of another dtype: a copy of at)
         if i < m and at[i] == pos and valid[i]:
             flush()
@@ -392,7 +396,7 @@ def _replay(buf, at, valid, end, crc_extra, max_len, wanted):
         if len(s):
             # keys of ``at``'s dtype: else numpy converts all of ``at`` on every call
             k = np.minimum(np.searchsorted(at, s.astype(at.dtype)), m - 1)
-            land = np.flatnonzero((at[k] == s) & valid[k]) if m else k
+            land = np.flatnonzero((at[k] == s) & valid[k]) if m else np.empty(0, np.int64)
             cut = int(land[0]) if len(land) else len(s)
             if cut:
                 pieces.append((s[:cut], e[:cut], pl[:cut], mid[:cut]))
@@ -401,37 +405,49 @@ def _replay(buf, at, valid, end, crc_extra, max_len, wanted):
             pos = b
         width = min(2 * width, _MAX_WINDOW)      # long damage: fewer, larger exact scans
     flush()
-    return pieces
+    return pieces, pos
 
 
 def scan_tlog(buf: np.ndarray, crc_extra: np.ndarray, max_len: np.ndarray, wanted: np.ndarray,
               max_damage: int, segment: int = SEGMENT):
     """Frame a whole tlog as the sequential scan does; the same result as
-    ``_framing.scan_tlog`` (see there for the parameters and the return)."""
+    ``_framing.scan_tlog`` (see there for the parameters and the return).
+
+    Blocks of ``BLOCK`` bytes are walked, validated and replayed one after the other, the scan
+    carried from one to the next, so memory stays bounded whatever the file size.
+    """
     n = buf.shape[0]
-    at, head = propose(buf, segment)
-    valid, end, head, want = _validate(buf, at, crc_extra, max_len, wanted, head)
+    top = _stamp_top(buf, _at_every_byte(buf, "<u2")) if n >= 16 else 0
     spans, offs, lens, mids = [], [], [], []
-    for p in _replay(buf, at, valid, end, crc_extra, max_len, wanted):
-        if len(p) == 2:                     # a run: no gap inside, its wanted frames known
-            i, j = p
-            spans.append((at[i:i + 1], end[j - 1:j]))
-            w = want[np.searchsorted(want, i):np.searchsorted(want, j)]
-            plen, msgid = _fields(buf, at[w], head[w])
-            offs.append(at[w])
-            lens.append(plen)
-            mids.append(msgid)
-        else:
-            s, e, pl, mid = p
-            spans.append((s, e))
-            w = np.flatnonzero((mid < wanted.shape[0])
-                               & wanted[np.minimum(mid, wanted.shape[0] - 1)])
-            offs.append(s[w])
-            lens.append(pl[w])
-            mids.append(mid[w])
+    pos = 0
+    for lo in range(0, n, BLOCK):
+        hi = min(lo + BLOCK, n)
+        if pos >= hi:
+            continue
+        at, head = propose(buf, segment, lo=lo, hi=hi, top=top)
+        valid, end, head, want = _validate(buf, at, crc_extra, max_len, wanted, head)
+        pieces, pos = _replay(buf, at, valid, end, crc_extra, max_len, wanted, pos, hi)
+        for p in pieces:
+            if len(p) == 2:                 # a run: no gap inside, its wanted frames known
+                i, j = p
+                spans.append((at[i:i + 1], end[j - 1:j]))
+                w = want[np.searchsorted(want, i):np.searchsorted(want, j)]
+                plen, msgid = _fields(buf, at[w], head[w])
+                offs.append(at[w])
+                lens.append(plen)
+                mids.append(msgid)
+            else:
+                s, e, pl, mid = p
+                spans.append((s, e))
+                w = np.flatnonzero((mid < wanted.shape[0])
+                                   & wanted[np.minimum(mid, wanted.shape[0] - 1)])
+                offs.append(s[w])
+                lens.append(pl[w])
+                mids.append(mid[w])
     st = _framing._Scan(max_damage)
     if spans:
-        st.take(np.concatenate([a for a, _ in spans]), np.concatenate([b for _, b in spans]), n)
+        st.take(np.concatenate([a for a, _ in spans]).astype(np.int64),
+                np.concatenate([b for _, b in spans]).astype(np.int64), n)
     st.finish(n)
     if not offs:
         empty = (np.empty(0, np.int64), np.empty(0, np.int16), np.empty(0, np.int32))
