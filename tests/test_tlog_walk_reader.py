@@ -259,3 +259,15 @@ def test_last_per_name_equals_unique(monkeypatch):
     assert np.array_equal(tlog._last_per_name(names), plain(names))
     short = names.astype("S8")
     assert np.array_equal(tlog._last_per_name(short), plain(short))
+
+
+@pytest.mark.parametrize("name", TLOGS)
+def test_frame_sources_by_bytes(shared_data, name):
+    """The 64-bit read of (system, component) equals the bytes themselves (MAVLink 1: bytes
+    11-12 after the stamp's start, MAVLink 2: 13-14), on a v1 and a v2 log."""
+    buf = np.fromfile(shared_data / name, dtype=np.uint8)
+    start = tlog.frame_spans(buf)[0]
+    v1 = buf[start + 8] == 0xFE
+    want = (np.where(v1, buf[start + 11], buf[start + 13]).astype(np.int32) << 8) \
+        | np.where(v1, buf[start + 12], buf[start + 14])
+    assert np.array_equal(tlog._frame_sources(buf, start), want)
