@@ -144,7 +144,7 @@ def propose(buf: np.ndarray, segment: int = SEGMENT, preroll: int = PREROLL, lo:
         np.minimum(idx, n - 8, out=idx)
         w = words[idx]
         low = w & 0x1FFFF
-        flen = np.take(_STEP, low.view(np.intp))         # np.take: a fast path for intp
+        flen = np.take(_STEP, low.view(np.int64))        # np.take: a fast path for intp
         w >>= 23                                           # :func:`_pack`, in place
         w &= 0x1FE0000
         w |= low
