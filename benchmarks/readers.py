@@ -4,6 +4,7 @@
                                                           damaged ones with its --damage N)
     python benchmarks/readers.py --framing FILE.tlog ... (.tlog framing only: one pass against
                                                           the walkers, no pymavlink)
+    python benchmarks/readers.py --no-peer FILE ...      (apmcal alone: times, memory)
 
 For each file: apmcal is run cold (first call in the process) and warm (best of 3); an undamaged
 file up to 32 MB is framed in one numpy pass, a larger or damaged .bin by the chunked numpy scan
@@ -185,10 +186,16 @@ def main(argv=None) -> None:
     ap.add_argument("paths", nargs="+", type=Path)
     ap.add_argument("--framing", action="store_true",
                     help=".tlog framing only: one-pass scan against walkers (no pymavlink)")
+    ap.add_argument("--no-peer", action="store_true",
+                    help="apmcal only (times and memory), no pymavlink: no ratio printed")
     args = ap.parse_args(argv)
     if args.framing:
         for p in args.paths:
             bench_framing(p)
+        return
+    if args.no_peer:
+        for p in args.paths:
+            bench_file(p, skip_pymavlink=True)
         return
     results = [bench_file(p) for p in args.paths]
     ft = [r["fasttlogparser"] / r["apmcal"] for r in results if "fasttlogparser" in r]
