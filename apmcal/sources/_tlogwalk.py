@@ -2,26 +2,28 @@
 
 Why: the chunked scan of :mod:`apmcal.sources._framing` examines every byte where a frame could
 start (a MAVLink magic byte 8 bytes on); a .tlog has a frame every ~40 bytes and a false
-candidate every ~128, so most of its time goes to candidates. Here the file is cut into
+candidate every ~128 besides, so most of its time goes to candidates. Here the file is cut into
 segments of ``SEGMENT`` bytes and one walker per segment follows frame lengths, all walkers
-one step at a time in a single numpy operation (a step reads the magic, payload length and
-signature flag of every walker's frame with one 32-bit gather and one table look-up). The
-work is then proportional to the frames, not to the bytes, and there are ~40× fewer numpy
-calls than steps of a byte loop per walker.
+one step at a time in a single numpy operation (a step reads the 8 bytes after every walker's
+stamp with one gather and looks the frame length up in a table): the work follows the frames,
+not the bytes, with a few numpy calls per step for all walkers (:func:`propose`).
 
 A walker starts ``PREROLL`` bytes before its segment (by then it has found the frame chain:
 false starts die within a frame or two) and records the positions it stands on inside its
 segment; on a byte that cannot start a frame it steps one byte. The recorded positions are
 only proposals: each is then validated at once by the rule of the sequential scan (the same
 as ``_framing._tlog_chunk``: lengths, the next-frame test, the MAVLink CRC where pymavlink
-checks it), and the sequential scan is replayed over them (:func:`_replay`): from a valid
-proposal it takes the run of proposals that follow one another and are valid; where it stands
-on a byte no valid proposal covers (damage, a segment whose walker had not found its feet, the
-file's tail) the exact chunked scan of :mod:`apmcal.sources._framing` runs from there until
-it takes a frame that is a valid proposal. The result is therefore the sequential scan's, byte
-for byte, whatever the walkers proposed (tests/test_tlog_walk_reader.py compares it with a
-byte-by-byte loop, with small segments so damage straddles segment ends); the walkers only
-decide how fast it is found.
+checks it; :func:`_validate`), and the sequential scan is replayed over them
+(:func:`_replay`): from a valid proposal it takes the run of proposals that follow one another
+and are valid; where it stands on a byte no valid proposal covers (damage, a segment whose
+walker had not found its feet, the file's tail) it follows the valid frames among all bytes
+just after the run ends (:func:`_gap_frames`), and past those the exact chunked scan of
+:mod:`apmcal.sources._framing`, until it stands on a valid proposal again. The result is
+therefore the sequential scan's, byte for byte, whatever the walkers proposed
+(tests/test_tlog_walk_reader.py compares it with a byte-by-byte loop, with small segments and
+blocks so damage straddles their ends); the walkers only decide how fast it is found. Files
+are processed in blocks of ``BLOCK`` bytes, the scan carried across (bounded memory).
+docs/tlog-walkers.md describes the design and its measurements.
 """
 from __future__ import annotations
 
