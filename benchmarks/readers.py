@@ -2,9 +2,13 @@
 
     python benchmarks/readers.py FILE [FILE ...]        (make big files with make_big_log.py;
                                                           damaged ones with its --damage N)
+    python benchmarks/readers.py --framing FILE.tlog ... (.tlog framing only: one pass against
+                                                          the walkers, no pymavlink)
+    python benchmarks/readers.py --no-peer FILE ...      (apmcal alone: times, memory)
 
 For each file: apmcal is run cold (first call in the process) and warm (best of 3); an undamaged
-file up to 32 MB is framed in one numpy pass, a larger or damaged one by the chunked numpy scan.
+file up to 32 MB is framed in one numpy pass, a larger or damaged .bin by the chunked numpy scan
+(``_framing``), a larger or damaged .tlog by lockstep walkers (``_tlogwalk``).
 pymavlink reads the IMU messages with mavutil.mavlink_connection + recv_match (DFReader for
 .bin/.log); the IMU values of both are asserted identical (exact float64 equality, after the
 documented unit conversion; on a damaged file, where the two resynchronise differently, on the
@@ -151,10 +155,48 @@ def bench_file(path: Path, skip_pymavlink: bool = False) -> dict:
     return res
 
 
+def bench_framing(path: Path) -> None:
+    """.tlog framing alone: the one-pass scan (``_fastscan``, at any size) against the walkers
+    (``_tlogwalk``), CPU seconds best of 5, the same frames asserted; what
+    ``tlog.ONE_PASS_MAX_BYTES`` rests on."""
+    from apmcal.sources import _fastscan, _tlogwalk, tlog
+    from apmcal.sources._common import load_bytes
+
+    buf = load_bytes(path)
+    crc, max_len, by_name = tlog._tables()
+    wanted = np.zeros(1 << 16, dtype=bool)
+    for m in tlog.IMU_MESSAGES + tlog.META_MESSAGES:
+        wanted[by_name[m][0]] = True
+    _fastscan.MAX_BYTES = 1 << 62
+    one = _fastscan.scan_tlog(buf, crc, max_len, wanted)
+    walk = _tlogwalk.scan_tlog(buf, crc, max_len, wanted, 1000)
+    if one is None:
+        print(f"{path.name}: damaged, the one-pass scan does not apply")
+        return
+    assert walk[1] == 0 and all(np.array_equal(a, b) for a, b in zip(one, walk[0]))
+    t_one = min(_cpu(_fastscan.scan_tlog, buf, crc, max_len, wanted)[1] for _ in range(5))
+    t_walk = min(_cpu(_tlogwalk.scan_tlog, buf, crc, max_len, wanted, 1000)[1]
+                 for _ in range(5))
+    print(f"{path.name}: {buf.shape[0] / 1e6:.1f} MB, one pass {t_one * 1e3:.1f} ms CPU, "
+          f"walkers {t_walk * 1e3:.1f} ms CPU (same frames)")
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("paths", nargs="+", type=Path)
+    ap.add_argument("--framing", action="store_true",
+                    help=".tlog framing only: one-pass scan against walkers (no pymavlink)")
+    ap.add_argument("--no-peer", action="store_true",
+                    help="apmcal only (times and memory), no pymavlink: no ratio printed")
     args = ap.parse_args(argv)
+    if args.framing:
+        for p in args.paths:
+            bench_framing(p)
+        return
+    if args.no_peer:
+        for p in args.paths:
+            bench_file(p, skip_pymavlink=True)
+        return
     results = [bench_file(p) for p in args.paths]
     ft = [r["fasttlogparser"] / r["apmcal"] for r in results if "fasttlogparser" in r]
     if ft:

@@ -209,8 +209,8 @@ def test_crc_matches_the_bitwise_crc():
 
 @pytest.mark.parametrize("name", TLOGS + BINS)
 def test_chunked_scan_equals_one_pass_scan_on_undamaged_logs(shared_data, name, small_chunks):
-    """On an undamaged log the chunked scan (files > 32 MB) takes the records of the one-pass
-    scan (files up to 32 MB)."""
+    """On an undamaged log the chunked scan (.bin files > 32 MB; the reference of the .tlog
+    walkers) takes the records of the one-pass scan."""
     buf = np.fromfile(shared_data / name, dtype=np.uint8)
     if name.endswith(".tlog"):
         crc, max_len, by_name = tlog._tables()

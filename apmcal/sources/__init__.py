@@ -8,7 +8,8 @@
 
 Modules: :mod:`~apmcal.sources.tlog`, :mod:`~apmcal.sources.dataflash`,
 :mod:`~apmcal.sources.dataflash_text`, :mod:`~apmcal.sources.csv` (the readers, over the private
-framing and record helpers ``_framing``, ``_fastscan`` and ``_common``);
+framing and record helpers ``_framing``, ``_fastscan``, ``_tlogwalk`` (big or damaged .tlog:
+lockstep walkers) and ``_common``);
 :mod:`~apmcal.sources.tclr` (the firmware temperature learner's TCLR records);
 :mod:`~apmcal.sources.gps_time` (a dataflash log's wall-clock time from its GPS records);
 :mod:`~apmcal.sources.units` (is each sensor's magnitude one the Earth allows?);

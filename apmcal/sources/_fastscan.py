@@ -31,13 +31,16 @@ MAX_BYTES = 32 << 20        # larger files: the chunked scan (see the module doc
 def gather_fixed(buf: np.ndarray, off: np.ndarray, skip: int, width: int) -> np.ndarray:
     """(n, width) uint8 rows ``buf[off[i] + skip:][:width]`` (each row inside ``buf``).
 
-    A strided window view of ``buf`` indexed by row: one copy, no (n, width) index array.
+    ``buf`` viewed as ``width``-byte items starting at every byte (stride 1, no copy) and
+    indexed: one copy of ``width`` bytes per row, about twice as fast as row-indexing a 2-D
+    sliding window view (and no (n, width) index array).
     """
     if not len(off) or not width:
         return np.zeros((len(off), width), dtype=np.uint8)
-    windows = np.lib.stride_tricks.sliding_window_view(buf, width)
-    # row indexing of the view copies only the selected rows (np.take would copy the view)
-    return np.ascontiguousarray(windows[np.asarray(off, dtype=np.int64) + skip])
+    items = np.ndarray(shape=(buf.shape[0] - width + 1,), dtype=f"V{width}", buffer=buf,
+                       strides=(1,))
+    rows = items[np.asarray(off, dtype=np.int64) + skip]
+    return rows.view(np.uint8).reshape(len(rows), width)
 
 
 def gather(buf: np.ndarray, off: np.ndarray, lens: np.ndarray, width: int) -> np.ndarray:
@@ -59,6 +62,9 @@ def gather(buf: np.ndarray, off: np.ndarray, lens: np.ndarray, width: int) -> np
         out[idx] = gather_fixed(buf, off[idx], 0, width)
         for i in np.flatnonzero(~inside):
             out[i, :lens[i]] = buf[off[i]:off[i] + lens[i]]
+    if len(lens) and lens[0] == lens.min() == lens.max():      # one length (MAVLink 1): a slice
+        out[:, int(lens[0]):] = 0
+        return out
     for length in np.unique(lens[lens < width]):
         out[lens == length, length:] = 0
     return out

@@ -19,6 +19,11 @@ depends on which FMT records the scan takes; :func:`scan_dataflash` guesses that
 candidate is taken, walks, and repeats with the candidates it proved false until the guess
 agrees with the walk (in practice once; see :func:`_df_chunk`). The result is the sequential
 scan's, byte for byte (tests/test_corruption.py, benchmarks/readers.py).
+
+.tlog files are read through :mod:`apmcal.sources._tlogwalk` (walkers following frame lengths,
+a frame every ~40 bytes, instead of a candidate at every magic byte), which runs
+:func:`_tlog_chunk` here only across damage; :func:`scan_tlog` stays as the reference the
+tests compare the walkers with.
 """
 from __future__ import annotations
 

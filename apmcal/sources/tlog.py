@@ -2,8 +2,9 @@
 
 A .tlog is a sequence of frames: an 8-byte big-endian timestamp [µs since 1970] followed by one
 MAVLink v1 (0xFE) or v2 (0xFD) packet. Framing and the CRC check (with the dialect's CRC_EXTRA)
-run with numpy (an undamaged log up to 32 MB in one pass, :mod:`apmcal.sources._fastscan`, else
-the chunked, resynchronising ``_framing.scan_tlog``); the wanted messages are then gathered into a
+run with numpy (an undamaged log up to 2 MB in one pass, :mod:`apmcal.sources._fastscan`, else
+the resynchronising walkers of :mod:`apmcal.sources._tlogwalk`, which fall back on the chunked
+``_framing`` scan only across damage); the wanted messages are then gathered into a
 zero-padded (n, wire_length) byte array and decoded all at once through a numpy structured dtype
 built from pymavlink's own message definition (same field order and types as pymavlink), so the
 values are bit-identical to pymavlink's.
@@ -49,7 +50,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from apmcal.core.constants import GAUSS_TO_MGAUSS, MG_TO_MS2, MRAD_TO_RAD
 from apmcal.core.errors import ApmcalError
 from apmcal.core.recording import LogContents
-from apmcal.sources import _fastscan, _framing
+from apmcal.sources import _fastscan, _tlogwalk
 from apmcal.sources._common import (
     MAX_DAMAGE_OFFSETS,
     _params,
@@ -114,14 +115,20 @@ def message_dtype(name: str) -> tuple[int, np.dtype]:
     return msgid, struct_dtype(list(cls.ordered_fieldnames), cls.unpacker.format)
 
 
+# undamaged .tlog files up to this size are framed in one pass (_fastscan), bigger ones by the
+# walkers, which are faster from a few MB on (``python benchmarks/readers.py --framing FILE``)
+ONE_PASS_MAX_BYTES = 2 << 20
+
+
 def _index(buf: np.ndarray, wanted: np.ndarray):
     """Frame offsets, payload lengths and msgids of wanted frames; bytes skipped; damage."""
     crc, max_len, _ = _tables()
-    fast = _fastscan.scan_tlog(buf, crc, max_len, wanted)
-    if fast is not None:            # undamaged and up to 32 MB: one vectorised pass
-        return (*fast, 0, [])
-    (off, ln, mid), skipped, damage = _framing.scan_tlog(buf, crc, max_len, wanted,
-                                                         MAX_DAMAGE_OFFSETS)
+    if buf.shape[0] <= ONE_PASS_MAX_BYTES:
+        fast = _fastscan.scan_tlog(buf, crc, max_len, wanted)
+        if fast is not None:        # undamaged: one vectorised pass
+            return (*fast, 0, [])
+    (off, ln, mid), skipped, damage = _tlogwalk.scan_tlog(buf, crc, max_len, wanted,
+                                                          MAX_DAMAGE_OFFSETS)
     return off, ln, mid, skipped, damage
 
 
@@ -189,9 +196,12 @@ def _scan(buf: np.ndarray, names):
         ids[msgid] = (nm, dt)
     off, ln, mid, skipped, damaged = _index(buf, wanted)
     payload = off + 8 + _header_len(buf, off)
+    order = np.argsort(mid.astype(np.uint16), kind="stable")   # a radix sort; file order kept
+    ids_sorted = mid[order]
     decoded, offsets = {}, {}
     for msgid, (nm, dt) in ids.items():
-        sel = np.flatnonzero(mid == msgid)
+        lo, hi = np.searchsorted(ids_sorted, [msgid, msgid + 1])
+        sel = order[lo:hi]
         rows = _fastscan.gather(buf, payload[sel], ln[sel], dt.itemsize)
         decoded[nm] = rows.view(dt).reshape(-1)
         offsets[nm] = off[sel]
@@ -242,7 +252,9 @@ def _imu_recordings(out: LogContents, dec: dict[str, np.ndarray], buf: np.ndarra
         if name in _SCALED_INSTANCE:
             groups = {_SCALED_INSTANCE[name]: slice(None)}
         else:  # RAW_IMU / HIGHRES_IMU carry an instance "id" (extension, 0 when absent)
-            groups = {int(i): a["id"] == i for i in np.unique(a["id"])}
+            ids = np.unique(a["id"])
+            groups = ({int(ids[0]): slice(None)} if len(ids) == 1
+                      else {int(i): a["id"] == i for i in ids})
         for inst, sel in groups.items():
             g = a[sel]
             if name == "HIGHRES_IMU":
@@ -317,7 +329,7 @@ def _sys_status_current(out: LogContents, buf: np.ndarray, dec: dict[str, np.nda
         if not mine.all():
             out.messages.append(f"note: {int(np.sum(~mine))} SYS_STATUS from components other "
                                 f"than the autopilot ({source >> 8}/{source & 255}) ignored")
-        ss, off = ss[mine], off[mine]
+            ss, off = ss[mine], off[mine]
     if len(ss) == 0:
         return None
     measured = ss["current_battery"] != CURRENT_NOT_MEASURED
@@ -374,10 +386,15 @@ def _attach_sys_status_current(out: LogContents, df: pd.DataFrame, pick: slice,
 
 
 def _frame_sources(buf: np.ndarray, off: np.ndarray) -> np.ndarray:
-    """(system id << 8 | component id) of the frames starting at ``off`` (the timestamp)."""
-    v1 = buf[off + 8] == _fastscan.MAV1_MAGIC
-    sysid = np.where(v1, buf[off + 11], buf[off + 13]).astype(np.int32)
-    return (sysid << 8) | np.where(v1, buf[off + 12], buf[off + 14])
+    """(system id << 8 | component id) of the frames starting at ``off`` (the timestamp).
+
+    One 64-bit read per frame (the 8 bytes after the stamp, inside every complete frame):
+    system and component id are its bytes 3-4 (MAVLink 1) or 5-6 (MAVLink 2).
+    """
+    words = np.ndarray(shape=(max(buf.shape[0] - 7, 0),), dtype="<u8", buffer=buf, strides=(1,))
+    w = words[off + 8]
+    pair = np.where((w & 0xFF) == _fastscan.MAV1_MAGIC, w >> 24, w >> 40) & 0xFFFF
+    return (((pair & 0xFF) << 8) | (pair >> 8)).astype(np.int32)
 
 
 def _autopilot_source(buf: np.ndarray, dec: dict[str, np.ndarray],
@@ -406,10 +423,39 @@ def _keep_autopilot_params(out: LogContents, buf: np.ndarray, dec: dict[str, np.
         dec["PARAM_VALUE"], offsets["PARAM_VALUE"] = pv[mine], offsets["PARAM_VALUE"][mine]
 
 
+_MIX = np.uint64(0x9E3779B97F4A7C15)       # odd 64-bit constant (Fibonacci hashing)
+
+
+def _last_per_name(names: np.ndarray) -> np.ndarray:
+    """Sorted indices of the last row of each distinct 16-byte ``param_id``.
+
+    What ``_common._params`` keeps of a parameter list repeated many times, found faster:
+    each name's two 64-bit words are mixed into one key and the keys sorted as integers
+    (``np.unique`` on the names themselves sorts 16-byte strings, the slower part of reading
+    a big .tlog). A key shared by two different names (a hash collision) is detected and the
+    names are then compared as strings.
+    """
+    if names.dtype.itemsize != 16 or len(names) == 0:
+        _, first = np.unique(names[::-1], return_index=True)
+        return np.sort(len(names) - 1 - first)
+    words = np.ascontiguousarray(names).view("<u8").reshape(-1, 2)
+    key = words[:, 0] ^ (words[:, 1] * _MIX)
+    _, first, inverse = np.unique(key[::-1], return_index=True, return_inverse=True)
+    rep = len(names) - 1 - first
+    if not np.array_equal(names[rep[inverse]][::-1], names):     # a collision
+        _, first = np.unique(names[::-1], return_index=True)
+        rep = len(names) - 1 - first
+    return np.sort(rep)
+
+
 def _metadata(out: LogContents, dec: dict[str, np.ndarray]) -> None:
     """Parameters, STATUSTEXT messages, vehicle and firmware."""
     pv = dec["PARAM_VALUE"]
-    _params(out, pv["param_id"], pv["param_value"], "PARAM_VALUE")
+    names, values = pv["param_id"], pv["param_value"]
+    if np.isfinite(values).all():       # the same params, in the same order, from fewer rows
+        last = _last_per_name(names)
+        names, values = names[last], values[last]
+    _params(out, names, values, "PARAM_VALUE")
     for s in dec["STATUSTEXT"]:
         text = cstr(s["text"])
         out.messages.append(text)
