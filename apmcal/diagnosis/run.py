@@ -163,7 +163,7 @@ def _rank_and_select(ev: Evaluator, names, say):
         say("null sessions")
         ranked = _calibrated(ev, ranked, len(testable(ev, candidates(names))), say=say)
         say("combination")
-        return ranked, forward_selection(ev, ranked)
+        return ranked, forward_selection(ev, ranked, chance_on_top=null.chance_on_top)
     slow_names = [n for n in candidates(names) if n not in FINE_EFFECTS]
     fine_names = [n for n in candidates(names) if n in FINE_EFFECTS]
     family = len(testable(ev, fine_names)) + len(testable(ev.slow, slow_names))
@@ -176,8 +176,10 @@ def _rank_and_select(ev: Evaluator, names, say):
     ranked_slow = _calibrated(ev, ranked_slow, family, stage=lambda null: null.slow,
                               base=carried, scored_by=ev.slow, say=say)
     say("combination")
-    slow = forward_selection(ev.slow, ranked_slow, base=carried)
-    fine = forward_selection(ev, ranked_fine, base=tuple(slow.order()))
+    slow = forward_selection(ev.slow, ranked_slow, base=carried,
+                             chance_on_top=null.chance_on_top)
+    fine = forward_selection(ev, ranked_fine, base=tuple(slow.order()),
+                             chance_on_top=null.chance_on_top)
     return rank(ranked_slow + ranked_fine), merged(slow, fine)
 
 

@@ -188,6 +188,19 @@ def on_top(evaluator, model: tuple, trial) -> NullDraws | None:
     return draws
 
 
+def chance_on_top(evaluator, model: tuple, trial) -> float | None:
+    """The p-value of ``trial`` against sessions drawn from ``model`` (:func:`on_top`) when
+    chance gives it as much there — it must not join ``model`` — else None. On top of nothing
+    the nominal model's null has judged it already."""
+    if not model:
+        return None
+    draws = on_top(evaluator, model, trial)
+    if draws is None:
+        return None
+    p = draws.p_value(trial.evidence)
+    return p if p is not None and p >= draws.level else None
+
+
 def apply(ranked: list, draws: dict, evaluator, family: int) -> list:
     """``ranked`` with each calibrated candidate's p-value and threshold filled in, supported
     only when its p-value is below α / M; the thresholds set on ``evaluator`` (what the

@@ -244,14 +244,17 @@ class Selection:
 
 
 def forward_selection(evaluator, ranked: list[EffectScore], max_rounds: int = MAX_ROUNDS,
-                      base: tuple = ()) -> Selection:
+                      base: tuple = (), chance_on_top=None) -> Selection:
     """Stepwise selection among the effects supported alone (module docstring). Every round
     scores each remaining one on top of the current combination and adds the best; then an
     effect added earlier that the later ones explain (no longer supported given all the others:
     a random walk standing in for a temperature drift and a g-sensitivity together) is dropped
     for good. The last round says what each effect left out would still add. ``base``: effects
     already chosen (at another rate, :mod:`apmcal.diagnosis.session.decimate`), part of every model and
-    not questioned here."""
+    not questioned here. ``chance_on_top(evaluator, model, trial)``, when given, says whether
+    chance gives the effect about to join ``model`` as much evidence there (its p-value, or
+    None when not: :func:`apmcal.diagnosis.scoring.null.chance_on_top`); such an effect does
+    not join."""
     base = tuple(base)
     confounded = confounded_effects(evaluator, ranked, base)
     pool = [s.name for s in sorted((s for s in ranked if s.supported and s.name not in confounded),
@@ -270,7 +273,7 @@ def forward_selection(evaluator, ranked: list[EffectScore], max_rounds: int = MA
         best = simplest_best([s for s in trials if s.name not in dropped])
         if best is None or not best.supported or len(base) + len(selected) >= max_rounds:
             break
-        p = _chance_on_top(evaluator, base + tuple(selected), best)
+        p = chance_on_top(evaluator, base + tuple(selected), best) if chance_on_top else None
         if p is not None:
             chance[best.name] = p
             dropped.append(best.name)
@@ -292,21 +295,6 @@ def forward_selection(evaluator, ranked: list[EffectScore], max_rounds: int = MA
     return Selection(selected, joined, beyond, leave_one_out(evaluator, selected, base),
                      confounded, stand_in, {n: required_evidence(evaluator, n) for n in pool},
                      chance)
-
-
-def _chance_on_top(evaluator, model: tuple, trial: EffectScore) -> float | None:
-    """The p-value of ``trial`` on sessions drawn from ``model`` when chance gives it as much
-    there (it must not join), else None. On top of nothing the nominal model's null has
-    already judged it (:mod:`apmcal.diagnosis.scoring.null`)."""
-    from apmcal.diagnosis.scoring.null import on_top
-
-    if not model:
-        return None
-    draws = on_top(evaluator, model, trial)
-    if draws is None:
-        return None
-    p = draws.p_value(trial.evidence)
-    return p if p is not None and p >= draws.level else None
 
 
 def simplest_best(trials: list[EffectScore]) -> EffectScore | None:
