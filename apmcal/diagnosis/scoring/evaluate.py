@@ -7,6 +7,7 @@ average in-sample as well as held-out.
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, replace
 from functools import cached_property
 
@@ -466,13 +467,35 @@ class Evaluator:
         todo.sort(key=lambda key: -len(key & SLOW_TO_FIT))
         if frozenset() in todo and self._cold():
             # the nominal model's folds warm the evaluator: its fit is each fold's nominal fit
-            self.keep_nominal_folds(self.map([("_nominal_fold", (fold, True)) for fold in FOLDS]))
             todo.remove(frozenset())
+            if todo and workers.parallel() and (os.cpu_count() or 1) <= len(FOLDS):
+                self._prefetch_by_fold(todo)
+                return
+            self.keep_nominal_folds(self.map([("_nominal_fold", (fold, True)) for fold in FOLDS]))
         self.warm()
         parts = self.map([("fold_summary", (key, fold)) for key in todo for fold in FOLDS])
         for i, key in enumerate(todo):
             self._summaries[key] = Summary.of_folds(key, parts[i * len(FOLDS):
                                                                (i + 1) * len(FOLDS)])
+
+    def _prefetch_by_fold(self, todo: list) -> None:
+        """:meth:`prefetch` on a cold evaluator with no more cores than folds: one worker per
+        fold fits that fold's nominal model and then, building on it, the fold of every model
+        of ``todo`` — one set of workers instead of one for the nominal folds and another,
+        forked once their state has come back, for the models (a null session's evaluator,
+        :mod:`apmcal.diagnosis.scoring.null`, is always cold). The same numbers: every
+        fold's computation is the same wherever it runs."""
+        lanes = self.run_lanes([[("_nominal_fold", (fold, True))] +
+                                  [("fold_summary", (key, fold)) for key in todo]
+                                  for fold in FOLDS])
+        self.keep_nominal_folds([lane[0] for lane in lanes])
+        for i, key in enumerate(todo):
+            self._summaries[key] = Summary.of_folds(key, [lane[1 + i] for lane in lanes])
+
+    def run_lanes(self, lanes: list) -> list:
+        """:func:`apmcal.diagnosis.compute.workers.run_lanes` of this evaluator's methods."""
+        self.facts()
+        return workers.run_lanes(self, lanes)
 
     def fold_summary(self, key: frozenset, fold: int) -> FoldSummary:
         """One fold of one model, summarised (a :meth:`map` job)."""
