@@ -1,21 +1,32 @@
-"""How long ``apmcal gap`` takes on a ten-minute 400 Hz session, stage by stage.
+"""How long ``apmcal gap`` takes on a ten-minute 400 Hz session, stage by stage, against a peer.
 
-    python benchmarks/gap_speed.py [--rate 400] [--seconds S] [--runs 3] [--before REV]
+    python benchmarks/gap_speed.py [--rate 400] [--seconds S] [--runs 3] [--repeat 2]
+                                   [--before REV | --before none] [--stages-before REV]
 
 The session is simulated once with sitl (the ``diagnosis`` script, 635 s, or padded to
 ``--seconds`` with a still hold; the nominal errors plus temperature drift, a board warming
-up) and kept in ``benchmarks/_data/``. Printed: the time to read it, to cut it into holds and
-moves, to score the nominal model, to rank every candidate, to select a combination, to fit
-the parameters on all the data, and in all; and, as the peer measured in the same run,
-pymavlink's DFReader reading the same file's IMU records; then the whole command as a user runs
-it, in a fresh process (imports included), ``--runs`` times, alternating with the same command of
-revision ``--before`` (its apmcal and sitl exported with ``git archive``; default e130e47, main
-before the speed work that began after it on 2026-11-24), so that both see the same machine
-load. Issue 8's target: under 10 s on this 2-core machine.
+up) and kept in ``benchmarks/_data/``. Printed:
+
+* the diagnosis stage by stage — read, cut into holds and moves, nominal model, candidate
+  effects, null sessions (every "null session k" of the progress text together), combination,
+  selected model — each run ``--repeat`` times in a fresh process, best of them: wall seconds
+  and CPU seconds (this process and its forked workers, user + system); with
+  ``--stages-before REV`` the same for revision REV, alternating;
+* the whole command as a user runs it (``apmcal gap FILE``, a fresh process, imports and
+  printed summary included), ``--runs`` times, alternating with the peer and with the same
+  command of revision ``--before`` (its apmcal and simulator exported with ``git archive``;
+  default e130e47, main before the speed work that began after it on 2026-11-24), so that all
+  see the same machine load; median wall and CPU seconds;
+* the peer, measured in the same run: pymavlink's DFReader reading the same file's IMU and
+  MAG records (``recv_match(type=["IMU", "MAG"])`` to the end), in a fresh process each time
+  too (the read timed, not the import), median wall and CPU seconds;
+* on the last line, the ratio of the whole command to the peer, CPU and wall. The issue's
+  target: the whole command no slower than the peer (ratio ≤ 1), the null sessions included.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import resource
 import statistics
@@ -44,14 +55,114 @@ def make_session(path: Path, rate: float, seconds: float) -> None:
     write_bin(v, path, rate, v.motion.duration + 1.0)
 
 
-def pymavlink_read(path: Path) -> float:
-    from pymavlink import DFReader
+PEER = """
+import resource, sys, time
+from pymavlink import DFReader
+def cpu():
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+start, c0 = time.perf_counter(), cpu()
+log = DFReader.DFReader_binary(sys.argv[1])
+n = 0
+while log.recv_match(type=["IMU", "MAG"]) is not None:
+    n += 1
+print(time.perf_counter() - start, cpu() - c0, n)
+"""
 
-    start = time.perf_counter()
-    log = DFReader.DFReader_binary(str(path))
-    while log.recv_match(type="IMU") is not None:
-        pass
-    return time.perf_counter() - start
+
+def pymavlink_read(path: Path) -> tuple[float, float, int]:
+    """The peer: pymavlink's DFReader reading ``path``'s IMU and MAG records to the end, in a
+    fresh process (the import not timed): (wall [s], CPU [s], records read)."""
+    out = subprocess.run([sys.executable, "-c", PEER, str(path)], check=True,
+                         capture_output=True, text=True).stdout.split()
+    return float(out[0]), float(out[1]), int(out[2])
+
+
+def _cpu() -> float:
+    """CPU seconds of this process and its waited-for children (forked workers), user + system."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+def stage_times(path: Path) -> dict:
+    """{stage: (wall [s], CPU [s])} of the diagnosis of ``path`` in this process; the stages
+    as ``diagnose`` announces them, except that "null sessions" is the time spent in
+    :func:`apmcal.diagnosis.scoring.null.calibrate` (every null session of both rates), and
+    the candidates scored on the block means after the first calibration (which ``diagnose``
+    announces with no stage of their own) are counted in "candidate effects"."""
+    from apmcal.calibration.log import Options
+    from apmcal.diagnosis.run import diagnose
+    from apmcal.diagnosis.scoring import null
+    from apmcal.diagnosis.session.log import session_from_log
+    from apmcal.sources import read_log
+
+    times: dict = {}
+
+    def add(name: str, wall: float, cpu: float) -> None:
+        was = times.get(name, (0.0, 0.0))
+        times[name] = (was[0] + wall, was[1] + cpu)
+
+    start, cpu0 = time.perf_counter(), _cpu()
+    t0, c0 = start, cpu0
+    contents = read_log(path)
+    add("read", time.perf_counter() - t0, _cpu() - c0)
+    t0, c0 = time.perf_counter(), _cpu()
+    session = session_from_log(contents, Options(lat_deg=47.4, lon_deg=8.5))
+    add("cut into holds and moves", time.perf_counter() - t0, _cpu() - c0)
+    stage = {"name": None, "t0": time.perf_counter(), "c0": _cpu()}
+
+    def progress(name: str) -> None:     # diagnose() announces each stage as it starts
+        if not name.startswith("null session"):     # those: within calibrate(), timed by it
+            switch(name)
+
+    def switch(name: str) -> None:
+        now, cpu = time.perf_counter(), _cpu()
+        if stage["name"]:
+            add(stage["name"], now - stage["t0"], cpu - stage["c0"])
+        stage.update(name=name, t0=now, c0=cpu)
+
+    calibrate = null.calibrate
+
+    def timed_calibrate(*args, **kwargs):       # run.py calls null.calibrate
+        switch("null sessions")
+        try:
+            return calibrate(*args, **kwargs)
+        finally:
+            switch("candidate effects")
+
+    null.calibrate = timed_calibrate
+    try:
+        diagnosis = diagnose(session, progress=progress)
+    finally:
+        null.calibrate = calibrate
+    progress("")
+    times["total"] = (time.perf_counter() - start, _cpu() - cpu0)
+    result = diagnosis.result
+    times["_about"] = (f"{path.name}: {len(session.t)} IMU samples, {session.duration:.0f} s "
+                       f"at {session.fs:.0f} Hz; "
+                       f"{sum(not e.get('not_tested') for e in result.effects)} candidates "
+                       f"tested; selected {', '.join(result.selected) or 'nothing'}")
+    return times
+
+
+def stage_times_fresh(path: Path, tree: Path = ROOT) -> dict:
+    """:func:`stage_times` in a fresh process (nothing cached from an earlier run), with
+    ``tree``'s apmcal."""
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    out = subprocess.run([sys.executable, __file__, "--stages-of", str(path)], check=True,
+                         capture_output=True, text=True, env=env).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def print_stages(title: str, repeats: list) -> None:
+    """The best of ``repeats`` (:func:`stage_times` results), stage by stage."""
+    print(f"  {title}, best of {len(repeats)} (each in a fresh process):")
+    print(f"  {'stage':28s} {'wall':>8s} {'CPU':>8s}")
+    for name in repeats[0]:
+        if not name.startswith("_"):
+            wall = min(r[name][0] for r in repeats if name in r)
+            cpu = min(r[name][1] for r in repeats if name in r)
+            print(f"  {name:28s} {wall:7.2f}s {cpu:7.2f}s")
 
 
 def whole_command(path: Path, tree: Path = ROOT) -> tuple[float, float]:
@@ -75,68 +186,62 @@ def main(argv=None) -> None:
     ap.add_argument("--seconds", type=float, default=None,
                     help="session length [s] (default: the diagnosis script's own, 635 s)")
     ap.add_argument("--runs", type=int, default=3, help="runs of the whole command (default 3)")
+    ap.add_argument("--repeat", type=int, default=2,
+                    help="runs of the stage-by-stage diagnosis, each in a fresh process; the "
+                         "best of them is printed (default 2)")
     ap.add_argument("--before", default=BEFORE,
                     help=f"revision to compare the whole command with (default {BEFORE}; "
                          "'none': no comparison)")
+    ap.add_argument("--stages-before", default=None, metavar="REV",
+                    help="also time the stages of revision REV, alternating (its apmcal must "
+                         "have diagnosis.scoring.null)")
+    ap.add_argument("--stages-of", type=Path, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.stages_of is not None:      # one fresh run of stage_times_fresh
+        print(json.dumps(stage_times(args.stages_of)))
+        return
     DATA.mkdir(exist_ok=True)
     path = DATA / f"gap_{int(args.rate)}hz_{int(args.seconds or 0) or 'script'}.bin"
     if not path.exists():
         print(f"simulating {path.name} ...", flush=True)
         make_session(path, args.rate, args.seconds)
 
-    from apmcal.calibration.log import Options
-    from apmcal.diagnosis.run import diagnose
-    from apmcal.diagnosis.session.log import session_from_log
-    from apmcal.sources import read_log
-
-    times = {}
-    start = t0 = time.perf_counter()
-    contents = read_log(path)
-    times["read"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    session = session_from_log(contents, Options(lat_deg=47.4, lon_deg=8.5))
-    times["cut into holds and moves"] = time.perf_counter() - t0
-    stage = {"name": None, "t0": time.perf_counter()}
-
-    def progress(name: str) -> None:     # diagnose() announces each stage as it starts
-        now = time.perf_counter()
-        if stage["name"]:
-            times[stage["name"]] = now - stage["t0"]
-        stage.update(name=name, t0=now)
-
-    diagnosis = diagnose(session, progress=progress)
-    progress("")
-    total = time.perf_counter() - start
-    peer = pymavlink_read(path)
     before = None if args.before == "none" else export_tree(args.before)
-    commands, commands_before = [], []
-    for _ in range(args.runs):      # alternating: both see the same load
+    stages_before = None if args.stages_before is None else export_tree(args.stages_before)
+    repeats, repeats_before = [], []
+    for _ in range(max(args.repeat, 1)):        # alternating, as below
+        repeats.append(stage_times_fresh(path))
+        if stages_before is not None:
+            repeats_before.append(stage_times_fresh(path, stages_before))
+    commands, commands_before, peers = [], [], []
+    for _ in range(args.runs):      # alternating: all see the same load
         commands.append(whole_command(path))
+        peers.append(pymavlink_read(path))
         if before is not None:
             commands_before.append(whole_command(path, before))
-    command = statistics.median(w for w, _ in commands)
-    cpu = statistics.median(c for _, c in commands)
-    result = diagnosis.result
-    print(f"{path.name}: {len(session.t)} IMU samples, {session.duration:.0f} s at "
-          f"{session.fs:.0f} Hz; {sum(not e.get('not_tested') for e in result.effects)} "
-          f"candidates tested; selected {', '.join(result.selected) or 'nothing'}")
-    for name, seconds in times.items():
-        print(f"  {name:28s} {seconds:7.2f} s")
-    print(f"  {'total':28s} {total:7.2f} s   (target < 10 s)")
+    print(repeats[0]["_about"])
+    print_stages("the diagnosis in one process, stage by stage", repeats)
+    if repeats_before:
+        print_stages(f"the same at {args.stages_before}", repeats_before)
     walls = [w for w, _ in commands]
-    print(f"  {'the whole command':28s} {command:7.2f} s   (`apmcal gap FILE` in a fresh "
-          f"process, median of {args.runs}, min {min(walls):.2f}, max {max(walls):.2f}; "
-          f"{command - total:.2f} s more than the diagnosis in this process; {cpu:.1f} "
-          f"CPU-seconds)")
+    command = statistics.median(walls)
+    cpu = statistics.median(c for _, c in commands)
+    print(f"  {'the whole command':28s} {command:7.2f}s {cpu:7.2f}s   (`apmcal gap FILE` in a "
+          f"fresh process, median of {args.runs}, wall min {min(walls):.2f}, "
+          f"max {max(walls):.2f})")
     if commands_before:
         was = [w for w, _ in commands_before]
-        print(f"  {'the same command at ' + args.before:28s} {statistics.median(was):7.2f} s   "
-              f"(min {min(was):.2f}, max {max(was):.2f}; "
-              f"{statistics.median(c for _, c in commands_before):.1f} CPU-seconds): now "
-              f"{statistics.median(was) / command:.2f}× as fast")
-    print(f"  pymavlink DFReader reading the IMU records: {peer:.2f} s; apmcal gap in all "
-          f"{total / peer:.1f}× that")
+        was_cpu = statistics.median(c for _, c in commands_before)
+        print(f"  {'the same command at ' + args.before:28s} {statistics.median(was):7.2f}s "
+              f"{was_cpu:7.2f}s   (min {min(was):.2f}, max {max(was):.2f}): now "
+              f"{statistics.median(was) / command:.2f}× as fast (wall), "
+              f"{was_cpu / cpu:.2f}× (CPU)")
+    peer_wall = statistics.median(w for w, _, _ in peers)
+    peer_cpu = statistics.median(c for _, c, _ in peers)
+    print(f"  {'pymavlink DFReader IMU+MAG':28s} {peer_wall:7.2f}s {peer_cpu:7.2f}s   "
+          f"({peers[0][2]} records, median of {len(peers)})")
+    print(f"apmcal gap / DFReader (IMU and MAG records): CPU {cpu / peer_cpu:.2f}×, "
+          f"wall {command / peer_wall:.2f}×   (target ≤ 1)")
 
 
 if __name__ == "__main__":

@@ -40,6 +40,20 @@ def run(target, jobs: list[tuple[str, tuple]]) -> list:
         return [_unship(r) for r in pool.map(_call, jobs, chunksize=1)]
 
 
+def run_lanes(target, lanes: list[list[tuple[str, tuple]]]) -> list[list]:
+    """Each lane's jobs (as for :func:`run`) one after the other in one forked worker, the
+    lanes side by side: ``[[target.method(*args) for method, args in lane] for lane in lanes]``.
+
+    For jobs that build on what an earlier one of the same lane leaves in the worker (the
+    nominal fit of a fold, then the other models of that fold), where :func:`run` would
+    have to send that state back and fork new workers that inherit it."""
+    if len(lanes) < 2 or not parallel():
+        return [[getattr(target, method)(*args) for method, args in lane] for lane in lanes]
+    with _pool(target, min(len(lanes), os.cpu_count() or 1)) as pool:
+        return [_unship(r) for r in pool.map(_call, [("_lane", (lane,)) for lane in lanes],
+                                             chunksize=1)]
+
+
 def beside(target, jobs: list[tuple[str, tuple]], work, hand_over: bool = False):
     """``work()`` in this process while ``jobs`` (as for :func:`run`) run in forked workers,
     one per job up to one per core; returns (work's result, the jobs' results).
@@ -104,7 +118,10 @@ def _call(job):
     _IN_WORKER = True
     method, args = job
     memo.start_recording()
-    result = getattr(_TARGET, method)(*args)
+    if method == "_lane":       # run_lanes: the lane's jobs in turn
+        result = [getattr(_TARGET, m)(*a) for m, a in args[0]]
+    else:
+        result = getattr(_TARGET, method)(*args)
     data = pickle.dumps((result, memo.recorded()), protocol=pickle.HIGHEST_PROTOCOL)
     if len(data) < SHIP_BY_FILE_BYTES or _SHIP_DIR is None:
         return data

@@ -7,6 +7,7 @@ average in-sample as well as held-out.
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, replace
 from functools import cached_property
 
@@ -229,18 +230,6 @@ class Evaluator:
     def __init__(self, session, seed: int = 0):
         self.session = session
         self.seed = seed
-        self.reduced = reduce_session(session)
-        self.field_mgauss, self.declination_rad = earth_field(session)
-        self.steps = lattice_steps(session)
-        self.floors = variance_floors(session, self.steps)
-        self.context = Context(count_orientations(self.reduced.acc, "acc"), self.steps)
-        self.sample_sigma = sample_sigma(session)
-        self.fs_of = {"acc": session.fs, "gyr": session.fs}
-        # the samples the moves' integration reads: the same for the session and its twins
-        # (simulated on its sample axis), so found once
-        self.move_rows = Moves.of(session).rows()
-        if session.mag is not None:
-            self.fs_of["mag"] = float(1.0 / np.median(np.diff(session.mag.t)))
         # evidence [nats] each candidate must reach, where the null calibration set one
         # (apmcal.diagnosis.scoring.null); MIN_EVIDENCE_NATS elsewhere
         self.min_evidence: dict[str, float] = {}
@@ -251,6 +240,74 @@ class Evaluator:
         self._summaries: dict[frozenset, Summary] = {}
         self._motion: dict = {}     # per fold: the real motion (poses, moves, hold motion)
         self._real_models: dict = {}    # (effects but the noise's, fold, σ) -> _model's result
+
+    # What the session offers every model, each found from the session alone on first use: an
+    # evaluator made only for its block means (:attr:`slow`, e.g. a null session's scored on
+    # them) never needs those of the recorded rate. :meth:`facts` finds them all before work
+    # is spread over forked workers, which would otherwise each find them anew.
+
+    @cached_property
+    def reduced(self):
+        """The session's hold blocks (:func:`apmcal.diagnosis.model.nominal.reduce_session`)."""
+        return reduce_session(self.session)
+
+    @cached_property
+    def _earth(self) -> tuple:
+        return earth_field(self.session)
+
+    @property
+    def field_mgauss(self) -> float | None:
+        """WMM field magnitude at the site [mGauss] (None: not known)."""
+        return self._earth[0]
+
+    @property
+    def declination_rad(self) -> float:
+        """Magnetic declination at the site [rad] (0 when the field is not known)."""
+        return self._earth[1]
+
+    @cached_property
+    def steps(self) -> dict:
+        """Quantization step per axis of each sensor (:func:`~apmcal.diagnosis.session.facts.
+        lattice_steps`)."""
+        return lattice_steps(self.session)
+
+    @cached_property
+    def floors(self) -> dict:
+        """Variance floor of each channel [unit²] (:func:`~apmcal.diagnosis.session.facts.
+        variance_floors`)."""
+        return variance_floors(self.session, self.steps)
+
+    @cached_property
+    def context(self) -> Context:
+        """What the session offers the candidate effects."""
+        return Context(count_orientations(self.reduced.acc, "acc"), self.steps)
+
+    @cached_property
+    def sample_sigma(self) -> dict:
+        """Per-sample noise of the accelerometer [m/s²] and compass [mGauss] in the holds."""
+        return sample_sigma(self.session)
+
+    @cached_property
+    def fs_of(self) -> dict:
+        """Sample rate of each sensor [Hz]."""
+        session = self.session
+        out = {"acc": session.fs, "gyr": session.fs}
+        if session.mag is not None:
+            out["mag"] = float(1.0 / np.median(np.diff(session.mag.t)))
+        return out
+
+    @cached_property
+    def move_rows(self) -> np.ndarray:
+        """The samples the moves' integration reads: the same for the session and its twins
+        (simulated on its sample axis), so found once."""
+        return Moves.of(self.session).rows()
+
+    def facts(self) -> "Evaluator":
+        """Find everything above now (before models are spread over forked workers)."""
+        for name in ("reduced", "_earth", "steps", "floors", "context", "sample_sigma",
+                     "fs_of", "move_rows"):
+            getattr(self, name)
+        return self
 
     def steps_for(self, effects) -> dict:
         """Quantization steps the model reproduces: the log format's always, the sensors'
@@ -424,13 +481,35 @@ class Evaluator:
         todo.sort(key=lambda key: -len(key & SLOW_TO_FIT))
         if frozenset() in todo and self._cold():
             # the nominal model's folds warm the evaluator: its fit is each fold's nominal fit
-            self.keep_nominal_folds(self.map([("_nominal_fold", (fold, True)) for fold in FOLDS]))
             todo.remove(frozenset())
+            if todo and workers.parallel() and (os.cpu_count() or 1) <= len(FOLDS):
+                self._prefetch_by_fold(todo)
+                return
+            self.keep_nominal_folds(self.map([("_nominal_fold", (fold, True)) for fold in FOLDS]))
         self.warm()
         parts = self.map([("fold_summary", (key, fold)) for key in todo for fold in FOLDS])
         for i, key in enumerate(todo):
             self._summaries[key] = Summary.of_folds(key, parts[i * len(FOLDS):
                                                                (i + 1) * len(FOLDS)])
+
+    def _prefetch_by_fold(self, todo: list) -> None:
+        """:meth:`prefetch` on a cold evaluator with no more cores than folds: one worker per
+        fold fits that fold's nominal model and then, building on it, the fold of every model
+        of ``todo`` — one set of workers instead of one for the nominal folds and another,
+        forked once their state has come back, for the models (a null session's evaluator,
+        :mod:`apmcal.diagnosis.scoring.null`, is always cold). The same numbers: every
+        fold's computation is the same wherever it runs."""
+        lanes = self.run_lanes([[("_nominal_fold", (fold, True))] +
+                                  [("fold_summary", (key, fold)) for key in todo]
+                                  for fold in FOLDS])
+        self.keep_nominal_folds([lane[0] for lane in lanes])
+        for i, key in enumerate(todo):
+            self._summaries[key] = Summary.of_folds(key, [lane[1 + i] for lane in lanes])
+
+    def run_lanes(self, lanes: list) -> list:
+        """:func:`apmcal.diagnosis.compute.workers.run_lanes` of this evaluator's methods."""
+        self.facts()
+        return workers.run_lanes(self, lanes)
 
     def fold_summary(self, key: frozenset, fold: int) -> FoldSummary:
         """One fold of one model, summarised (a :meth:`map` job)."""
@@ -478,7 +557,7 @@ class Evaluator:
         than that. Made once, in this process, so that forked workers inherit it."""
         if not self.decimates:
             return self
-        return Evaluator(decimated(self.session, block_factor(self.session.fs)), self.seed)
+        return Evaluator(decimated(self.session, block_factor(self.session.fs)), self.seed).facts()
 
     def _slow_nominal_fold(self, fold: int) -> tuple:
         """:meth:`_nominal_fold` of :attr:`slow` (a job: workers call methods of this one)."""
@@ -498,6 +577,7 @@ class Evaluator:
     def map(self, jobs: list[tuple[str, tuple]]) -> list:
         """``[self.method(*args) for method, args in jobs]``, spread over every core
         (:func:`apmcal.diagnosis.compute.workers.run`)."""
+        self.facts()
         return workers.run(self, jobs)
 
     def gap_of(self, effects) -> dict:
@@ -530,6 +610,7 @@ class Evaluator:
         then = then or (lambda evaluation: evaluation)
         meanwhile = meanwhile or (lambda: None)
         key = frozenset(effects)
+        self.facts()
         if key in self._cache:
             def done():
                 meanwhile()
