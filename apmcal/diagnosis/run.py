@@ -172,7 +172,9 @@ def _rank_and_select(ev: Evaluator, names, say):
     say("null sessions")
     ranked_fine = _calibrated(ev, ranked_fine, family, say=say)
     carried = tuple(s.name for s in ranked_fine if s.supported and s.name in SHAPES_BLOCK_MEANS)
+    say("slow candidate effects (block means)")
     ranked_slow = rank_effects(ev.slow, slow_names, base=carried)
+    say("null sessions (block means)")
     ranked_slow = _calibrated(ev, ranked_slow, family, stage=lambda null: null.slow,
                               base=carried, scored_by=ev.slow, say=say)
     say("combination")
