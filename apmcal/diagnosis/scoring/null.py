@@ -41,6 +41,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import stdtr, stdtrit
 
+from apmcal.diagnosis.scoring.evaluate import Evaluator
+from apmcal.diagnosis.scoring.select import rank, score, testable
+
 ALPHA = 0.05            # family-wise false-alarm rate per session
 MIN_DRAWS = 5           # null sessions every calibrated candidate gets
 MAX_DRAWS = 12          # ... at most
@@ -136,9 +139,6 @@ def calibrate(evaluator, ranked: list, family: int, stage=None, base: tuple = ()
     -------
     dict of str to NullDraws
     """
-    from apmcal.diagnosis.scoring.evaluate import Evaluator
-    from apmcal.diagnosis.scoring.select import score
-
     stage = stage or (lambda ev: ev)
     real = {s.name: s.evidence for s in ranked if s.supported}
     draws = {name: NullDraws(name, [], family) for name in real}
@@ -150,7 +150,7 @@ def calibrate(evaluator, ranked: list, family: int, stage=None, base: tuple = ()
         if say:
             say(f"null session {draw + 1} ({', '.join(pending)})")
         null_ev = stage(Evaluator(evaluator.nominal_draw(draw), evaluator.seed))
-        names = [n for n in pending if n in _testable(null_ev, pending)]
+        names = testable(null_ev, pending)
         null_ev.prefetch([base] + [base + (n,) for n in names])
         for n in pending:
             draws[n].evidence.append(score(null_ev, base, n).evidence if n in names
@@ -169,9 +169,6 @@ def on_top(evaluator, model: tuple, trial) -> NullDraws | None:
     -------
     NullDraws or None
     """
-    from apmcal.diagnosis.scoring.evaluate import Evaluator
-    from apmcal.diagnosis.scoring.select import score, testable
-
     if evaluator.null_family is None:
         return None
     model = tuple(model)
@@ -220,8 +217,6 @@ def apply(ranked: list, draws: dict, evaluator, family: int) -> list:
     -------
     list of EffectScore
     """
-    from apmcal.diagnosis.scoring.select import rank
-
     evaluator.null_family = family
     for s in ranked:
         d = draws.get(s.name)
@@ -235,9 +230,3 @@ def apply(ranked: list, draws: dict, evaluator, family: int) -> list:
         s.supported = bool(s.supported and s.null_p_value < d.level)
         evaluator.min_evidence[s.name] = s.null_threshold
     return rank(ranked)
-
-
-def _testable(evaluator, names) -> list:
-    from apmcal.diagnosis.scoring.select import testable
-
-    return testable(evaluator, names)
