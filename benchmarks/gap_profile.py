@@ -34,10 +34,11 @@ def main(argv=None) -> None:
         print(f"simulating {path.name} ...", flush=True)
         make_session(path, 400.0, None)
 
+    from gap_speed import stage_of
+
     from apmcal.calibration.log import Options
     from apmcal.diagnosis.compute import workers
     from apmcal.diagnosis.run import diagnose
-    from apmcal.diagnosis.scoring import null
     from apmcal.diagnosis.session.log import session_from_log
     from apmcal.sources import read_log
 
@@ -57,18 +58,11 @@ def main(argv=None) -> None:
             profile.enable()
         stage.update(name=name, t0=now)
 
-    calibrate = null.calibrate
+    def progress(announced: str) -> None:     # diagnose() announces each stage as it starts
+        if stage_of(announced) is not None:
+            switch(stage_of(announced))
 
-    def timed_calibrate(*a, **k):
-        switch("null sessions")
-        try:
-            return calibrate(*a, **k)
-        finally:
-            switch("candidate effects")
-
-    null.calibrate = timed_calibrate
-    diagnose(session, progress=lambda name: None if name.startswith("null session")
-             else switch(name))
+    diagnose(session, progress=progress)
     switch("")
     profile.disable()
     print("CPU seconds per stage (under the profiler, no workers):")

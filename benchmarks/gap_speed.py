@@ -84,15 +84,24 @@ def _cpu() -> float:
     return t.user + t.system + t.children_user + t.children_system
 
 
+def stage_of(announced: str) -> str | None:
+    """The benchmark's stage for a stage ``diagnose`` announces: its null sessions of both
+    rates are one stage, "null sessions", and its candidates scored on the block means count in
+    "candidate effects"; None for the progress of one null session (no new stage)."""
+    if announced.startswith("null sessions"):
+        return "null sessions"
+    if announced.startswith("null session"):
+        return None
+    if announced.startswith("slow candidate effects"):
+        return "candidate effects"
+    return announced
+
+
 def stage_times(path: Path) -> dict:
     """{stage: (wall [s], CPU [s])} of the diagnosis of ``path`` in this process; the stages
-    as ``diagnose`` announces them, except that "null sessions" is the time spent in
-    :func:`apmcal.diagnosis.scoring.null.calibrate` (every null session of both rates), and
-    the candidates scored on the block means after the first calibration (which ``diagnose``
-    announces with no stage of their own) are counted in "candidate effects"."""
+    as ``diagnose`` announces them, merged by :func:`stage_of`."""
     from apmcal.calibration.log import Options
     from apmcal.diagnosis.run import diagnose
-    from apmcal.diagnosis.scoring import null
     from apmcal.diagnosis.session.log import session_from_log
     from apmcal.sources import read_log
 
@@ -111,30 +120,16 @@ def stage_times(path: Path) -> dict:
     add("cut into holds and moves", time.perf_counter() - t0, _cpu() - c0)
     stage = {"name": None, "t0": time.perf_counter(), "c0": _cpu()}
 
-    def progress(name: str) -> None:     # diagnose() announces each stage as it starts
-        if not name.startswith("null session"):     # those: within calibrate(), timed by it
-            switch(name)
-
-    def switch(name: str) -> None:
+    def progress(announced: str) -> None:     # diagnose() announces each stage as it starts
+        name = stage_of(announced)
+        if name is None:
+            return
         now, cpu = time.perf_counter(), _cpu()
         if stage["name"]:
             add(stage["name"], now - stage["t0"], cpu - stage["c0"])
         stage.update(name=name, t0=now, c0=cpu)
 
-    calibrate = null.calibrate
-
-    def timed_calibrate(*args, **kwargs):       # run.py calls null.calibrate
-        switch("null sessions")
-        try:
-            return calibrate(*args, **kwargs)
-        finally:
-            switch("candidate effects")
-
-    null.calibrate = timed_calibrate
-    try:
-        diagnosis = diagnose(session, progress=progress)
-    finally:
-        null.calibrate = calibrate
+    diagnosis = diagnose(session, progress=progress)
     progress("")
     times["total"] = (time.perf_counter() - start, _cpu() - cpu0)
     result = diagnosis.result

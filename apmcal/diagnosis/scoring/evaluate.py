@@ -415,16 +415,12 @@ class Evaluator:
                                                        with_sigma=True)[:2]
         return self._motion[("nominal", fold)]
 
-    def nominal_draw(self, draw: int):
-        """A session drawn from the fitted nominal model: this session's times, poses, moves,
-        temperatures and current, its readings simulated afresh from the nominal fit of fold
-        ``draw % 2`` with noise seed ``NULL_SEEDS + draw`` (none of the twins' seeds) — a
-        session in which no candidate effect exists (:mod:`apmcal.diagnosis.scoring.null`)."""
-        return self.model_draw((), draw)
-
     def model_draw(self, effects, draw: int):
-        """:meth:`nominal_draw` from the model nominal + ``effects`` fitted on fold
-        ``draw % 2``: a session in which exactly those effects exist."""
+        """A session drawn from the fitted model nominal + ``effects``: this session's times,
+        poses, moves, temperatures and current, its readings simulated afresh from that model's
+        fit on fold ``draw % 2`` with noise seed ``NULL_SEEDS + draw`` (none of the twins'
+        seeds) — a session in which exactly those effects exist, no other candidate
+        (:mod:`apmcal.diagnosis.scoring.null`)."""
         fold, key = draw % 2, frozenset(effects)
         if not key:
             fit, noise = self._nominal(fold)

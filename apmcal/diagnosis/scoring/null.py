@@ -10,7 +10,7 @@ bootstrap [Efron] ch. 6:
 1. *Null sessions*: the real session's sample times, poses, moves, temperatures and current,
    with the sensor readings drawn afresh from the **fitted nominal model** (its errors and
    noise, formatted as the log formats them), the two folds' nominal fits taking turns
-   (:meth:`~apmcal.diagnosis.scoring.evaluate.Evaluator.nominal_draw`). Each is a session in which
+   (:meth:`~apmcal.diagnosis.scoring.evaluate.Evaluator.model_draw`). Each is a session in which
    no candidate effect exists.
 2. Each null session is scored **exactly as the real one**: a fresh evaluator fits the nominal
    model and the candidate on top of the same base, simulates their twins (with the real
@@ -114,14 +114,14 @@ class NullDraws:
 
 
 def calibrate(evaluator, ranked: list, family: int, stage=None, base: tuple = (),
-              say=None) -> dict:
+              say=None, drawn_from: tuple = ()) -> dict:
     """The null draws of every candidate of ``ranked`` that is supported so far.
 
     Parameters
     ----------
     evaluator : Evaluator
-        The real session's evaluator at its recorded rate: the null sessions are drawn from
-        its nominal model.
+        The real session's evaluator: the null sessions are drawn from its fit of the
+        nominal model plus ``drawn_from``.
     ranked : list of EffectScore
         The candidates scored alone on the real session (on top of ``base``).
     family : int
@@ -134,6 +134,9 @@ def calibrate(evaluator, ranked: list, family: int, stage=None, base: tuple = ()
         Effects every model of this stage includes (the same as on the real session).
     say : callable, optional
         Progress text.
+    drawn_from : tuple of str
+        The effects of the model the null sessions are drawn from, on top of the nominal
+        ones (none: the nominal model).
 
     Returns
     -------
@@ -149,7 +152,7 @@ def calibrate(evaluator, ranked: list, family: int, stage=None, base: tuple = ()
             break
         if say:
             say(f"null session {draw + 1} ({', '.join(pending)})")
-        null_ev = stage(Evaluator(evaluator.nominal_draw(draw), evaluator.seed))
+        null_ev = stage(Evaluator(evaluator.model_draw(drawn_from, draw), evaluator.seed))
         names = testable(null_ev, pending)
         null_ev.prefetch([base] + [base + (n,) for n in names])
         for n in pending:
@@ -172,17 +175,8 @@ def on_top(evaluator, model: tuple, trial) -> NullDraws | None:
     if evaluator.null_family is None:
         return None
     model = tuple(model)
-    draws = NullDraws(trial.name, [], evaluator.null_family)
-    for draw in range(MAX_DRAWS):
-        if draws.decided(trial.evidence):
-            break
-        null_ev = Evaluator(evaluator.model_draw(model, draw), evaluator.seed)
-        if not testable(null_ev, [trial.name]):
-            draws.evidence.append(float("nan"))
-            continue
-        null_ev.prefetch([model, model + (trial.name,)])
-        draws.evidence.append(score(null_ev, model, trial.name).evidence)
-    return draws
+    return calibrate(evaluator, [trial], evaluator.null_family, base=model,
+                     drawn_from=model)[trial.name]
 
 
 def chance_on_top(evaluator, model: tuple, trial) -> float | None:

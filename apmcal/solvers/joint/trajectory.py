@@ -27,6 +27,8 @@ session), far below any sensor noise.
 """
 from __future__ import annotations
 
+from functools import cached_property
+
 import numpy as np
 
 from apmcal.solvers.joint.model import correct_acc, correct_gyr, correct_mag, matrices
@@ -221,7 +223,6 @@ class Trajectory:
         self.w = correct_gyr(d.gyr, self.a, self.mats)
         self.mc = correct_mag(d.mag, self.mats) if d.mag is not None else None
         self.frame = frames(midpoint(self.w) * d.dt[:, None])
-        self._velocity = None
         self._dt = d.dt
 
     def rotation(self, s: np.ndarray, e: np.ndarray) -> np.ndarray:
@@ -238,13 +239,10 @@ class Trajectory:
         """
         return transposed(self.frame[s]) @ self.frame[e]
 
-    @property
+    @cached_property
     def velocity(self) -> np.ndarray:
         """V (n+1, 3): V_k = Σ_{l<k} Q_l·a_l·Δt_l [m/s], in the first sample's frame."""
-        if self._velocity is None:
-            self._velocity = running_sum(np.einsum("nij,nj->ni", self.frame[:-1],
-                                                   self.a * self._dt[:, None]))
-        return self._velocity
+        return running_sum(np.einsum("nij,nj->ni", self.frame[:-1], self.a * self._dt[:, None]))
 
     def delta_v(self, s: np.ndarray, e: np.ndarray) -> np.ndarray:
         """Σ_{s≤k<e} dR(s, k)·a_k·Δt_k [m/s] (W, 3), in the frame at s ([Chow] eq. 11).
