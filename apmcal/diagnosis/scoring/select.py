@@ -155,7 +155,7 @@ def required_evidence(evaluator, name: str) -> float:
     """The evidence [nats] candidate ``name`` must reach on ``evaluator``'s session:
     ``MIN_EVIDENCE_NATS``, or its null distribution's quantile when that is higher
     (:mod:`apmcal.diagnosis.scoring.null`)."""
-    return max(MIN_EVIDENCE_NATS, getattr(evaluator, "min_evidence", {}).get(name, -np.inf))
+    return max(MIN_EVIDENCE_NATS, evaluator.min_evidence.get(name, -np.inf))
 
 
 def rank(scores: list[EffectScore]) -> list[EffectScore]:
