@@ -135,15 +135,7 @@ def print_effects(result, console) -> None:
                  and not e.get("confounded_with")]
     if redundant:
         _say(console, "  supported alone, but explained by the selection (evidence left on top "
-                      "of it): " + ", ".join(f"{e['name']} {_shrink(e)} "
-                                             f"({e.get('evidence_beyond_selection_nats', 0):.0f}"
-                                             + (f"; stands in for {e['stands_in_for']}"
-                                                if e.get("stands_in_for") else "")
-                                             + (f"; chance gives as much on sessions drawn "
-                                                f"from the selection: p "
-                                                f"{e['chance_on_top_p_value']:.2g}"
-                                                if e.get("chance_on_top_p_value") is not None
-                                                else "") + ")"
+                      "of it): " + ", ".join(f"{e['name']} {_shrink(e)} ({_left_out(e)})"
                                              for e in redundant))
     odd = [e for e in tested if e.get("implausible")]
     if odd:
@@ -173,6 +165,18 @@ def rate_note(result) -> str | None:
             f"on top of a low-pass filter when one was found; rounding, the low-pass filter "
             f"and the noise's distribution at the recorded {rate:.0f} Hz, on top of the slow "
             f"effects selected")
+
+
+def _left_out(e: dict) -> str:
+    """What an effect supported alone still adds on top of the selection [nats], and why it
+    is not in it when the selection says so."""
+    parts = [f"{e.get('evidence_beyond_selection_nats', 0):.0f}"]
+    if e.get("stands_in_for"):
+        parts.append(f"stands in for {e['stands_in_for']}")
+    if e.get("chance_on_top_p_value") is not None:
+        parts.append("chance gives as much on sessions drawn from the selection: p "
+                     f"{e['chance_on_top_p_value']:.2g}")
+    return "; ".join(parts)
 
 
 def _by_chance(e: dict) -> str:
