@@ -38,7 +38,7 @@ def test_p_value_is_the_predictive_t_tail():
 
 
 def test_draws_stop_when_the_decision_is_plain():
-    few = NullDraws("x", [1.0, 2.0, 3.0], family=15)
+    few = NullDraws("x", list(np.linspace(1.0, 3.0, MIN_DRAWS - 1)), family=15)
     assert not few.decided(1e4)                     # fewer than MIN_DRAWS
     plain = NullDraws("x", list(np.linspace(-3, 3, MIN_DRAWS)), family=15)
     assert plain.decided(1e4) and plain.decided(-10.0)
@@ -74,6 +74,36 @@ def test_an_injected_gyro_scale_is_still_found(tmp_path):
     assert entry["null_p_value"] < ALPHA / 10 and entry["null_sessions"] >= MIN_DRAWS
     scale = np.asarray(entry["params"]["scale"]["value"])
     assert np.allclose(scale, [1.01, 0.99, 1.005], atol=1e-3)
+
+
+def test_nulls_drawn_on_first_need_decide_as_nulls_drawn_for_every_candidate(tmp_path,
+                                                                              monkeypatch):
+    """The lazy calibration (null.Calibration) against the eager one it replaces: every
+    candidate supported alone calibrated before the selection starts."""
+    from apmcal.diagnosis import run
+
+    lazy = _diagnosed(tmp_path, 7, gyro_scale=[1.01, 0.99, 1.005])
+    selection = run.forward_selection
+
+    def eager(evaluator, ranked, **kwargs):
+        for s in ranked:
+            if s.supported:
+                evaluator.chance.calibrated(s.name)
+        return selection(evaluator, ranked, **kwargs)
+
+    monkeypatch.setattr(run, "forward_selection", eager)
+    every = _diagnosed(tmp_path, 7, gyro_scale=[1.01, 0.99, 1.005])
+    assert lazy.selected == every.selected
+    drawn = {e["name"]: e for e in every.effects}
+    assert any(e["null_sessions"] for e in every.effects)
+    for e in lazy.effects:
+        other = drawn[e["name"]]
+        assert e["significant"] == other["significant"], e["name"]
+        if e["null_sessions"]:      # drawn lazily: the very draws the eager calibration made
+            assert (e["null_sessions"], e["null_p_value"]) == \
+                (other["null_sessions"], other["null_p_value"]), e["name"]
+        else:
+            assert other["null_sessions"] == 0 or not e["significant"]
 
 
 def test_an_effect_refused_on_top_of_the_selection_is_not_significant():

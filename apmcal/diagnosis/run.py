@@ -155,43 +155,40 @@ def _rank_and_select(ev: Evaluator, names, say):
     a low-pass filter when one was found (it colours the noise down into the slow band: left
     out, a random walk would stand in for it); then the fine effects' combination at the
     recorded rate, on top of the slow effects selected. Each stage's candidates are calibrated
-    on null sessions scored in that same stage (:mod:`apmcal.diagnosis.scoring.null`)."""
+    on null sessions scored in that same stage, when the selection first needs a candidate's
+    (:class:`apmcal.diagnosis.scoring.null.Calibration`)."""
     preload_imports()       # before the first workers that may need them are forked
     if not ev.decimates:
         say("candidate effects")
         ranked = rank_effects(ev, names)
-        say("null sessions")
-        ranked = _calibrated(ev, ranked, len(testable(ev, candidates(names))), say=say)
         say("combination")
-        return ranked, forward_selection(ev, ranked, chance_on_top=null.chance_on_top)
+        ev.chance = null.Calibration(ev, ev, ranked, len(testable(ev, candidates(names))),
+                                     say=say, within="combination")
+        selection = forward_selection(ev, ranked, chance_on_top=null.chance_on_top)
+        return rank(ranked), selection
     slow_names = [n for n in candidates(names) if n not in FINE_EFFECTS]
     fine_names = [n for n in candidates(names) if n in FINE_EFFECTS]
     family = len(testable(ev, fine_names)) + len(testable(ev.slow, slow_names))
     say("candidate effects")
     ranked_fine = rank_effects(ev, fine_names)
-    say("null sessions")
-    ranked_fine = _calibrated(ev, ranked_fine, family, say=say)
+    ev.chance = null.Calibration(ev, ev, ranked_fine, family, say=say,
+                                 within="candidate effects")
+    for s in ranked_fine:   # a low-pass filter carried under the slow effects must be beyond
+        if s.supported and s.name in SHAPES_BLOCK_MEANS:    # chance itself: its null now
+            ev.chance.calibrated(s.name)
     carried = tuple(s.name for s in ranked_fine if s.supported and s.name in SHAPES_BLOCK_MEANS)
     say("slow candidate effects (block means)")
     ranked_slow = rank_effects(ev.slow, slow_names, base=carried)
-    say("null sessions (block means)")
-    ranked_slow = _calibrated(ev, ranked_slow, family, stage=lambda null: null.slow,
-                              base=carried, scored_by=ev.slow, say=say)
     say("combination")
+    ev.chance.within = "combination"
+    ev.slow.chance = null.Calibration(ev, ev.slow, ranked_slow, family,
+                                      stage=lambda null_ev: null_ev.slow, base=carried,
+                                      say=say, within="combination")
     slow = forward_selection(ev.slow, ranked_slow, base=carried,
                              chance_on_top=null.chance_on_top)
     fine = forward_selection(ev, ranked_fine, base=tuple(slow.order()),
                              chance_on_top=null.chance_on_top)
     return rank(ranked_slow + ranked_fine), merged(slow, fine)
-
-
-def _calibrated(ev: Evaluator, ranked, family: int, stage=None, base=(), scored_by=None,
-                say=None):
-    """``ranked`` with the candidates supported so far tested against their null
-    distributions on this session (:mod:`apmcal.diagnosis.scoring.null`)."""
-    draws = null.calibrate(ev, ranked, family, stage=stage, base=base,
-                           say=lambda text: say(text) if say else None)
-    return null.apply(ranked, draws, scored_by or ev, family)
 
 
 def _effect_entry(s, selection, params: dict) -> dict:

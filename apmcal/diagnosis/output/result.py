@@ -20,11 +20,12 @@ Schema 1 (every gap in nats per sample, see :mod:`apmcal.diagnosis.scoring.gap`)
 "shrink_*", "gap_*" and "evidence_nats" score the effect alone on the nominal model;
 "supported_alone" is that evidence ≥ 15 nats with plausible parameters ("implausible" says why
 not, :mod:`apmcal.diagnosis.model.plausible`), away from "off" ("parameters_p_value", the Wald
-test's, below 0.001) and beyond chance on this session: "null_p_value" is the probability of
-that much evidence on sessions drawn from the nominal model ("null_sessions" of them,
-:mod:`apmcal.diagnosis.scoring.null`; null when not needed: the other tests already refuse the
-effect), below 0.05 / the number of candidates tested, "null_threshold_nats" the evidence that
-reaches it; "significant" means selected, or still supported
+test's, below 0.001) and, where the selection needed to know, beyond chance on this session:
+"null_p_value" is the probability of that much evidence on sessions drawn from the nominal
+model ("null_sessions" of them, :mod:`apmcal.diagnosis.scoring.null`), below 0.05 / the number
+of candidates tested, "null_threshold_nats" the evidence that reaches it; they are null when no
+decision turned on them (the other tests refuse the effect, or the effects selected explain it
+before it could join); "significant" means selected, or still supported
 on top of the selected combination (see :mod:`apmcal.diagnosis.scoring.select`);
 "confounded_with" (only when so) names the effect that explains this one where their shapes
 part (:func:`apmcal.diagnosis.scoring.select.confounded_effects`); "stands_in_for" (only when

@@ -233,7 +233,8 @@ class Evaluator:
         # evidence [nats] each candidate must reach, where the null calibration set one
         # (apmcal.diagnosis.scoring.null); MIN_EVIDENCE_NATS elsewhere
         self.min_evidence: dict[str, float] = {}
-        self.null_family: int | None = None     # candidates tested, once calibrated
+        self.chance = None      # the null calibration that sets min_evidence on first need
+                                # (apmcal.diagnosis.scoring.null.Calibration), once made
         self._drawn_from: dict = {}     # (effects, fold) -> the fit and noise null sessions
                                         # are drawn from (model_draw)
         self._cache: dict[frozenset, Evaluation] = {}

@@ -25,7 +25,10 @@ bootstrap [Efron] ch. 6:
    (Bonferroni).
 
 Only candidates that pass the other tests (evidence ≥ 15 nats, plausible parameters, the Wald
-test) need the null: the others are not supported whatever it says. Draws stop early, per
+test) need the null: the others are not supported whatever it says. And only where a decision
+turns on it: :class:`Calibration` draws a candidate's null sessions when the stepwise selection
+first asks for its threshold, so that a candidate the selection explains first (supported
+alone, but adding nothing on top of the effects chosen) costs none. Draws stop early, per
 candidate, once the decision is plain (p below α/M/``DECISIVE`` or above ``DECISIVE``·α/M
 after ``MIN_DRAWS`` draws) [Besag]: an effect with thousands of nats of evidence needs the
 fewest. The resulting evidence threshold of each candidate (the evidence at which p = α/M) is
@@ -42,10 +45,10 @@ import numpy as np
 from scipy.special import stdtr, stdtrit
 
 from apmcal.diagnosis.scoring.evaluate import Evaluator
-from apmcal.diagnosis.scoring.select import rank, score, testable
+from apmcal.diagnosis.scoring.select import score, testable
 
 ALPHA = 0.05            # family-wise false-alarm rate per session
-MIN_DRAWS = 5           # null sessions every calibrated candidate gets
+MIN_DRAWS = 3           # null sessions every calibrated candidate gets
 MAX_DRAWS = 12          # ... at most
 DECISIVE = 5.0          # p this far from α/M (either way) stops the draws for a candidate
 MIN_SPREAD_NATS = 0.5   # floor of the null draws' standard deviation [nats]: a candidate
@@ -113,9 +116,27 @@ class NullDraws:
                                                      or p > self.level * DECISIVE)
 
 
+def _draw(draws: dict, real: dict, session_of, base: tuple, say=None) -> None:
+    """Score the undecided candidates of ``draws`` ({name: NullDraws}) on null session after
+    null session (``session_of(k)``: the k-th one's evaluator, in the stage the candidates are
+    scored in), each until its decision against its real evidence ``real[name]`` is plain."""
+    for draw in range(MAX_DRAWS):
+        pending = [n for n, d in draws.items() if not d.decided(real[n])]
+        if not pending:
+            return
+        if say:
+            say(f"null session {draw + 1} ({', '.join(pending)})")
+        null_ev = session_of(draw)
+        names = testable(null_ev, pending)
+        null_ev.prefetch([base] + [base + (n,) for n in names])
+        for n in pending:
+            draws[n].evidence.append(score(null_ev, base, n).evidence if n in names
+                                     else float("nan"))
+
+
 def calibrate(evaluator, ranked: list, family: int, stage=None, base: tuple = (),
               say=None, drawn_from: tuple = ()) -> dict:
-    """The null draws of every candidate of ``ranked`` that is supported so far.
+    """The null draws of every candidate of ``ranked`` that is supported so far, at once.
 
     Parameters
     ----------
@@ -145,20 +166,77 @@ def calibrate(evaluator, ranked: list, family: int, stage=None, base: tuple = ()
     stage = stage or (lambda ev: ev)
     real = {s.name: s.evidence for s in ranked if s.supported}
     draws = {name: NullDraws(name, [], family) for name in real}
-    base = tuple(base)
-    for draw in range(MAX_DRAWS):
-        pending = [n for n, d in draws.items() if not d.decided(real[n])]
-        if not pending:
-            break
-        if say:
-            say(f"null session {draw + 1} ({', '.join(pending)})")
-        null_ev = stage(Evaluator(evaluator.model_draw(drawn_from, draw), evaluator.seed))
-        names = testable(null_ev, pending)
-        null_ev.prefetch([base] + [base + (n,) for n in names])
-        for n in pending:
-            draws[n].evidence.append(score(null_ev, base, n).evidence if n in names
-                                     else float("nan"))
+    _draw(draws, real, lambda k: stage(Evaluator(evaluator.model_draw(drawn_from, k),
+                                                 evaluator.seed)), tuple(base), say)
     return draws
+
+
+class Calibration:
+    """One stage's null calibration, drawn on first need.
+
+    The selection (:mod:`apmcal.diagnosis.scoring.select`) asks for a candidate's threshold
+    only where a decision turns on it: where the candidate's evidence reaches
+    ``MIN_EVIDENCE_NATS`` with its other tests passed, in a round of the selection or on top
+    of the final combination. Only then are its null sessions drawn: a candidate the selection
+    explains before that never needs them (on a warm-up, the candidates supported alone are
+    explained by the temperature drift: only that one is drawn for). What it gets when it does is what
+    :func:`calibrate` would have given it: the same null sessions, the same draws. The null
+    sessions are kept, so that a candidate calibrated later is scored on sessions whose
+    nominal fits are done.
+
+    Parameters
+    ----------
+    source : Evaluator
+        The real session's evaluator: the null sessions are drawn from its nominal fit.
+    scored_by : Evaluator
+        The evaluator the candidates are scored by (``source``, or its block means'
+        :attr:`~apmcal.diagnosis.scoring.evaluate.Evaluator.slow`): it asks this calibration
+        for thresholds and keeps them (``scored_by.min_evidence``).
+    ranked : list of EffectScore
+        The candidates scored alone on the real session (on top of ``base``): each one's
+        p-value, threshold and support are filled in when it is calibrated.
+    family : int
+        Candidates tested on the session in all (M).
+    stage : callable, optional
+        As for :func:`calibrate`.
+    base : tuple of str
+        As for :func:`calibrate`.
+    say : callable, optional
+        Progress text: "null sessions for NAME", each null session, then ``within`` again.
+    within : str
+        The stage of the diagnosis the null sessions are drawn in (announced again after
+        them).
+    """
+
+    def __init__(self, source, scored_by, ranked: list, family: int, stage=None,
+                 base: tuple = (), say=None, within: str = ""):
+        self.source, self.scored_by, self.family = source, scored_by, family
+        self.alone = {s.name: s for s in ranked}
+        self.stage = stage or (lambda ev: ev)
+        self.base = tuple(base)
+        self.say = say or (lambda _text: None)
+        self.within = within
+        self.draws: dict[str, NullDraws] = {}
+        self._sessions: dict[int, Evaluator] = {}
+
+    def calibrated(self, name: str) -> NullDraws:
+        """``name``'s null draws, drawn now when not yet, and its entry in ``ranked``
+        updated with them (:func:`apply`)."""
+        if name not in self.draws:
+            alone = self.alone[name]
+            draws = {name: NullDraws(name, [], self.family)}
+            self.say(f"null sessions for {name}")
+            _draw(draws, {name: alone.evidence}, self._session, self.base, self.say)
+            self.say(self.within)
+            self.draws[name] = draws[name]
+            apply(alone, draws[name], self.scored_by)
+        return self.draws[name]
+
+    def _session(self, draw: int) -> Evaluator:
+        if draw not in self._sessions:
+            self._sessions[draw] = self.stage(Evaluator(self.source.model_draw((), draw),
+                                                        self.source.seed))
+        return self._sessions[draw]
 
 
 def on_top(evaluator, model: tuple, trial) -> NullDraws | None:
@@ -166,16 +244,16 @@ def on_top(evaluator, model: tuple, trial) -> NullDraws | None:
     ``model``, a tuple of effects) on sessions drawn from ``model`` itself: what chance gives
     it where the effects already chosen exist (a random walk's one realisation can pass for a
     triangle drift on top of it; the nominal model's null cannot say so). None when the
-    evaluator's candidates were not calibrated (:func:`apply` not run on it).
+    evaluator's candidates are not calibrated (it has no :class:`Calibration`).
 
     Returns
     -------
     NullDraws or None
     """
-    if evaluator.null_family is None:
+    if evaluator.chance is None:
         return None
     model = tuple(model)
-    return calibrate(evaluator, [trial], evaluator.null_family, base=model,
+    return calibrate(evaluator, [trial], evaluator.chance.family, base=model,
                      drawn_from=model)[trial.name]
 
 
@@ -192,35 +270,14 @@ def chance_on_top(evaluator, model: tuple, trial) -> float | None:
     return p if p is not None and p >= draws.level else None
 
 
-def apply(ranked: list, draws: dict, evaluator, family: int) -> list:
-    """``ranked`` with each calibrated candidate's p-value and threshold filled in, supported
-    only when its p-value is below α / M; the thresholds set on ``evaluator`` (what the
-    stepwise selection then asks of each candidate). Re-ranked.
-
-    Parameters
-    ----------
-    ranked : list of EffectScore
-    draws : dict of str to NullDraws
-        :func:`calibrate`'s result.
-    evaluator : Evaluator
-        The real session's evaluator the candidates were scored by.
-    family : int
-        Candidates tested on the session in all (M).
-
-    Returns
-    -------
-    list of EffectScore
-    """
-    evaluator.null_family = family
-    for s in ranked:
-        d = draws.get(s.name)
-        if d is None:
-            continue
-        s.null_draws = int(np.sum(np.isfinite(d.evidence)))
-        s.null_p_value = d.p_value(s.evidence)
-        s.null_threshold = d.threshold()
-        if s.null_p_value is None:      # no null session could test it: the other tests rule
-            continue
-        s.supported = bool(s.supported and s.null_p_value < d.level)
-        evaluator.min_evidence[s.name] = s.null_threshold
-    return rank(ranked)
+def apply(candidate, draws: NullDraws, evaluator) -> None:
+    """Fill in ``candidate``'s (an EffectScore scored alone) p-value and threshold from its
+    null ``draws``: it stays supported only when its p-value is below α / M, and its threshold
+    is set on ``evaluator`` (what the stepwise selection then asks of it)."""
+    candidate.null_draws = int(np.sum(np.isfinite(draws.evidence)))
+    candidate.null_p_value = draws.p_value(candidate.evidence)
+    candidate.null_threshold = draws.threshold()
+    if candidate.null_p_value is None:     # no null session could test it: the other tests rule
+        return
+    candidate.supported = bool(candidate.supported and candidate.null_p_value < draws.level)
+    evaluator.min_evidence[candidate.name] = candidate.null_threshold

@@ -76,7 +76,8 @@ class EffectScore:
     evidence : float
         Held-out gap removed [nats].
     supported : bool
-        Evidence ≥ ``MIN_EVIDENCE_NATS``, plausible, and its parameters away from "off".
+        Evidence ≥ ``MIN_EVIDENCE_NATS``, plausible, its parameters away from "off", and its
+        evidence beyond its null threshold when that is known (:func:`required_evidence`).
     params : dict
         Its fitted parameters (mean of the folds).
     implausible : str or None
@@ -87,8 +88,8 @@ class EffectScore:
         Sample rate it was scored at [Hz].
     null_p_value : float or None
         Probability of this much evidence by chance on this session, from the null sessions
-        (:mod:`apmcal.diagnosis.scoring.null`; None: not calibrated, the other tests already
-        refuse it).
+        (:mod:`apmcal.diagnosis.scoring.null`; None: not calibrated, no decision turned on
+        it — the other tests refuse it, or the selection explains it first).
     null_threshold : float or None
         The evidence it must reach [nats]: its null distribution's 1 − α/M quantile.
     null_draws : int
@@ -134,8 +135,10 @@ def shrink(before: float, after: float) -> float:
     return 1.0 - after / before if before > 0 else float("nan")
 
 
-def score(evaluator, base: tuple, name: str) -> EffectScore:
-    """Effect ``name`` added to ``base``, scored against ``base`` alone."""
+def score(evaluator, base: tuple, name: str, draw: bool = True) -> EffectScore:
+    """Effect ``name`` added to ``base``, scored against ``base`` alone; ``draw`` False: its
+    support judged without drawing null sessions for it (:func:`required_evidence`), as
+    :func:`beyond_chance` then does for the trial a decision turns on."""
     reason = unmet(BY_NAME[name], evaluator.session, evaluator.context)
     if reason:
         return EffectScore(name, reason)
@@ -144,18 +147,31 @@ def score(evaluator, base: tuple, name: str) -> EffectScore:
     params = after.params.get(name, {})
     why = implausible(name, params) if np.isfinite(evidence) else "its fit diverged"
     p = wald_p_value(name, params)
-    supported = evidence >= required_evidence(evaluator, name) and why is None and \
-        (p is None or p < MAX_P_VALUE)
+    # the null calibration's threshold last: it may draw null sessions, which only a candidate
+    # that passes every other test needs
+    supported = why is None and (p is None or p < MAX_P_VALUE) and \
+        evidence >= MIN_EVIDENCE_NATS and evidence >= required_evidence(evaluator, name, draw)
     return EffectScore(name, None, after.gap_in, after.gap_out,
                        shrink(before.gap_in, after.gap_in), shrink(before.gap_out, after.gap_out),
                        evidence, bool(supported), params, why, p, evaluator.session.fs)
 
 
-def required_evidence(evaluator, name: str) -> float:
+def required_evidence(evaluator, name: str, draw: bool = True) -> float:
     """The evidence [nats] candidate ``name`` must reach on ``evaluator``'s session:
     ``MIN_EVIDENCE_NATS``, or its null distribution's quantile when that is higher
-    (:mod:`apmcal.diagnosis.scoring.null`)."""
+    (:mod:`apmcal.diagnosis.scoring.null`). With ``draw``, the evaluator's null calibration
+    (``evaluator.chance``, when it has one) draws the candidate's null sessions now if it has
+    not yet; without, only a threshold already drawn counts."""
+    if draw and evaluator.chance is not None:
+        evaluator.chance.calibrated(name)
     return max(MIN_EVIDENCE_NATS, evaluator.min_evidence.get(name, -np.inf))
+
+
+def beyond_chance(evaluator, trial: EffectScore) -> bool:
+    """Whether ``trial`` (scored with ``draw`` False) is supported once its null threshold is
+    known: drawn now when not yet (the selection asks this only of the trials a decision turns
+    on)."""
+    return trial.supported and trial.evidence >= required_evidence(evaluator, trial.name)
 
 
 def rank(scores: list[EffectScore]) -> list[EffectScore]:
@@ -261,6 +277,8 @@ def forward_selection(evaluator, ranked: list[EffectScore], max_rounds: int = MA
     None when not: :func:`apmcal.diagnosis.scoring.null.chance_on_top`); such an effect does
     not join."""
     base = tuple(base)
+    alone = {s.name: s for s in ranked}     # a null calibration drawn on the way may refuse
+                                            # one of them alone: it leaves the pool
     confounded = confounded_effects(evaluator, ranked, base)
     pool = [s.name for s in sorted((s for s in ranked if s.supported and s.name not in confounded),
                                    key=lambda s: -s.evidence)]
@@ -269,14 +287,19 @@ def forward_selection(evaluator, ranked: list[EffectScore], max_rounds: int = MA
     dropped: list[str] = []
     stand_in: dict[str, str] = {}
     chance: dict[str, float] = {}
-    # each effect is added once and dropped at most once, or refused once by its null
-    for _ in range(2 * max_rounds + 1 + len(pool)):
-        others = [n for n in pool if n not in selected]
+    beyond: dict[str, float] = {}
+    # each effect is added once and dropped at most once, or refused once by either null
+    for _ in range(2 * max_rounds + 1 + 2 * len(pool)):
+        others = [n for n in pool if n not in selected and alone[n].supported]
         evaluator.prefetch([base + tuple(selected) + (n,) for n in others])
-        trials = [score(evaluator, base + tuple(selected), n) for n in others]
+        trials = [score(evaluator, base + tuple(selected), n, draw=False) for n in others]
         beyond = {s.name: s.evidence for s in trials}
-        best = simplest_best([s for s in trials if s.name not in dropped])
-        if best is None or not best.supported or len(base) + len(selected) >= max_rounds:
+        best = simplest_best([s for s in trials if s.name not in dropped],
+                             lambda s: beyond_chance(evaluator, s))
+        supported = best is not None and beyond_chance(evaluator, best)
+        if any(not alone[s.name].supported for s in trials):
+            continue        # refused alone by its null, drawn just now: the round again without
+        if not supported or len(base) + len(selected) >= max_rounds:
             break
         p = chance_on_top(evaluator, base + tuple(selected), best) if chance_on_top else None
         if p is not None:
@@ -297,21 +320,26 @@ def forward_selection(evaluator, ranked: list[EffectScore], max_rounds: int = MA
             selected.remove(weakest)
             joined.pop(weakest)
             dropped.append(weakest)
+    # an effect left out with enough evidence on top is significant only beyond its null
+    required = {n: required_evidence(evaluator, n,
+                                     draw=beyond.get(n, -np.inf) >= MIN_EVIDENCE_NATS)
+                for n in pool}
     return Selection(selected, joined, beyond, leave_one_out(evaluator, selected, base),
-                     confounded, stand_in, {n: required_evidence(evaluator, n) for n in pool},
-                     chance)
+                     confounded, stand_in, required, chance)
 
 
-def simplest_best(trials: list[EffectScore]) -> EffectScore | None:
+def simplest_best(trials: list[EffectScore], supported=None) -> EffectScore | None:
     """The trial with the most evidence, unless it is stochastic (:data:`STOCHASTIC`) and a
     supported deterministic trial comes within :data:`SIMPLER_SHARE` of its evidence: then the
     best of those (the simplest sufficient explanation; the stochastic one may still join on
-    top of it in a later round)."""
+    top of it in a later round). ``supported(trial)`` says whether a trial is supported (its
+    ``supported`` by default), asked only of those deterministic trials."""
+    supported = supported or (lambda s: s.supported)
     best = max(trials, key=lambda s: s.evidence, default=None)
     if best is None or best.name not in STOCHASTIC:
         return best
-    simpler = [s for s in trials if s.name not in STOCHASTIC and s.supported
-               and s.evidence >= (1.0 - SIMPLER_SHARE) * best.evidence]
+    simpler = [s for s in trials if s.name not in STOCHASTIC
+               and s.evidence >= (1.0 - SIMPLER_SHARE) * best.evidence and supported(s)]
     return max(simpler, key=lambda s: s.evidence) if simpler else best
 
 
@@ -334,12 +362,15 @@ def confounded_effects(evaluator, ranked: list[EffectScore], base: tuple = ()) -
         return {}
     base = tuple(base)
     evaluator.prefetch([base + (y,) for _, y in pairs] + [base + tuple(sorted(p)) for p in pairs])
-    gain = {(x, y): score(evaluator, base + (y,), x) for x, y in pairs}     # x on top of y
+
+    def supported_on_top(x: str, y: str) -> bool:    # scored only when asked: a pair already
+        return score(evaluator, base + (y,), x).supported     # settled draws no null sessions
+
     out = {}
     for x, y in pairs:
         if x in out or y in out:
             continue
-        if not gain[(x, y)].supported and gain[(y, x)].supported:
+        if not supported_on_top(x, y) and supported_on_top(y, x):
             out[x] = y
     return out
 
