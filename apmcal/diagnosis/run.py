@@ -162,7 +162,7 @@ def _rank_and_select(ev: Evaluator, names, say):
         say("candidate effects")
         ranked = rank_effects(ev, names)
         say("combination")
-        ev.chance = null.Calibration(ev, ev, ranked, len(testable(ev, candidates(names))),
+        ev.chance = null.Calibration(ev, ranked, len(testable(ev, candidates(names))),
                                      say=say, within="combination")
         selection = forward_selection(ev, ranked, chance_on_top=null.chance_on_top)
         return rank(ranked), selection
@@ -171,8 +171,7 @@ def _rank_and_select(ev: Evaluator, names, say):
     family = len(testable(ev, fine_names)) + len(testable(ev.slow, slow_names))
     say("candidate effects")
     ranked_fine = rank_effects(ev, fine_names)
-    ev.chance = null.Calibration(ev, ev, ranked_fine, family, say=say,
-                                 within="candidate effects")
+    ev.chance = null.Calibration(ev, ranked_fine, family, say=say, within="candidate effects")
     for s in ranked_fine:   # a low-pass filter carried under the slow effects must be beyond
         if s.supported and s.name in SHAPES_BLOCK_MEANS:    # chance itself: its null now
             ev.chance.calibrated(s.name)
@@ -181,9 +180,8 @@ def _rank_and_select(ev: Evaluator, names, say):
     ranked_slow = rank_effects(ev.slow, slow_names, base=carried)
     say("combination")
     ev.chance.within = "combination"
-    ev.slow.chance = null.Calibration(ev, ev.slow, ranked_slow, family,
-                                      stage=lambda null_ev: null_ev.slow, base=carried,
-                                      say=say, within="combination")
+    ev.slow.chance = null.Calibration(ev.slow, ranked_slow, family, base=carried, say=say,
+                                      within="combination")
     slow = forward_selection(ev.slow, ranked_slow, base=carried,
                              chance_on_top=null.chance_on_top)
     fine = forward_selection(ev, ranked_fine, base=tuple(slow.order()),

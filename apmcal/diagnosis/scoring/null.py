@@ -118,8 +118,8 @@ class NullDraws:
 
 def _draw(draws: dict, real: dict, session_of, base: tuple, say=None) -> None:
     """Score the undecided candidates of ``draws`` ({name: NullDraws}) on null session after
-    null session (``session_of(k)``: the k-th one's evaluator, in the stage the candidates are
-    scored in), each until its decision against its real evidence ``real[name]`` is plain."""
+    null session (``session_of(k)``: the k-th one's evaluator), each until its decision
+    against its real evidence ``real[name]`` is plain."""
     for draw in range(MAX_DRAWS):
         pending = [n for n, d in draws.items() if not d.decided(real[n])]
         if not pending:
@@ -134,23 +134,19 @@ def _draw(draws: dict, real: dict, session_of, base: tuple, say=None) -> None:
                                      else float("nan"))
 
 
-def calibrate(evaluator, ranked: list, family: int, stage=None, base: tuple = (),
-              say=None, drawn_from: tuple = ()) -> dict:
+def calibrate(evaluator, ranked: list, family: int, base: tuple = (), say=None,
+              drawn_from: tuple = ()) -> dict:
     """The null draws of every candidate of ``ranked`` that is supported so far, at once.
 
     Parameters
     ----------
     evaluator : Evaluator
-        The real session's evaluator: the null sessions are drawn from its fit of the
-        nominal model plus ``drawn_from``.
+        The evaluator the candidates are scored by: the null sessions are drawn from its fit
+        of the nominal model plus ``drawn_from``, at its rate.
     ranked : list of EffectScore
         The candidates scored alone on the real session (on top of ``base``).
     family : int
         Candidates tested on the session in all (M).
-    stage : callable, optional
-        The evaluator the candidates are scored by, given a null session's evaluator (e.g.
-        ``lambda ev: ev.slow`` for effects scored on block means); the evaluator itself by
-        default.
     base : tuple of str
         Effects every model of this stage includes (the same as on the real session).
     say : callable, optional
@@ -163,11 +159,10 @@ def calibrate(evaluator, ranked: list, family: int, stage=None, base: tuple = ()
     -------
     dict of str to NullDraws
     """
-    stage = stage or (lambda ev: ev)
     real = {s.name: s.evidence for s in ranked if s.supported}
     draws = {name: NullDraws(name, [], family) for name in real}
-    _draw(draws, real, lambda k: stage(Evaluator(evaluator.model_draw(drawn_from, k),
-                                                 evaluator.seed)), tuple(base), say)
+    _draw(draws, real, lambda k: Evaluator(evaluator.model_draw(drawn_from, k), evaluator.seed),
+          tuple(base), say)
     return draws
 
 
@@ -179,26 +174,23 @@ class Calibration:
     ``MIN_EVIDENCE_NATS`` with its other tests passed, in a round of the selection or on top
     of the final combination. Only then are its null sessions drawn: a candidate the selection
     explains before that never needs them (on a warm-up, the candidates supported alone are
-    explained by the temperature drift: only that one is drawn for). What it gets when it does is what
-    :func:`calibrate` would have given it: the same null sessions, the same draws. The null
+    explained by the temperature drift: only that one is drawn for). What it gets when it does
+    is what :func:`calibrate` would have given it: the same null sessions, the same draws. The null
     sessions are kept, so that a candidate calibrated later is scored on sessions whose
     nominal fits are done.
 
     Parameters
     ----------
-    source : Evaluator
-        The real session's evaluator: the null sessions are drawn from its nominal fit.
-    scored_by : Evaluator
-        The evaluator the candidates are scored by (``source``, or its block means'
-        :attr:`~apmcal.diagnosis.scoring.evaluate.Evaluator.slow`): it asks this calibration
-        for thresholds and keeps them (``scored_by.min_evidence``).
+    evaluator : Evaluator
+        The evaluator the candidates are scored by (the session's, or its block means'
+        :attr:`~apmcal.diagnosis.scoring.evaluate.Evaluator.slow`): the null sessions are drawn
+        from its nominal fit, at its rate, and it keeps the thresholds
+        (``evaluator.min_evidence``).
     ranked : list of EffectScore
         The candidates scored alone on the real session (on top of ``base``): each one's
         p-value, threshold and support are filled in when it is calibrated.
     family : int
         Candidates tested on the session in all (M).
-    stage : callable, optional
-        As for :func:`calibrate`.
     base : tuple of str
         As for :func:`calibrate`.
     say : callable, optional
@@ -208,11 +200,10 @@ class Calibration:
         them).
     """
 
-    def __init__(self, source, scored_by, ranked: list, family: int, stage=None,
-                 base: tuple = (), say=None, within: str = ""):
-        self.source, self.scored_by, self.family = source, scored_by, family
+    def __init__(self, evaluator, ranked: list, family: int, base: tuple = (), say=None,
+                 within: str = ""):
+        self.evaluator, self.family = evaluator, family
         self.alone = {s.name: s for s in ranked}
-        self.stage = stage or (lambda ev: ev)
         self.base = tuple(base)
         self.say = say or (lambda _text: None)
         self.within = within
@@ -229,13 +220,13 @@ class Calibration:
             _draw(draws, {name: alone.evidence}, self._session, self.base, self.say)
             self.say(self.within)
             self.draws[name] = draws[name]
-            apply(alone, draws[name], self.scored_by)
+            apply(alone, draws[name], self.evaluator)
         return self.draws[name]
 
     def _session(self, draw: int) -> Evaluator:
         if draw not in self._sessions:
-            self._sessions[draw] = self.stage(Evaluator(self.source.model_draw((), draw),
-                                                        self.source.seed))
+            self._sessions[draw] = Evaluator(self.evaluator.model_draw((), draw),
+                                             self.evaluator.seed)
         return self._sessions[draw]
 
 

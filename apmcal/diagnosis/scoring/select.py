@@ -361,16 +361,14 @@ def confounded_effects(evaluator, ranked: list[EffectScore], base: tuple = ()) -
     if not pairs:
         return {}
     base = tuple(base)
-    evaluator.prefetch([base + (y,) for _, y in pairs] + [base + tuple(sorted(p)) for p in pairs])
-
-    def supported_on_top(x: str, y: str) -> bool:    # scored only when asked: a pair already
-        return score(evaluator, base + (y,), x).supported     # settled draws no null sessions
-
+    evaluator.prefetch([base + (y,) for y in names])
     out = {}
     for x, y in pairs:
-        if x in out or y in out:
+        if x in out or y in out:    # settled: its pair models are not even fitted
             continue
-        if not supported_on_top(x, y) and supported_on_top(y, x):
+        evaluator.prefetch([base + tuple(sorted((x, y)))])
+        if not score(evaluator, base + (y,), x).supported and \
+                score(evaluator, base + (x,), y).supported:
             out[x] = y
     return out
 
