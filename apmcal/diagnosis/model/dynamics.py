@@ -188,19 +188,81 @@ def relative_attitudes(rate: np.ndarray, t: np.ndarray, moves: Moves, step: int 
         One rotation per kept move sample (the samples of :func:`move_index`), body frame
         relative to the hold before.
     """
-    turns, segment = [], []
-    for m, (a, b) in enumerate(zip(moves.i0, moves.i1)):
-        dt = t[a:b] - t[a - 1:b - 1]
-        turn = 0.5 * (rate[a - 1:b - 1] + rate[a:b]) * dt[:, None]
-        if step > 1:
-            ends = np.arange(step - 1, b - a, step)
-            turn = np.diff(np.vstack([np.zeros(3), np.cumsum(turn, axis=0)[ends]]), axis=0)
-        turns.append(turn)
-        segment.append(np.full(len(turn), m))
-    if not turns:
+    plan = _plan(moves, t, step)
+    return _attitudes(plan, np.take(rate, plan.rows, axis=0))
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """What integrating ``moves`` on sample times ``t`` every ``step``-th sample reads and
+    where it puts it: the same for every gyro matrix a fit tries, so found once per
+    (moves, times, step) and kept on the Moves (:func:`_plan`).
+
+    ``rows`` are :meth:`Moves.rows` (each move's samples and the last hold sample before it):
+    a rate is handed to :func:`_attitudes` as its values at those rows only, ``(len(rows), 3)``.
+    """
+
+    t: np.ndarray               # the sample times the plan is for (compared by identity)
+    rows: np.ndarray            # (r,) session rows the integration reads
+    prev: np.ndarray            # (s,) position in rows of each interval's first end ...
+    dt: np.ndarray              # (s,) ... its length [s] (the second end is prev + 1)
+    starts: np.ndarray          # (k + 1,) each move's first interval, and the total
+    ends: tuple                 # per move: its kept intervals' last index (step > 1), else ()
+    segment: np.ndarray         # (m,) move of each kept sample
+    index: np.ndarray           # (m,) session sample index of each kept sample
+    hold: np.ndarray            # (m,) hold before each kept sample
+    kept: np.ndarray            # (m,) position in rows of each kept sample
+
+
+def _plan(moves: Moves, t: np.ndarray, step: int) -> _Plan:
+    """The integration plan of ``moves`` on ``t`` at ``step``, kept on ``moves`` (a fit asks
+    for it at each of its steps)."""
+    plans = moves.__dict__.setdefault("_plans", {})
+    plan = plans.get(step)
+    if plan is None or plan.t is not t:
+        plan = plans[step] = _make_plan(moves, t, step)
+    return plan
+
+
+def _make_plan(moves: Moves, t: np.ndarray, step: int) -> _Plan:
+    length = np.asarray(moves.i1 - moves.i0, int)
+    rows = moves.rows()
+    first_row = np.cumsum(length + 1) - (length + 1)       # each move's hold sample in rows
+    starts = np.concatenate(([0], np.cumsum(length)))
+    move_of = np.repeat(np.arange(len(length)), length)
+    prev = first_row[move_of] + np.arange(starts[-1]) - starts[move_of]
+    dt = np.take(t, rows[prev + 1]) - np.take(t, rows[prev])     # t[a:b] − t[a−1:b−1]
+    index, hold = move_index(moves, step)
+    if step == 1:
+        ends, segment = (), move_of
+        kept = prev + 1
+    else:
+        ends = tuple(np.arange(step - 1, n, step) for n in length)
+        segment = np.repeat(np.arange(len(length)), [len(e) for e in ends])
+        kept = np.concatenate([first_row[m] + 1 + e for m, e in enumerate(ends)]) \
+            if len(ends) else np.zeros(0, int)
+    for a in (rows, prev, dt, starts, segment, index, hold, kept):
+        a.flags.writeable = False           # shared by every caller of the plan
+    return _Plan(t, rows, prev, dt, starts, ends, segment, index, hold, kept)
+
+
+def _attitudes(plan: _Plan, rate_rows: np.ndarray) -> Rotation:
+    """:func:`relative_attitudes` of a rate given at ``plan.rows`` only (``rate_rows``,
+    (len(rows), 3) [rad/s]): every move's intervals at once (each value the very product
+    and sum the move-by-move loop made); the running sums of ``step`` > 1 stay move by move
+    (a running sum across moves would round differently)."""
+    if not len(plan.starts) - 1:
         return Rotation.identity(0)
-    q = Rotation.from_rotvec(np.concatenate(turns)).as_quat()
-    return Rotation.from_quat(prefix_products(q, np.concatenate(segment)))
+    turn = 0.5 * (np.take(rate_rows, plan.prev, axis=0)
+                  + np.take(rate_rows, plan.prev + 1, axis=0)) * plan.dt[:, None]
+    if plan.ends:
+        parts = []
+        for a, b, ends in zip(plan.starts[:-1], plan.starts[1:], plan.ends):
+            parts.append(np.diff(np.vstack([np.zeros(3), np.cumsum(turn[a:b], axis=0)[ends]]),
+                                 axis=0))
+        turn = np.concatenate(parts)
+    q = Rotation.from_rotvec(turn).as_quat()
+    return Rotation.from_quat(prefix_products(q, plan.segment))
 
 
 def move_index(moves: Moves, step: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -248,22 +310,27 @@ def move_turns(session, forward: np.ndarray, moves: Moves, rate_cal: np.ndarray,
     rel : Rotation
         Attitudes relative to the hold before, one per kept move sample.
     """
-    # the moves' rows only: about an eighth of a session's samples, and a fit of the gyro
-    # matrix turns them again at every step (each row is the same product either way)
-    rows = moves.rows()
+    plan = _plan(moves, session.t, step)
+    body, rel = _turns(plan, forward, np.take(rate_cal, plan.rows, axis=0))
     rate = np.full_like(rate_cal, np.nan)
-    rate[rows] = rate_cal[rows] @ np.linalg.inv(forward).T
-    return rate, relative_attitudes(rate, session.t, moves, step)
+    rate[plan.rows] = body
+    return rate, rel
+
+
+def _turns(plan: _Plan, forward: np.ndarray, cal_rows: np.ndarray) -> tuple:
+    """(body rate at ``plan.rows`` [rad/s], attitudes) of the calibrated gyro ``cal_rows``
+    (its values at ``plan.rows``) through the gyro matrix ``forward``: the moves' rows only,
+    about an eighth of a session's samples, turned again at every step of a gyro fit."""
+    body = cal_rows @ np.linalg.inv(forward).T
+    return body, _attitudes(plan, body)
 
 
 def predicted(session, fit, dyn: Dynamics, moves: Moves, rate_cal: np.ndarray,
-              hold_f: np.ndarray, hold_b: np.ndarray | None, step: int = 1,
-              turns: tuple | None = None) -> tuple:
+              hold_f: np.ndarray, hold_b: np.ndarray | None, step: int = 1) -> tuple:
     """Predicted acc (and mag at the IMU times) of every ``step``-th move sample.
 
     ``rate_cal`` is the gyro minus its fitted bias terms at every session sample; ``hold_f`` /
-    ``hold_b`` the calibrated specific force and field of each hold; ``turns``: what
-    :func:`move_turns` gives for ``dyn``'s gyro matrix, when known.
+    ``hold_b`` the calibrated specific force and field of each hold.
 
     Parameters
     ----------
@@ -279,8 +346,6 @@ def predicted(session, fit, dyn: Dynamics, moves: Moves, rate_cal: np.ndarray,
         Field of each hold [mGauss].
     step : int
         Keep every ``step``-th move sample.
-    turns : tuple, optional
-        (rate, rel) of :func:`move_turns`.
 
     Returns
     -------
@@ -291,11 +356,19 @@ def predicted(session, fit, dyn: Dynamics, moves: Moves, rate_cal: np.ndarray,
     mag : (k, 3) array or None
         Predicted compass [mGauss] (None without a compass fit or hold fields).
     """
-    rate, rel = turns or move_turns(session, dyn.forward, moves, rate_cal, step)
-    idx, hold = move_index(moves, step)
+    plan = _plan(moves, session.t, step)
+    turns = _turns(plan, dyn.forward, np.take(rate_cal, plan.rows, axis=0))
+    return _predicted(session, fit, dyn, plan, turns, hold_f, hold_b)
+
+
+def _predicted(session, fit, dyn: Dynamics, plan: _Plan, turns: tuple, hold_f: np.ndarray,
+               hold_b: np.ndarray | None) -> tuple:
+    """:func:`predicted` with the integration ``turns`` (:func:`_turns`) already made."""
+    body, rel = turns
+    idx, hold = plan.index, plan.hold
     f = rel.apply(np.take(hold_f, hold, axis=0), inverse=True)     # R(t)ᵀ·f_k
     if dyn.time_offset_s:          # the accelerometer samples the past: f(t − τ) = Exp(ωτ)·f(t)
-        f = Rotation.from_rotvec(np.take(rate, idx, axis=0) * dyn.time_offset_s).apply(f)
+        f = Rotation.from_rotvec(np.take(body, plan.kept, axis=0) * dyn.time_offset_s).apply(f)
     temp = session.temp[idx] if session.temp is not None else None
     geo = fit.acc if dyn.acc_terms is None else acc_with_terms(fit.acc, dyn.acc_terms)
     acc = geo.predict(f / _radius(geo), fit.acc_columns(session.t[idx], temp))
@@ -415,7 +488,9 @@ def fit_dynamics(session, fit, effects, train: np.ndarray, rate_cal, hold_f, hol
     if not layout or not len(moves):
         return Dynamics()
     step = max(1, int(round(session.fs / FIT_RATE_HZ)))
-    idx, _ = move_index(moves, step)
+    plan = _plan(moves, session.t, step)
+    idx = plan.index
+    cal_rows = np.take(rate_cal, plan.rows, axis=0)     # the same in every step
     with_mag = hold_b is not None and fit.mag is not None and session.mag is not None \
         and session.mag.t is session.t and "mag" in sigma
     weight = {k: 1.0 / max(float(v), 1e-12) for k, v in sigma.items()}
@@ -437,9 +512,8 @@ def fit_dynamics(session, fit, effects, train: np.ndarray, rate_cal, hold_f, hol
         if key not in turns:
             if len(turns) >= 2:             # a gyro fit's matrices are new step after step
                 turns.pop(next(iter(turns)))
-            turns[key] = move_turns(session, d.forward, moves, rate_cal, step)
-        _, acc, mag = predicted(session, fit, d, moves, rate_cal, hold_f, hold_b, step,
-                                turns[key])
+            turns[key] = _turns(plan, d.forward, cal_rows)
+        _, acc, mag = _predicted(session, fit, d, plan, turns[key], hold_f, hold_b)
         r = [((acc_seen - acc) * weight["acc"]).ravel()]
         if with_mag:
             r.append(((mag_seen - mag) * weight["mag"]).ravel())
