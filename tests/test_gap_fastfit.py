@@ -6,6 +6,8 @@ the plain way.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -109,3 +111,58 @@ def test_move_turns_gives_the_body_rate_of_every_row_it_reads():
     whole[rows] = plain
     assert np.array_equal(rel.as_quat(),
                           _plain_relative_attitudes(whole, t, moves, 2).as_quat())
+
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLE = ROOT / "logs" / "gap.bin"      # sitl, 100 Hz, with temperature and a compass
+
+
+@pytest.mark.parametrize("terms_in_moves", [False, True])
+def test_the_move_fits_analytic_jacobian_is_the_derivative_of_its_residuals(monkeypatch,
+                                                                             terms_in_moves):
+    """fit_dynamics hands least_squares the analytic Jacobian (move_jacobian): at the start
+    and at a point off it (a time offset, other gyro matrices and accelerometer terms), every
+    column is the central difference of the very residual function it fits, to 1e-7 of the
+    column's size — gyro scale and misalignment, delay and, when the holds leave them to the
+    moves, the accelerometer's non-orthogonality and quadratic scale."""
+    from apmcal.calibration.log import Options
+    from apmcal.diagnosis.model import dynamics, nominal
+    from apmcal.diagnosis.scoring.evaluate import Evaluator
+    from apmcal.diagnosis.session.log import session_from_log
+    from apmcal.sources import read_log
+
+    if terms_in_moves:
+        monkeypatch.setattr(nominal, "acc_terms_in_moves", lambda *args: True)
+    captured = []
+    solve = dynamics.least_squares
+
+    def spy(fun, x0, jac=None, **kw):
+        captured.append((fun, jac, x0, kw["bounds"]))
+        return solve(fun, x0, jac=jac, **kw)
+
+    monkeypatch.setattr(dynamics, "least_squares", spy)
+    session = session_from_log(read_log(SAMPLE), Options(lat_deg=5.6037, lon_deg=-0.187))
+    # the compass on the IMU's own times, so that the moves fit it too (its rows checked)
+    assert len(session.mag.t) == len(session.t)
+    session.mag.t = session.t
+    ev = Evaluator(session)
+    effects = frozenset({"gyro_scale", "time_offset", "cross_axis", "scale_nonlinearity"})
+    ev._model(session, ev.reduced, effects, 0, None, False)
+    fun, jac, x0, (low, high) = captured[0]
+    assert len(x0) == (16 if terms_in_moves else 10)
+    moves = dynamics.Moves.of(session, session.pieces.select(fold=0))
+    step = max(1, int(round(session.fs / dynamics.FIT_RATE_HZ)))
+    kept = len(dynamics.move_index(moves, step)[0])
+    assert len(fun(x0)) == 6 * kept + len(x0)          # accelerometer, compass, priors
+    rng = np.random.default_rng(3)
+    away = np.clip(x0 + 3e-3 * rng.standard_normal(len(x0)), 0.9 * low, 0.9 * high)
+    for x in (x0, away):
+        got = jac(x)
+        plain = np.empty_like(got)
+        for c in range(len(x)):
+            e = np.zeros(len(x))
+            e[c] = 1e-6
+            plain[:, c] = (fun(x + e) - fun(x - e)) / 2e-6
+        size = np.abs(plain).max(axis=0)
+        assert np.all(size > 0)
+        assert np.all(np.abs(got - plain).max(axis=0) <= 1e-7 * size)

@@ -212,6 +212,7 @@ class _Plan:
     index: np.ndarray           # (m,) session sample index of each kept sample
     hold: np.ndarray            # (m,) hold before each kept sample
     kept: np.ndarray            # (m,) position in rows of each kept sample
+    kept_starts: np.ndarray     # (k + 1,) each move's first kept sample, and their number
 
 
 def _plan(moves: Moves, t: np.ndarray, step: int) -> _Plan:
@@ -241,18 +242,26 @@ def _make_plan(moves: Moves, t: np.ndarray, step: int) -> _Plan:
         segment = np.repeat(np.arange(len(length)), [len(e) for e in ends])
         kept = np.concatenate([first_row[m] + 1 + e for m, e in enumerate(ends)]) \
             if len(ends) else np.zeros(0, int)
-    for a in (rows, prev, dt, starts, segment, index, hold, kept):
+    kept_starts = np.searchsorted(segment, np.arange(len(length) + 1))
+    for a in (rows, prev, dt, starts, segment, index, hold, kept, kept_starts):
         a.flags.writeable = False           # shared by every caller of the plan
-    return _Plan(t, rows, prev, dt, starts, ends, segment, index, hold, kept)
+    return _Plan(t, rows, prev, dt, starts, ends, segment, index, hold, kept, kept_starts)
 
 
 def _attitudes(plan: _Plan, rate_rows: np.ndarray) -> Rotation:
     """:func:`relative_attitudes` of a rate given at ``plan.rows`` only (``rate_rows``,
     (len(rows), 3) [rad/s]): every move's intervals at once (each value the very product
-    and sum the move-by-move loop made); the running sums of ``step`` > 1 stay move by move
-    (a running sum across moves would round differently)."""
+    and sum the move-by-move loop made)."""
     if not len(plan.starts) - 1:
         return Rotation.identity(0)
+    q = Rotation.from_rotvec(_step_turns(plan, rate_rows)).as_quat()
+    return Rotation.from_quat(prefix_products(q, plan.segment))
+
+
+def _step_turns(plan: _Plan, rate_rows: np.ndarray) -> np.ndarray:
+    """The rotation vector of each kept step (m, 3) [rad]: trapezoid turns of the intervals,
+    ``step`` of them summed (the running sums move by move: one across moves would round
+    differently)."""
     turn = 0.5 * (np.take(rate_rows, plan.prev, axis=0)
                   + np.take(rate_rows, plan.prev + 1, axis=0)) * plan.dt[:, None]
     if plan.ends:
@@ -261,8 +270,7 @@ def _attitudes(plan: _Plan, rate_rows: np.ndarray) -> Rotation:
             parts.append(np.diff(np.vstack([np.zeros(3), np.cumsum(turn[a:b], axis=0)[ends]]),
                                  axis=0))
         turn = np.concatenate(parts)
-    q = Rotation.from_rotvec(turn).as_quat()
-    return Rotation.from_quat(prefix_products(q, plan.segment))
+    return turn
 
 
 def move_index(moves: Moves, step: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -378,6 +386,163 @@ def _predicted(session, fit, dyn: Dynamics, plan: _Plan, turns: tuple, hold_f: n
         cur = session.current[idx] if session.current is not None else None
         mag = fit.mag.predict(b / _radius(fit.mag), fit.mag_columns(session.t[idx], cur))
     return idx, acc, mag
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """[v]× (..., 3, 3) of vectors v (..., 3)."""
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return out
+
+
+def right_jacobian(theta: np.ndarray) -> np.ndarray:
+    """SO(3)'s right Jacobian J_r(θ) (m, 3, 3) of rotation vectors θ (m, 3) [rad]:
+    Exp(θ + δθ) = Exp(θ)·Exp(J_r(θ)·δθ) to first order.
+
+    J_r = I − (1 − cos|θ|)/|θ|²·[θ]× + (|θ| − sin|θ|)/|θ|³·[θ]×² (their series below 1e-4 rad).
+    """
+    a = np.linalg.norm(theta, axis=-1)
+    small = a < 1e-4
+    safe = np.where(small, 1.0, a)
+    c1 = np.where(small, 0.5 - a ** 2 / 24, (1 - np.cos(safe)) / safe ** 2)
+    c2 = np.where(small, 1 / 6 - a ** 2 / 120, (safe - np.sin(safe)) / safe ** 3)
+    k = _skew(theta)
+    return np.eye(3) - c1[:, None, None] * k + c2[:, None, None] * (k @ k)
+
+
+def _gyro_matrix_derivatives(scale: np.ndarray, gamma: np.ndarray) -> np.ndarray:
+    """∂M/∂p (9, 3, 3) of M = F_g⁻¹ = T_g·diag(1/scale) (:func:`gyro_forward`) for the move
+    fit's gyro parameters: the three scales, then the six angles γ (yz, zy, zx, xz, xy, yx)."""
+    g_yz, g_zy, g_zx, g_xz, g_xy, g_yx = gamma
+    t_g = np.array([[1, -g_yz, g_zy], [g_xz, 1, -g_zx], [-g_xy, g_yx, 1.0]])
+    out = np.zeros((9, 3, 3))
+    for k in range(3):
+        out[k, :, k] = -t_g[:, k] / scale[k] ** 2
+    # where each angle sits in T_g, and its sign
+    for j, (row, col, sign) in enumerate([(0, 1, -1), (0, 2, 1), (1, 2, -1), (1, 0, 1),
+                                          (2, 0, -1), (2, 1, 1)]):
+        out[3 + j, row, col] = sign / scale[col]
+    return out
+
+
+def _reading_slope(geo, x: np.ndarray) -> tuple:
+    """How ``geo.predict(x / radius, …)`` moves with the body vectors x (m, 3): the sensor
+    forward matrix and the per-sample factor 1 + 2·k2 ⊙ s of its quadratic term (s the
+    reading before offset), and s itself — d(reading) = factor ⊙ (dx·Fᵀ). None, None, None
+    without geometry (the reading is x itself)."""
+    if not geo.geometry:
+        return None, None, None
+    s = (geo.radius * (x / geo.radius)) @ geo.forward.T
+    return geo.forward, 1.0 + 2.0 * geo.k2 * s, s
+
+
+def _through(slope: tuple, dx: np.ndarray) -> np.ndarray:
+    """d(reading) (c, m, 3) of body-vector changes dx (c, m, 3) (:func:`_reading_slope`)."""
+    forward, factor, _ = slope
+    return dx if forward is None else factor * (dx @ forward.T)
+
+
+def move_jacobian(session, fit, dyn: Dynamics, layout: dict, start: dict, plan: _Plan,
+                  turns: tuple, cal_rows: np.ndarray, hold_f: np.ndarray,
+                  hold_b: np.ndarray | None, with_mag: bool) -> tuple:
+    """∂(predicted acc, mag)/∂(move parameters) at ``dyn``, analytic: what finite differences
+    got by integrating every move again per gyro parameter.
+
+    The kept steps turn by θ_l = M·Θ_l (M = F_g⁻¹, Θ_l the step's turn of the calibrated gyro,
+    linear in the rates), and R_i = Exp(θ_1)···Exp(θ_i) within a move. A change δθ_l turns
+    R_i by δφ_i = R_iᵀ·Σ_{l≤i} R_l·J_r(θ_l)·δθ_l (body frame, first order), so the carried
+    vector R_iᵀ·v_k changes by (R_iᵀ·v_k) × δφ_i. The delay τ turns the accelerometer's by
+    Exp(τω): ∂/∂τ = ω × f', and a change δω turns it by Exp(τω)·((J_r(τω)·τ·δω) × f).
+    The accelerometer's α and k2 move its reading directly (:class:`GeometryFit`).
+
+    Parameters
+    ----------
+    session : Session
+    fit : ModelFit
+    dyn : Dynamics
+        The parameters where the derivatives are taken.
+    layout : dict
+        The fit's parameter blocks, name -> (size, prior σ) (:func:`_layout`).
+    start : dict
+        The accelerometer terms' starting values (the parameters are changes from them).
+    plan : _Plan
+    turns : tuple
+        (body rate at ``plan.rows``, attitudes) of :func:`_turns` for ``dyn``'s gyro matrix.
+    cal_rows : (r, 3) array
+        The calibrated gyro at ``plan.rows`` [rad/s].
+    hold_f, hold_b : (n_holds, 3) arrays
+        Each hold's specific force [m/s²] and field [mGauss] (``hold_b`` None: no compass).
+    with_mag : bool
+        Whether the compass is part of the fit.
+
+    Returns
+    -------
+    acc : (m, 3, n) array
+        ∂(predicted accelerometer)/∂p [m/s² per parameter unit].
+    mag : (m, 3, n) array or None
+        ∂(predicted compass)/∂p [mGauss per parameter unit] (None without ``with_mag``).
+    """
+    body, rel = turns
+    n = sum(size for size, _ in layout.values())
+    m = len(plan.index)
+    d_acc = np.zeros((n, m, 3))
+    d_mag = np.zeros((n, m, 3)) if with_mag else None
+    f = rel.apply(np.take(hold_f, plan.hold, axis=0), inverse=True)     # R_iᵀ·f_k
+    tau = dyn.time_offset_s
+    omega = np.take(body, plan.kept, axis=0)
+    spin = Rotation.from_rotvec(omega * tau) if tau else None
+    f_late = spin.apply(f) if tau else f
+    geo = fit.acc if dyn.acc_terms is None else acc_with_terms(fit.acc, dyn.acc_terms)
+    slope = _reading_slope(geo, f_late)
+    col = 0
+    for name in layout:
+        if name == "gyro_scale":        # with gyro_gamma: nine columns from here
+            d_m = _gyro_matrix_derivatives(dyn.gyro_scale, dyn.gyro_gamma)
+            rot = rel.as_matrix()
+            rj = rot @ right_jacobian(_step_turns(plan, body))
+            d_theta = np.einsum("cij,mj->cmi", d_m, _step_turns(plan, cal_rows))
+            spread = np.einsum("mij,cmj->cmi", rj, d_theta)       # hold frame
+            total = np.cumsum(spread, axis=1)
+            before = np.zeros_like(total)
+            for a, b in zip(plan.kept_starts[:-1], plan.kept_starts[1:]):   # each move anew
+                if a:
+                    before[:, a:b] = total[:, a - 1:a]
+            d_phi = np.einsum("mji,cmj->cmi", rot, total - before)   # body frame
+            d_f = np.cross(f[None], d_phi)
+            if tau:
+                d_omega = np.einsum("cij,mj->cmi", d_m, np.take(cal_rows, plan.kept, axis=0))
+                lever = np.einsum("mij,cmj->cmi", right_jacobian(omega * tau), tau * d_omega)
+                d_f = spin.as_matrix()[None] @ (d_f + np.cross(lever, f[None]))[..., None]
+                d_f = d_f[..., 0]
+            d_acc[col:col + 9] = _through(slope, d_f)
+            if with_mag:
+                b_body = rel.apply(np.take(hold_b, plan.hold, axis=0), inverse=True)
+                d_mag[col:col + 9] = _through(_reading_slope(fit.mag, b_body),
+                                              np.cross(b_body[None], d_phi))
+            col += 9
+        elif name == "gyro_gamma":
+            continue
+        elif name == "time_offset":
+            d_acc[col] = _through(slope, np.cross(omega, f_late)[None])[0]
+            col += 1
+        elif name == "k2":
+            for j in range(3):
+                d_acc[col + j, :, j] = slope[2][:, j] ** 2
+            col += 3
+        elif name == "alpha":
+            from apmcal.diagnosis.model.static_fit import non_orthogonality
+
+            alpha = np.asarray(dyn.acc_terms["alpha"], float)
+            scale = np.exp(np.asarray(geo.params["log_scale"]))
+            n_inv = np.linalg.inv(non_orthogonality(alpha))
+            for j, (row, c, sign) in enumerate([(0, 1, -1), (0, 2, 1), (1, 2, -1)]):
+                d_n = np.zeros((3, 3))
+                d_n[row, c] = sign
+                d_forward = -np.diag(scale) @ n_inv @ d_n @ n_inv
+                d_acc[col + j] = slope[1] * (f_late @ d_forward.T)
+            col += 3
+    return d_acc.transpose(1, 2, 0), None if d_mag is None else d_mag.transpose(1, 2, 0)
 
 
 def _radius(geo) -> float:
@@ -520,6 +685,19 @@ def fit_dynamics(session, fit, effects, train: np.ndarray, rate_cal, hold_f, hol
         r.append((p + offset) / prior_sigma)
         return np.concatenate(r)
 
+    def jacobian(p):        # analytic (move_jacobian): no integration per gyro parameter
+        d = _unpack(p, layout, start)
+        key = d.forward.tobytes()
+        if key not in turns:
+            turns[key] = _turns(plan, d.forward, cal_rows)
+        d_acc, d_mag = move_jacobian(session, fit, d, layout, start, plan, turns[key],
+                                     cal_rows, hold_f, hold_b, with_mag)
+        rows = [-weight["acc"] * d_acc.reshape(-1, d_acc.shape[-1])]
+        if with_mag:
+            rows.append(-weight["mag"] * d_mag.reshape(-1, d_mag.shape[-1]))
+        rows.append(np.diag(1.0 / prior_sigma))
+        return np.concatenate(rows)
+
     n = len(prior_sigma)
     # kept within twice the physical limits: beyond them a term is not itself any more
     # (apmcal.diagnosis.model.plausible flags it) and the twin it makes can be nonsense
@@ -527,8 +705,8 @@ def fit_dynamics(session, fit, effects, train: np.ndarray, rate_cal, hold_f, hol
                             layout.items()])
     low, high = -reach - offset, reach - offset
     # a holds' value already past the reach starts the fit at the nearest edge
-    sol = least_squares(residuals, np.clip(np.zeros(n), low, high), method="trf",
-                        x_scale=1e-3, bounds=(low, high))
+    sol = least_squares(residuals, np.clip(np.zeros(n), low, high), jac=jacobian,
+                        method="trf", x_scale=1e-3, bounds=(low, high))
     out = _unpack(sol.x, layout, start)
     from apmcal.solvers.uncertainty import covariance_from_jacobian
     cov, _ = covariance_from_jacobian(sol.jac, sol.fun, n)
