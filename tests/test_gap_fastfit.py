@@ -117,9 +117,12 @@ ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "logs" / "gap.bin"      # sitl, 100 Hz, with temperature and a compass
 
 
-@pytest.mark.parametrize("terms_in_moves", [False, True])
-def test_the_move_fits_analytic_jacobian_is_the_derivative_of_its_residuals(monkeypatch,
-                                                                             terms_in_moves):
+@pytest.mark.parametrize("effects, terms_in_moves, size", [
+    (("gyro_scale", "time_offset", "cross_axis", "scale_nonlinearity"), False, 10),
+    (("gyro_scale", "time_offset", "cross_axis", "scale_nonlinearity"), True, 16),
+    (("time_offset", "scale_nonlinearity"), True, 4)])
+def test_the_move_fits_analytic_jacobian_is_the_derivative_of_its_residuals(
+        monkeypatch, effects, terms_in_moves, size):
     """fit_dynamics hands least_squares the analytic Jacobian (move_jacobian): at the start
     and at a point off it (a time offset, other gyro matrices and accelerometer terms), every
     column is the central difference of the very residual function it fits, to 1e-7 of the
@@ -146,10 +149,9 @@ def test_the_move_fits_analytic_jacobian_is_the_derivative_of_its_residuals(monk
     assert len(session.mag.t) == len(session.t)
     session.mag.t = session.t
     ev = Evaluator(session)
-    effects = frozenset({"gyro_scale", "time_offset", "cross_axis", "scale_nonlinearity"})
-    ev._model(session, ev.reduced, effects, 0, None, False)
+    ev._model(session, ev.reduced, frozenset(effects), 0, None, False)
     fun, jac, x0, (low, high) = captured[0]
-    assert len(x0) == (16 if terms_in_moves else 10)
+    assert len(x0) == size
     moves = dynamics.Moves.of(session, session.pieces.select(fold=0))
     step = max(1, int(round(session.fs / dynamics.FIT_RATE_HZ)))
     kept = len(dynamics.move_index(moves, step)[0])
