@@ -168,3 +168,29 @@ def test_the_move_fits_analytic_jacobian_is_the_derivative_of_its_residuals(
         size = np.abs(plain).max(axis=0)
         assert np.all(size > 0)
         assert np.all(np.abs(got - plain).max(axis=0) <= 1e-7 * size)
+
+
+def test_turns_kept_for_the_same_rates_are_the_turns_made_anew():
+    """predicted hands back the turns kept for the same gyro matrix and rates (value for value),
+    and makes new ones for other rates or another matrix: the predictions are those of a fresh
+    integration either way."""
+    from apmcal.diagnosis.model import dynamics
+
+    t, rate, moves = _moves(seed=4)
+    plan = dynamics._plan(moves, t, 1)
+    assert dynamics._plan(Moves(moves.i0.copy(), moves.i1.copy(), moves.hold.copy(),
+                                moves.piece), t, 1) is plan      # same moves, same times
+    assert dynamics._plan(moves, t.copy(), 1) is not plan       # other times
+    forward = np.diag([1.01, 0.98, 1.0])
+    rows = np.take(rate, plan.rows, axis=0)
+    first = dynamics._known_turns(plan, forward, rows)
+    again = dynamics._known_turns(plan, forward, rows.copy())
+    assert again is first
+    other = rows.copy()
+    other[5, 1] += 1e-12
+    for turns, (f, r) in ((dynamics._known_turns(plan, forward, other), (forward, other)),
+                          (dynamics._known_turns(plan, np.eye(3), rows), (np.eye(3), rows))):
+        assert turns is not first
+        fresh = dynamics._turns(plan, f, r)
+        assert np.array_equal(turns[0], fresh[0])
+        assert np.array_equal(turns[1].as_quat(), fresh[1].as_quat())

@@ -13,6 +13,7 @@ holds', and the ``gyro_scale``, ``time_offset`` and ``cross_axis`` parameters ar
 """
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -215,13 +216,24 @@ class _Plan:
     kept_starts: np.ndarray     # (k + 1,) each move's first kept sample, and their number
 
 
+_PLANS: OrderedDict = OrderedDict()     # the recent plans, by moves, times and step
+PLANS_KEPT = 8
+TURNS_KEPT = 4                  # the turns kept per plan (full-rate ones are MBs)
+
+
 def _plan(moves: Moves, t: np.ndarray, step: int) -> _Plan:
-    """The integration plan of ``moves`` on ``t`` at ``step``, kept on ``moves`` (a fit asks
-    for it at each of its steps)."""
-    plans = moves.__dict__.setdefault("_plans", {})
-    plan = plans.get(step)
-    if plan is None or plan.t is not t:
-        plan = plans[step] = _make_plan(moves, t, step)
+    """The integration plan of ``moves`` on ``t`` at ``step``: the one kept for the same move
+    ranges and holds on the very same times array (every model of a session, real or twin,
+    integrates its moves on the session's own times), or made and kept."""
+    key = (id(t), step, np.asarray(moves.i0).tobytes(), np.asarray(moves.i1).tobytes(),
+           np.asarray(moves.hold).tobytes())
+    plan = _PLANS.get(key)
+    if plan is None or plan.t is not t:     # (a kept plan holds its t: the id is not reused)
+        plan = _PLANS[key] = _make_plan(moves, t, step)
+        while len(_PLANS) > PLANS_KEPT:
+            _PLANS.popitem(last=False)
+    else:
+        _PLANS.move_to_end(key)
     return plan
 
 
@@ -330,6 +342,7 @@ def _turns(plan: _Plan, forward: np.ndarray, cal_rows: np.ndarray) -> tuple:
     (its values at ``plan.rows``) through the gyro matrix ``forward``: the moves' rows only,
     about an eighth of a session's samples, turned again at every step of a gyro fit."""
     body = cal_rows @ np.linalg.inv(forward).T
+    body.flags.writeable = False        # kept and shared (_known_turns)
     return body, _attitudes(plan, body)
 
 
@@ -365,8 +378,28 @@ def predicted(session, fit, dyn: Dynamics, moves: Moves, rate_cal: np.ndarray,
         Predicted compass [mGauss] (None without a compass fit or hold fields).
     """
     plan = _plan(moves, session.t, step)
-    turns = _turns(plan, dyn.forward, np.take(rate_cal, plan.rows, axis=0))
+    turns = _known_turns(plan, dyn.forward, np.take(rate_cal, plan.rows, axis=0))
     return _predicted(session, fit, dyn, plan, turns, hold_f, hold_b)
+
+
+def _known_turns(plan: _Plan, forward: np.ndarray, cal_rows: np.ndarray) -> tuple:
+    """:func:`_turns`, or the turns kept on ``plan`` for the same gyro matrix and the same
+    calibrated rates value for value: models that leave the gyro alone integrate the same
+    moves again and again (a comparison reads the rates once, the integration many times)."""
+    kept = plan.__dict__.get("_recent")
+    if kept is None:
+        kept = OrderedDict()
+        object.__setattr__(plan, "_recent", kept)
+    key = forward.tobytes()
+    for token, (matrix, rows, turns) in kept.items():
+        if matrix == key and np.array_equal(rows, cal_rows):
+            kept.move_to_end(token)
+            return turns
+    turns = _turns(plan, forward, cal_rows)
+    kept[object()] = (key, cal_rows, turns)
+    while len(kept) > TURNS_KEPT:
+        kept.popitem(last=False)
+    return turns
 
 
 def _predicted(session, fit, dyn: Dynamics, plan: _Plan, turns: tuple, hold_f: np.ndarray,
