@@ -13,7 +13,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from apmcal.diagnosis.model.dynamics import Moves, move_index, move_turns, relative_attitudes
-from apmcal.diagnosis.session.trajectory import _hamilton, prefix_products
+from apmcal.diagnosis.session.trajectory import _hamilton, prefix_products, quat_multiply
 
 
 def _plain_segmented_scan(q: np.ndarray, segment: np.ndarray) -> np.ndarray:
@@ -70,6 +70,20 @@ def test_segmented_scan_on_slices_is_the_scan_by_gathers():
         got = prefix_products(q, segment)
         assert np.array_equal(got, _plain_segmented_scan(given, segment))
         assert np.array_equal(q, given)            # the input is left as it was
+
+
+def test_scan_on_slices_is_the_scan_by_whole_quaternion_products():
+    rng = np.random.default_rng(5)
+    for m in (1, 2, 3, 64, 1000):
+        q = Rotation.from_rotvec(rng.standard_normal((m, 3)) * 0.3).as_quat()
+        plain = q.copy()
+        d = 1
+        while d < m:
+            plain[d:] = quat_multiply(plain[:-d], plain[d:])
+            d *= 2
+        given = np.asfortranarray(q)         # either memory order; left as it was
+        assert np.array_equal(prefix_products(given), plain)
+        assert np.array_equal(given, q)
 
 
 @pytest.mark.parametrize("step", [1, 2, 3, 8])
