@@ -1,6 +1,6 @@
 """Does ``apmcal gap`` still give the same result, byte for byte, as at an earlier commit?
 
-    python benchmarks/gap_identical.py [--before REV] [--no-real]
+    python benchmarks/gap_identical.py [--before REV] [--no-real] [--numbers]
 
 A speed change to the diagnosis must not change a single number it reports. This runs
 ``apmcal gap FILE --json OUT`` with this tree and with revision ``--before`` (its apmcal and its
@@ -12,11 +12,20 @@ speed work that began at 05:44 UTC on 2026-11-24) on:
 * the real recordings of the README's table, when ``../shared/data`` is there.
 
 and compares the two JSON files of each. Prints one line per session and exits 1 when any differs.
+
+``--numbers``: for a change that legitimately moves numbers by rounding (e.g. an analytic
+Jacobian instead of finite differences), a session whose JSON differs is still "same" when
+every non-number (effect names, selections, verdicts, flags, list lengths) is equal; the line
+then gives how many numbers moved, how many by more than 1e-6 relative, the largest relative
+change |a − b| / max(|a|, |b|), and the largest change of a fitted parameter in units of its
+σ. Exits 1 only on a non-number difference.
 """
 from __future__ import annotations
 
 import argparse
 import filecmp
+import json
+import math
 import os
 import subprocess
 import sys
@@ -74,10 +83,50 @@ def gap_json(tree: Path, log: Path, extra: list[str], out: Path) -> None:
                    check=True, stdout=subprocess.DEVNULL, cwd=DATA, env=env)
 
 
+def number_differences(was, now) -> tuple[list, list, float]:
+    """(non-number differences, [(relative change, path, was, now)] of the numbers that moved,
+    the largest change of a parameter value in units of its σ) of two JSON documents."""
+    other, moved, in_sigma = [], [], [0.0]
+
+    def walk(a, b, path):
+        if isinstance(a, dict) and isinstance(b, dict):
+            if set(a) != set(b):
+                other.append((path, "keys"))
+            for k in a.keys() & b.keys():
+                walk(a[k], b[k], f"{path}.{k}")
+            if "value" in a and "sigma" in a and "value" in b:
+                _sigma_change(a["value"], b["value"], a["sigma"])
+        elif isinstance(a, list) and isinstance(b, list):
+            if len(a) != len(b):
+                other.append((path, "length"))
+                return
+            for i, (x, y) in enumerate(zip(a, b)):
+                walk(x, y, f"{path}[{i}]")
+        elif _number(a) and _number(b):
+            if a != b and not (math.isnan(a) and math.isnan(b)):
+                moved.append((abs(a - b) / max(abs(a), abs(b)), path, a, b))
+        elif a != b:
+            other.append((path, a, b))
+
+    def _sigma_change(value, new, sigma):
+        for v, w, s in zip(*(x if isinstance(x, list) else [x] for x in (value, new, sigma))):
+            if _number(v) and _number(w) and _number(s) and s > 0:
+                in_sigma[0] = max(in_sigma[0], abs(v - w) / s)
+
+    walk(was, now, "")
+    return other, sorted(moved, reverse=True), in_sigma[0]
+
+
+def _number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--before", default=BEFORE, help=f"revision to compare with (default {BEFORE})")
     ap.add_argument("--no-real", action="store_true", help="leave out the real recordings")
+    ap.add_argument("--numbers", action="store_true",
+                    help="accept numbers moved by rounding when every non-number is equal")
     args = ap.parse_args(argv)
     before = export_tree(args.before)
     differ = 0
@@ -86,8 +135,18 @@ def main(argv=None) -> int:
         gap_json(ROOT, log, extra, now)
         gap_json(before, log, extra, was)
         same = filecmp.cmp(now, was, shallow=False)
+        note = "(byte for byte)" if same and args.numbers else ""
+        if not same and args.numbers:
+            other, moved, in_sigma = number_differences(json.loads(was.read_text()),
+                                                        json.loads(now.read_text()))
+            same = not other
+            beyond = sum(m[0] > 1e-6 for m in moved)
+            note = (f"(every non-number equal; {len(moved)} numbers moved, {beyond} by more "
+                    f"than 1e-6 relative, at most {moved[0][0]:.1e} ({moved[0][1]}: "
+                    f"{moved[0][2]!r} → {moved[0][3]!r}); parameters at most {in_sigma:.1e} σ)"
+                    if same else f"{other[:3]}")
         differ += not same
-        print(f"{'same' if same else 'DIFFERENT':9s} {log.name}", flush=True)
+        print(f"{'same' if same else 'DIFFERENT':9s} {log.name} {note}", flush=True)
     print(f"{differ} of the sessions differ from {args.before}" if differ else
           f"every session gives the same JSON as at {args.before}")
     return 1 if differ else 0

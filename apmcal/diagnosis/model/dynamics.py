@@ -13,6 +13,7 @@ holds', and the ``gyro_scale``, ``time_offset`` and ``cross_axis`` parameters ar
 """
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -188,19 +189,100 @@ def relative_attitudes(rate: np.ndarray, t: np.ndarray, moves: Moves, step: int 
         One rotation per kept move sample (the samples of :func:`move_index`), body frame
         relative to the hold before.
     """
-    turns, segment = [], []
-    for m, (a, b) in enumerate(zip(moves.i0, moves.i1)):
-        dt = t[a:b] - t[a - 1:b - 1]
-        turn = 0.5 * (rate[a - 1:b - 1] + rate[a:b]) * dt[:, None]
-        if step > 1:
-            ends = np.arange(step - 1, b - a, step)
-            turn = np.diff(np.vstack([np.zeros(3), np.cumsum(turn, axis=0)[ends]]), axis=0)
-        turns.append(turn)
-        segment.append(np.full(len(turn), m))
-    if not turns:
+    plan = _plan(moves, t, step)
+    return _attitudes(plan, np.take(rate, plan.rows, axis=0))
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """What integrating ``moves`` on sample times ``t`` every ``step``-th sample reads and
+    where it puts it: the same for every gyro matrix a fit tries, so found once per
+    (moves, times, step) and kept on the Moves (:func:`_plan`).
+
+    ``rows`` are :meth:`Moves.rows` (each move's samples and the last hold sample before it):
+    a rate is handed to :func:`_attitudes` as its values at those rows only, ``(len(rows), 3)``.
+    """
+
+    t: np.ndarray               # the sample times the plan is for (compared by identity)
+    rows: np.ndarray            # (r,) session rows the integration reads
+    prev: np.ndarray            # (s,) position in rows of each interval's first end ...
+    dt: np.ndarray              # (s,) ... its length [s] (the second end is prev + 1)
+    starts: np.ndarray          # (k + 1,) each move's first interval, and the total
+    ends: tuple                 # per move: its kept intervals' last index (step > 1), else ()
+    segment: np.ndarray         # (m,) move of each kept sample
+    index: np.ndarray           # (m,) session sample index of each kept sample
+    hold: np.ndarray            # (m,) hold before each kept sample
+    kept: np.ndarray            # (m,) position in rows of each kept sample
+    kept_starts: np.ndarray     # (k + 1,) each move's first kept sample, and their number
+
+
+_PLANS: OrderedDict = OrderedDict()     # the recent plans, by moves, times and step
+PLANS_KEPT = 8
+TURNS_KEPT = 4                  # the turns kept per plan (full-rate ones are MBs)
+
+
+def _plan(moves: Moves, t: np.ndarray, step: int) -> _Plan:
+    """The integration plan of ``moves`` on ``t`` at ``step``: the one kept for the same move
+    ranges and holds on the very same times array (every model of a session, real or twin,
+    integrates its moves on the session's own times), or made and kept."""
+    key = (id(t), step, np.asarray(moves.i0).tobytes(), np.asarray(moves.i1).tobytes(),
+           np.asarray(moves.hold).tobytes())
+    plan = _PLANS.get(key)
+    if plan is None or plan.t is not t:     # (a kept plan holds its t: the id is not reused)
+        plan = _PLANS[key] = _make_plan(moves, t, step)
+        while len(_PLANS) > PLANS_KEPT:
+            _PLANS.popitem(last=False)
+    else:
+        _PLANS.move_to_end(key)
+    return plan
+
+
+def _make_plan(moves: Moves, t: np.ndarray, step: int) -> _Plan:
+    length = np.asarray(moves.i1 - moves.i0, int)
+    rows = moves.rows()
+    first_row = np.cumsum(length + 1) - (length + 1)       # each move's hold sample in rows
+    starts = np.concatenate(([0], np.cumsum(length)))
+    move_of = np.repeat(np.arange(len(length)), length)
+    prev = first_row[move_of] + np.arange(starts[-1]) - starts[move_of]
+    dt = np.take(t, rows[prev + 1]) - np.take(t, rows[prev])     # t[a:b] − t[a−1:b−1]
+    index, hold = move_index(moves, step)
+    if step == 1:
+        ends, segment = (), move_of
+        kept = prev + 1
+    else:
+        ends = tuple(np.arange(step - 1, n, step) for n in length)
+        segment = np.repeat(np.arange(len(length)), [len(e) for e in ends])
+        kept = np.concatenate([first_row[m] + 1 + e for m, e in enumerate(ends)]) \
+            if len(ends) else np.zeros(0, int)
+    kept_starts = np.searchsorted(segment, np.arange(len(length) + 1))
+    for a in (rows, prev, dt, starts, segment, index, hold, kept, kept_starts):
+        a.flags.writeable = False           # shared by every caller of the plan
+    return _Plan(t, rows, prev, dt, starts, ends, segment, index, hold, kept, kept_starts)
+
+
+def _attitudes(plan: _Plan, rate_rows: np.ndarray) -> Rotation:
+    """:func:`relative_attitudes` of a rate given at ``plan.rows`` only (``rate_rows``,
+    (len(rows), 3) [rad/s]): every move's intervals at once (each value the very product
+    and sum the move-by-move loop made)."""
+    if not len(plan.starts) - 1:
         return Rotation.identity(0)
-    q = Rotation.from_rotvec(np.concatenate(turns)).as_quat()
-    return Rotation.from_quat(prefix_products(q, np.concatenate(segment)))
+    q = Rotation.from_rotvec(_step_turns(plan, rate_rows)).as_quat()
+    return Rotation.from_quat(prefix_products(q, plan.segment))
+
+
+def _step_turns(plan: _Plan, rate_rows: np.ndarray) -> np.ndarray:
+    """The rotation vector of each kept step (m, 3) [rad]: trapezoid turns of the intervals,
+    ``step`` of them summed (the running sums move by move: one across moves would round
+    differently)."""
+    turn = 0.5 * (np.take(rate_rows, plan.prev, axis=0)
+                  + np.take(rate_rows, plan.prev + 1, axis=0)) * plan.dt[:, None]
+    if plan.ends:
+        parts = []
+        for a, b, ends in zip(plan.starts[:-1], plan.starts[1:], plan.ends):
+            parts.append(np.diff(np.vstack([np.zeros(3), np.cumsum(turn[a:b], axis=0)[ends]]),
+                                 axis=0))
+        turn = np.concatenate(parts)
+    return turn
 
 
 def move_index(moves: Moves, step: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -248,22 +330,28 @@ def move_turns(session, forward: np.ndarray, moves: Moves, rate_cal: np.ndarray,
     rel : Rotation
         Attitudes relative to the hold before, one per kept move sample.
     """
-    # the moves' rows only: about an eighth of a session's samples, and a fit of the gyro
-    # matrix turns them again at every step (each row is the same product either way)
-    rows = moves.rows()
+    plan = _plan(moves, session.t, step)
+    body, rel = _turns(plan, forward, np.take(rate_cal, plan.rows, axis=0))
     rate = np.full_like(rate_cal, np.nan)
-    rate[rows] = rate_cal[rows] @ np.linalg.inv(forward).T
-    return rate, relative_attitudes(rate, session.t, moves, step)
+    rate[plan.rows] = body
+    return rate, rel
+
+
+def _turns(plan: _Plan, forward: np.ndarray, cal_rows: np.ndarray) -> tuple:
+    """(body rate at ``plan.rows`` [rad/s], attitudes) of the calibrated gyro ``cal_rows``
+    (its values at ``plan.rows``) through the gyro matrix ``forward``: the moves' rows only,
+    about an eighth of a session's samples, turned again at every step of a gyro fit."""
+    body = cal_rows @ np.linalg.inv(forward).T
+    body.flags.writeable = False        # kept and shared (_known_turns)
+    return body, _attitudes(plan, body)
 
 
 def predicted(session, fit, dyn: Dynamics, moves: Moves, rate_cal: np.ndarray,
-              hold_f: np.ndarray, hold_b: np.ndarray | None, step: int = 1,
-              turns: tuple | None = None) -> tuple:
+              hold_f: np.ndarray, hold_b: np.ndarray | None, step: int = 1) -> tuple:
     """Predicted acc (and mag at the IMU times) of every ``step``-th move sample.
 
     ``rate_cal`` is the gyro minus its fitted bias terms at every session sample; ``hold_f`` /
-    ``hold_b`` the calibrated specific force and field of each hold; ``turns``: what
-    :func:`move_turns` gives for ``dyn``'s gyro matrix, when known.
+    ``hold_b`` the calibrated specific force and field of each hold.
 
     Parameters
     ----------
@@ -279,8 +367,6 @@ def predicted(session, fit, dyn: Dynamics, moves: Moves, rate_cal: np.ndarray,
         Field of each hold [mGauss].
     step : int
         Keep every ``step``-th move sample.
-    turns : tuple, optional
-        (rate, rel) of :func:`move_turns`.
 
     Returns
     -------
@@ -291,11 +377,39 @@ def predicted(session, fit, dyn: Dynamics, moves: Moves, rate_cal: np.ndarray,
     mag : (k, 3) array or None
         Predicted compass [mGauss] (None without a compass fit or hold fields).
     """
-    rate, rel = turns or move_turns(session, dyn.forward, moves, rate_cal, step)
-    idx, hold = move_index(moves, step)
+    plan = _plan(moves, session.t, step)
+    turns = _known_turns(plan, dyn.forward, np.take(rate_cal, plan.rows, axis=0))
+    return _predicted(session, fit, dyn, plan, turns, hold_f, hold_b)
+
+
+def _known_turns(plan: _Plan, forward: np.ndarray, cal_rows: np.ndarray) -> tuple:
+    """:func:`_turns`, or the turns kept on ``plan`` for the same gyro matrix and the same
+    calibrated rates value for value: models that leave the gyro alone integrate the same
+    moves again and again (a comparison reads the rates once, the integration many times)."""
+    kept = plan.__dict__.get("_recent")
+    if kept is None:
+        kept = OrderedDict()
+        object.__setattr__(plan, "_recent", kept)
+    key = forward.tobytes()
+    for token, (matrix, rows, turns) in kept.items():
+        if matrix == key and np.array_equal(rows, cal_rows):
+            kept.move_to_end(token)
+            return turns
+    turns = _turns(plan, forward, cal_rows)
+    kept[object()] = (key, cal_rows, turns)
+    while len(kept) > TURNS_KEPT:
+        kept.popitem(last=False)
+    return turns
+
+
+def _predicted(session, fit, dyn: Dynamics, plan: _Plan, turns: tuple, hold_f: np.ndarray,
+               hold_b: np.ndarray | None) -> tuple:
+    """:func:`predicted` with the integration ``turns`` (:func:`_turns`) already made."""
+    body, rel = turns
+    idx, hold = plan.index, plan.hold
     f = rel.apply(np.take(hold_f, hold, axis=0), inverse=True)     # R(t)ᵀ·f_k
     if dyn.time_offset_s:          # the accelerometer samples the past: f(t − τ) = Exp(ωτ)·f(t)
-        f = Rotation.from_rotvec(np.take(rate, idx, axis=0) * dyn.time_offset_s).apply(f)
+        f = Rotation.from_rotvec(np.take(body, plan.kept, axis=0) * dyn.time_offset_s).apply(f)
     temp = session.temp[idx] if session.temp is not None else None
     geo = fit.acc if dyn.acc_terms is None else acc_with_terms(fit.acc, dyn.acc_terms)
     acc = geo.predict(f / _radius(geo), fit.acc_columns(session.t[idx], temp))
@@ -305,6 +419,171 @@ def predicted(session, fit, dyn: Dynamics, moves: Moves, rate_cal: np.ndarray,
         cur = session.current[idx] if session.current is not None else None
         mag = fit.mag.predict(b / _radius(fit.mag), fit.mag_columns(session.t[idx], cur))
     return idx, acc, mag
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """[v]× (..., 3, 3) of vectors v (..., 3)."""
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return out
+
+
+def right_jacobian(theta: np.ndarray) -> np.ndarray:
+    """SO(3)'s right Jacobian J_r(θ) (m, 3, 3) of rotation vectors θ (m, 3) [rad]:
+    Exp(θ + δθ) = Exp(θ)·Exp(J_r(θ)·δθ) to first order.
+
+    J_r = I − (1 − cos|θ|)/|θ|²·[θ]× + (|θ| − sin|θ|)/|θ|³·[θ]×² (their series below 1e-4 rad).
+    """
+    a = np.linalg.norm(theta, axis=-1)
+    small = a < 1e-4
+    safe = np.where(small, 1.0, a)
+    c1 = np.where(small, 0.5 - a ** 2 / 24, (1 - np.cos(safe)) / safe ** 2)
+    c2 = np.where(small, 1 / 6 - a ** 2 / 120, (safe - np.sin(safe)) / safe ** 3)
+    k = _skew(theta)
+    return np.eye(3) - c1[:, None, None] * k + c2[:, None, None] * (k @ k)
+
+
+def _gyro_matrix_derivatives(scale: np.ndarray, gamma: np.ndarray) -> np.ndarray:
+    """∂M/∂p (9, 3, 3) of M = F_g⁻¹ = T_g·diag(1/scale) (:func:`gyro_forward`) for the move
+    fit's gyro parameters: the three scales, then the six angles γ (yz, zy, zx, xz, xy, yx)."""
+    g_yz, g_zy, g_zx, g_xz, g_xy, g_yx = gamma
+    t_g = np.array([[1, -g_yz, g_zy], [g_xz, 1, -g_zx], [-g_xy, g_yx, 1.0]])
+    out = np.zeros((9, 3, 3))
+    for k in range(3):
+        out[k, :, k] = -t_g[:, k] / scale[k] ** 2
+    # where each angle sits in T_g, and its sign
+    for j, (row, col, sign) in enumerate([(0, 1, -1), (0, 2, 1), (1, 2, -1), (1, 0, 1),
+                                          (2, 0, -1), (2, 1, 1)]):
+        out[3 + j, row, col] = sign / scale[col]
+    return out
+
+
+def _rotate(a: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """a_m·v_cm (c, m, 3) of matrices a (m, 3, 3) and vectors v (c, m, 3), column by column
+    (np.einsum took 5× as long on these shapes)."""
+    return a[:, :, 0] * v[..., 0:1] + a[:, :, 1] * v[..., 1:2] + a[:, :, 2] * v[..., 2:3]
+
+
+def _reading_slope(geo, x: np.ndarray) -> tuple:
+    """How ``geo.predict(x / radius, …)`` moves with the body vectors x (m, 3): the sensor
+    forward matrix and the per-sample factor 1 + 2·k2 ⊙ s of its quadratic term (s the
+    reading before offset), and s itself — d(reading) = factor ⊙ (dx·Fᵀ). None, None, None
+    without geometry (the reading is x itself)."""
+    if not geo.geometry:
+        return None, None, None
+    s = (geo.radius * (x / geo.radius)) @ geo.forward.T
+    return geo.forward, 1.0 + 2.0 * geo.k2 * s, s
+
+
+def _through(slope: tuple, dx: np.ndarray) -> np.ndarray:
+    """d(reading) (c, m, 3) of body-vector changes dx (c, m, 3) (:func:`_reading_slope`)."""
+    forward, factor, _ = slope
+    return dx if forward is None else factor * (dx @ forward.T)
+
+
+def move_jacobian(session, fit, dyn: Dynamics, layout: dict, start: dict, plan: _Plan,
+                  turns: tuple, cal_rows: np.ndarray, cal_turns: np.ndarray,
+                  hold_f: np.ndarray, hold_b: np.ndarray | None, with_mag: bool) -> tuple:
+    """∂(predicted acc, mag)/∂(move parameters) at ``dyn``, analytic: what finite differences
+    got by integrating every move again per gyro parameter.
+
+    The kept steps turn by θ_l = M·Θ_l (M = F_g⁻¹, Θ_l the step's turn of the calibrated gyro,
+    linear in the rates), and R_i = Exp(θ_1)···Exp(θ_i) within a move. A change δθ_l turns
+    R_i by δφ_i = R_iᵀ·Σ_{l≤i} R_l·J_r(θ_l)·δθ_l (body frame, first order), so the carried
+    vector R_iᵀ·v_k changes by (R_iᵀ·v_k) × δφ_i. The delay τ turns the accelerometer's by
+    Exp(τω): ∂/∂τ = ω × f', and a change δω turns it by Exp(τω)·((J_r(τω)·τ·δω) × f).
+    The accelerometer's α and k2 move its reading directly (:class:`GeometryFit`).
+
+    Parameters
+    ----------
+    session : Session
+    fit : ModelFit
+    dyn : Dynamics
+        The parameters where the derivatives are taken.
+    layout : dict
+        The fit's parameter blocks, name -> (size, prior σ) (:func:`_layout`).
+    start : dict
+        The accelerometer terms' starting values (the parameters are changes from them).
+    plan : _Plan
+    turns : tuple
+        (body rate at ``plan.rows``, attitudes) of :func:`_turns` for ``dyn``'s gyro matrix.
+    cal_rows : (r, 3) array
+        The calibrated gyro at ``plan.rows`` [rad/s].
+    cal_turns : (m, 3) array
+        Its turn Θ_l over each kept step [rad] (:func:`_step_turns`).
+    hold_f, hold_b : (n_holds, 3) arrays
+        Each hold's specific force [m/s²] and field [mGauss] (``hold_b`` None: no compass).
+    with_mag : bool
+        Whether the compass is part of the fit.
+
+    Returns
+    -------
+    acc : (m, 3, n) array
+        ∂(predicted accelerometer)/∂p [m/s² per parameter unit].
+    mag : (m, 3, n) array or None
+        ∂(predicted compass)/∂p [mGauss per parameter unit] (None without ``with_mag``).
+    """
+    body, rel = turns
+    n = sum(size for size, _ in layout.values())
+    m = len(plan.index)
+    d_acc = np.zeros((n, m, 3))
+    d_mag = np.zeros((n, m, 3)) if with_mag else None
+    f = rel.apply(np.take(hold_f, plan.hold, axis=0), inverse=True)     # R_iᵀ·f_k
+    tau = dyn.time_offset_s
+    omega = np.take(body, plan.kept, axis=0)
+    spin = Rotation.from_rotvec(omega * tau) if tau else None
+    f_late = spin.apply(f) if tau else f
+    geo = fit.acc if dyn.acc_terms is None else acc_with_terms(fit.acc, dyn.acc_terms)
+    slope = _reading_slope(geo, f_late)
+    col = 0
+    for name in layout:
+        if name == "gyro_scale":        # with gyro_gamma: nine columns from here
+            d_m = _gyro_matrix_derivatives(dyn.gyro_scale, dyn.gyro_gamma)
+            rot = rel.as_matrix()
+            # the steps' turns θ_l = M·Θ_l (to rounding: what the integration turned by)
+            rj = rot @ right_jacobian(cal_turns @ np.linalg.inv(dyn.forward).T)
+            d_theta = cal_turns @ d_m.transpose(0, 2, 1)                # (c, m, 3)
+            spread = _rotate(rj, d_theta)                               # hold frame
+            total = np.cumsum(spread, axis=1)
+            before = np.zeros_like(total)
+            for a, b in zip(plan.kept_starts[:-1], plan.kept_starts[1:]):   # each move anew
+                if a:
+                    before[:, a:b] = total[:, a - 1:a]
+            d_phi = _rotate(rot.transpose(0, 2, 1), total - before)     # body frame
+            d_f = np.cross(f[None], d_phi)
+            if tau:
+                d_omega = np.take(cal_rows, plan.kept, axis=0) @ d_m.transpose(0, 2, 1)
+                lever = _rotate(right_jacobian(omega * tau), tau * d_omega)
+                d_f = _rotate(spin.as_matrix(), d_f + np.cross(lever, f[None]))
+            d_acc[col:col + 9] = _through(slope, d_f)
+            if with_mag:
+                b_body = rel.apply(np.take(hold_b, plan.hold, axis=0), inverse=True)
+                d_mag[col:col + 9] = _through(_reading_slope(fit.mag, b_body),
+                                              np.cross(b_body[None], d_phi))
+            col += 9
+        elif name == "gyro_gamma":
+            continue
+        elif name == "time_offset":
+            d_acc[col] = _through(slope, np.cross(omega, f_late)[None])[0]
+            col += 1
+        elif name == "k2":
+            for j in range(3):
+                d_acc[col + j, :, j] = slope[2][:, j] ** 2
+            col += 3
+        elif name == "alpha":
+            from apmcal.diagnosis.model.static_fit import non_orthogonality
+
+            alpha = np.asarray(dyn.acc_terms["alpha"], float)
+            scale = np.exp(np.asarray(geo.params["log_scale"]))
+            n_inv = np.linalg.inv(non_orthogonality(alpha))
+            for j, (row, c, sign) in enumerate([(0, 1, -1), (0, 2, 1), (1, 2, -1)]):
+                d_n = np.zeros((3, 3))
+                d_n[row, c] = sign
+                d_forward = -np.diag(scale) @ n_inv @ d_n @ n_inv
+                d_acc[col + j] = slope[1] * (f_late @ d_forward.T)
+            col += 3
+    return d_acc.transpose(1, 2, 0), None if d_mag is None else d_mag.transpose(1, 2, 0)
 
 
 def _radius(geo) -> float:
@@ -415,9 +694,13 @@ def fit_dynamics(session, fit, effects, train: np.ndarray, rate_cal, hold_f, hol
     if not layout or not len(moves):
         return Dynamics()
     step = max(1, int(round(session.fs / FIT_RATE_HZ)))
-    idx, _ = move_index(moves, step)
+    plan = _plan(moves, session.t, step)
+    idx = plan.index
+    cal_rows = np.take(rate_cal, plan.rows, axis=0)     # the same in every step
+    cal_turns = _step_turns(plan, cal_rows) if "gyro_scale" in layout else None
     with_mag = hold_b is not None and fit.mag is not None and session.mag is not None \
         and session.mag.t is session.t and "mag" in sigma
+    fit_b = hold_b if with_mag else None        # no compass prediction the fit does not read
     weight = {k: 1.0 / max(float(v), 1e-12) for k, v in sigma.items()}
     prior_sigma = np.concatenate([np.full(size, s) for size, s in layout.values()])
     # the accelerometer terms start from the holds' values (the prior is about the total)
@@ -437,14 +720,26 @@ def fit_dynamics(session, fit, effects, train: np.ndarray, rate_cal, hold_f, hol
         if key not in turns:
             if len(turns) >= 2:             # a gyro fit's matrices are new step after step
                 turns.pop(next(iter(turns)))
-            turns[key] = move_turns(session, d.forward, moves, rate_cal, step)
-        _, acc, mag = predicted(session, fit, d, moves, rate_cal, hold_f, hold_b, step,
-                                turns[key])
+            turns[key] = _turns(plan, d.forward, cal_rows)
+        _, acc, mag = _predicted(session, fit, d, plan, turns[key], hold_f, fit_b)
         r = [((acc_seen - acc) * weight["acc"]).ravel()]
         if with_mag:
             r.append(((mag_seen - mag) * weight["mag"]).ravel())
         r.append((p + offset) / prior_sigma)
         return np.concatenate(r)
+
+    def jacobian(p):        # analytic (move_jacobian): no integration per gyro parameter
+        d = _unpack(p, layout, start)
+        key = d.forward.tobytes()
+        if key not in turns:
+            turns[key] = _turns(plan, d.forward, cal_rows)
+        d_acc, d_mag = move_jacobian(session, fit, d, layout, start, plan, turns[key],
+                                     cal_rows, cal_turns, hold_f, hold_b, with_mag)
+        rows = [-weight["acc"] * d_acc.reshape(-1, d_acc.shape[-1])]
+        if with_mag:
+            rows.append(-weight["mag"] * d_mag.reshape(-1, d_mag.shape[-1]))
+        rows.append(np.diag(1.0 / prior_sigma))
+        return np.concatenate(rows)
 
     n = len(prior_sigma)
     # kept within twice the physical limits: beyond them a term is not itself any more
@@ -453,8 +748,8 @@ def fit_dynamics(session, fit, effects, train: np.ndarray, rate_cal, hold_f, hol
                             layout.items()])
     low, high = -reach - offset, reach - offset
     # a holds' value already past the reach starts the fit at the nearest edge
-    sol = least_squares(residuals, np.clip(np.zeros(n), low, high), method="trf",
-                        x_scale=1e-3, bounds=(low, high))
+    sol = least_squares(residuals, np.clip(np.zeros(n), low, high), jac=jacobian,
+                        method="trf", x_scale=1e-3, bounds=(low, high))
     out = _unpack(sol.x, layout, start)
     from apmcal.solvers.uncertainty import covariance_from_jacobian
     cov, _ = covariance_from_jacobian(sol.jac, sol.fun, n)

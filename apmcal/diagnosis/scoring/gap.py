@@ -215,9 +215,10 @@ class CellShare:
         cell.block = block
         return cell
 
-    @property
+    @functools.cached_property
     def total(self) -> float:
-        """The cell's gap [nats]: the sum of its shares."""
+        """The cell's gap [nats]: the sum of its shares (summed once: the shares are never
+        written to, and a diagnosis reads the totals of its cells again and again)."""
         return float(self.nats.sum())
 
     @property
