@@ -83,3 +83,30 @@ def test_one_worker_per_fold_gives_the_summaries_made_in_one_process(session, mo
         np.testing.assert_equal(asdict(by_fold.summary(model)), asdict(plain.summary(model)),
                                 err_msg=str(model))
     assert not by_fold._cold() and set(by_fold._motion) == set(plain._motion)
+
+
+def test_several_cold_evaluators_at_once_give_the_summaries_of_each_alone(session, monkeypatch):
+    """prefetch_cold (the first null sessions fitted in one pair of workers, one fold each,
+    evaluator after evaluator) against each evaluator prefetched alone in one process."""
+    from apmcal.diagnosis.scoring.evaluate import Evaluator, prefetch_cold
+    from apmcal.diagnosis.session.decimate import decimated
+
+    small = decimated(session, 2)
+    work = [[(), ("temperature_drift",)], [(), ("bias_drift",), ("gyro_scale",)]]
+    monkeypatch.setattr(workers, "parallel", lambda: True)     # as on a two-core machine,
+    monkeypatch.setattr("os.cpu_count", lambda: 2)             # whatever this one has
+    lanes = []
+    run_lanes = workers.run_lanes
+    monkeypatch.setattr(workers, "run_lanes",
+                        lambda target, jobs: lanes.append(jobs) or run_lanes(target, jobs))
+    together = [Evaluator(small, seed) for seed in (3, 4)]
+    prefetch_cold(list(zip(together, work)))
+    assert len(lanes) == 1 and len(lanes[0]) == 2       # one pair of workers for both
+    monkeypatch.setattr(workers, "parallel", lambda: False)
+    for seed, ev, models in zip((3, 4), together, work):
+        alone = Evaluator(small, seed)
+        alone.prefetch(models)
+        assert not ev._cold()
+        for model in models:
+            np.testing.assert_equal(asdict(ev.summary(model)), asdict(alone.summary(model)),
+                                    err_msg=str(model))

@@ -489,6 +489,18 @@ class Evaluator:
             self._summaries[key] = Summary.of_folds(key, parts[i * len(FOLDS):
                                                                (i + 1) * len(FOLDS)])
 
+    def _cold_lane(self, fold: int, todo: list) -> list:
+        """Fold ``fold`` of the nominal model (summary and state, :meth:`_nominal_fold`) and
+        then of every model of ``todo``, in this process: what one worker of
+        :meth:`_prefetch_by_fold` does."""
+        return [self._nominal_fold(fold, True)] + [self.fold_summary(key, fold) for key in todo]
+
+    def _keep_lanes(self, todo: list, lanes: list) -> None:
+        """Keep what :meth:`_cold_lane` gave for each fold (``lanes``, in fold order)."""
+        self.keep_nominal_folds([lane[0] for lane in lanes])
+        for i, key in enumerate(todo):
+            self._summaries[key] = Summary.of_folds(key, [lane[1 + i] for lane in lanes])
+
     def _prefetch_by_fold(self, todo: list) -> None:
         """:meth:`prefetch` on a cold evaluator with no more cores than folds: one worker per
         fold fits that fold's nominal model and then, building on it, the fold of every model
@@ -496,12 +508,8 @@ class Evaluator:
         forked once their state has come back, for the models (a null session's evaluator,
         :mod:`apmcal.diagnosis.scoring.null`, is always cold). The same numbers: every
         fold's computation is the same wherever it runs."""
-        lanes = self.run_lanes([[("_nominal_fold", (fold, True))] +
-                                  [("fold_summary", (key, fold)) for key in todo]
-                                  for fold in FOLDS])
-        self.keep_nominal_folds([lane[0] for lane in lanes])
-        for i, key in enumerate(todo):
-            self._summaries[key] = Summary.of_folds(key, [lane[1 + i] for lane in lanes])
+        lanes = self.run_lanes([[("_cold_lane", (fold, todo))] for fold in FOLDS])
+        self._keep_lanes(todo, [lane[0] for lane in lanes])
 
     def run_lanes(self, lanes: list) -> list:
         """:func:`apmcal.diagnosis.compute.workers.run_lanes` of this evaluator's methods."""
@@ -654,3 +662,43 @@ class Evaluator:
                           compare(real, tw, train, in_sample=True, floors=self.floors),
                           compare(real, tw, test, in_sample=False, floors=self.floors),
                           {name: effect_params(name, fit, noise) for name in effects})
+
+
+class _Cold:
+    """Several cold evaluators, each with the models to prefetch on it, as one target of
+    forked workers (:func:`prefetch_cold`)."""
+
+    def __init__(self, evaluators: list, todos: list):
+        self.evaluators, self.todos = evaluators, todos
+
+    def lane(self, fold: int) -> list:
+        """Each evaluator's :meth:`Evaluator._cold_lane` of ``fold``, one after the other."""
+        return [ev._cold_lane(fold, todo) for ev, todo in zip(self.evaluators, self.todos)]
+
+
+def prefetch_cold(work: list) -> None:
+    """:meth:`Evaluator.prefetch` of several cold evaluators — null sessions
+    (:mod:`apmcal.diagnosis.scoring.null`) — at once; ``work``: (evaluator, models) pairs, the
+    nominal model among each one's models.
+
+    On no more cores than folds, one worker per fold fits that fold of every evaluator, one
+    evaluator after the other (:meth:`Evaluator._cold_lane`): one pair of workers for all of
+    them instead of a pair per evaluator, each of which would start cold again (a forked
+    worker faults its memory in and fills its caches anew). The same numbers: every fold's
+    computation is the same wherever it runs."""
+    work = [(ev, [frozenset(m) for m in models]) for ev, models in work]
+    if len(work) < 2 or not workers.parallel() or (os.cpu_count() or 1) > len(FOLDS) or \
+            any(not ev._cold() or frozenset() not in models for ev, models in work):
+        for ev, models in work:
+            ev.prefetch(models)
+        return
+    todos = []
+    for ev, models in work:
+        todo = list(dict.fromkeys(m for m in models if m))
+        todo.sort(key=lambda key: -len(key & SLOW_TO_FIT))     # as prefetch orders them
+        todos.append(todo)
+        ev.facts()
+    evaluators = [ev for ev, _ in work]
+    lanes = workers.run_lanes(_Cold(evaluators, todos), [[("lane", (fold,))] for fold in FOLDS])
+    for i, (ev, todo) in enumerate(zip(evaluators, todos)):
+        ev._keep_lanes(todo, [lane[0][i] for lane in lanes])

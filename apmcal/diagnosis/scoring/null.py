@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import stdtr, stdtrit
 
-from apmcal.diagnosis.scoring.evaluate import Evaluator
+from apmcal.diagnosis.scoring.evaluate import Evaluator, prefetch_cold
 from apmcal.diagnosis.scoring.select import score, testable
 
 ALPHA = 0.05            # family-wise false-alarm rate per session
@@ -118,17 +118,23 @@ class NullDraws:
 
 def _draw(draws: dict, real: dict, session_of, base: tuple, say=None) -> None:
     """Score the undecided candidates of ``draws`` ({name: NullDraws}) on null session after
-    null session (``session_of(k)``: the k-th one's evaluator), each until its decision
-    against its real evidence ``real[name]`` is plain."""
+    null session (``session_of(k)``: the k-th one's evaluator, the same one for the same k),
+    each until its decision against its real evidence ``real[name]`` is plain."""
+    def models(null_ev, pending):
+        return [base] + [base + (n,) for n in testable(null_ev, pending)]
+
     for draw in range(MAX_DRAWS):
         pending = [n for n, d in draws.items() if not d.decided(real[n])]
         if not pending:
             return
         if say:
             say(f"null session {draw + 1} ({', '.join(pending)})")
+        if draw == 0:   # the first MIN_DRAWS every candidate needs: fitted all at once
+            first = [session_of(k) for k in range(MIN_DRAWS)]
+            prefetch_cold([(ev, models(ev, pending)) for ev in first])
         null_ev = session_of(draw)
         names = testable(null_ev, pending)
-        null_ev.prefetch([base] + [base + (n,) for n in names])
+        null_ev.prefetch(models(null_ev, pending))
         for n in pending:
             draws[n].evidence.append(score(null_ev, base, n).evidence if n in names
                                      else float("nan"))
@@ -161,8 +167,14 @@ def calibrate(evaluator, ranked: list, family: int, base: tuple = (), say=None,
     """
     real = {s.name: s.evidence for s in ranked if s.supported}
     draws = {name: NullDraws(name, [], family) for name in real}
-    _draw(draws, real, lambda k: Evaluator(evaluator.model_draw(drawn_from, k), evaluator.seed),
-          tuple(base), say)
+    sessions: dict = {}
+
+    def session_of(k: int) -> Evaluator:
+        if k not in sessions:
+            sessions[k] = Evaluator(evaluator.model_draw(drawn_from, k), evaluator.seed)
+        return sessions[k]
+
+    _draw(draws, real, session_of, tuple(base), say)
     return draws
 
 
