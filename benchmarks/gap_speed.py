@@ -8,8 +8,9 @@ The session is simulated once with sitl (the ``diagnosis`` script, 635 s, or pad
 up) and kept in ``benchmarks/_data/``. Printed:
 
 * the diagnosis stage by stage — read, cut into holds and moves, nominal model, candidate
-  effects, null sessions (every "null session k" of the progress text together), combination,
-  selected model — each run ``--repeat`` times in a fresh process, best of them: wall seconds
+  effects, null sessions (from each "null sessions for NAME" of the progress text to the
+  stage announced after them, all together), combination, selected model — each run
+  ``--repeat`` times in a fresh process, best of them: wall seconds
   and CPU seconds (this process and its forked workers, user + system); with
   ``--stages-before REV`` the same for revision REV, alternating;
 * the whole command as a user runs it (``apmcal gap FILE``, a fresh process, imports and
