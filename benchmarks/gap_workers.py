@@ -7,7 +7,8 @@ Hz; simulated first when missing) with the forked workers of
 :mod:`apmcal.diagnosis.compute.workers` and without them (every model in this process), each
 ``--repeat`` times, alternating, each in a fresh process. Printed per way, best of the repeats
 by wall time: wall seconds, CPU seconds (the process and its workers, user + system), of
-them system seconds, minor page faults, and the number of worker pools forked; then the
+them system seconds, minor page faults, and the number of worker pools forked (a pair kept
+per fold counts once); then the
 speed-up the workers give (one-process wall / workers' wall) and the CPU they add. The log is
 read and cut before the clock starts; the imports the diagnosis needs are made before it too.
 """
@@ -36,13 +37,17 @@ def measure(parallel: bool) -> dict:
     if not parallel:
         workers.parallel = lambda: False
     pools = []
-    pool = workers._pool
+    pool, per_fold = workers._pool, workers.per_fold
 
     def counted(target, n):
         pools.append(n)
         return pool(target, n)
 
-    workers._pool = counted
+    def counted_per_fold(target, folds):
+        pools.append(len(folds))
+        return per_fold(target, folds)
+
+    workers._pool, workers.per_fold = counted, counted_per_fold
     preload_imports()
     session = session_from_log(read_log(SESSION), Options(lat_deg=47.4, lon_deg=8.5))
     before, start = _usage(), time.perf_counter()

@@ -110,3 +110,31 @@ def test_several_cold_evaluators_at_once_give_the_summaries_of_each_alone(sessio
         for model in models:
             np.testing.assert_equal(asdict(ev.summary(model)), asdict(alone.summary(model)),
                                     err_msg=str(model))
+
+
+def test_workers_kept_per_fold_give_the_summaries_made_in_one_process(session, monkeypatch):
+    """Evaluator.workers_kept: each fold's jobs in one worker forked once for many calls
+    (workers.per_fold), against the plain computation in one process."""
+    from apmcal.diagnosis.scoring.evaluate import Evaluator
+    from apmcal.diagnosis.session.decimate import decimated
+
+    small = decimated(session, 2)
+    first, then = [(), ("temperature_drift",)], [("bias_drift",), ("gyro_scale",)]
+    monkeypatch.setattr(workers, "parallel", lambda: True)
+    monkeypatch.setattr("os.cpu_count", lambda: 2)
+    calls = []
+    run = workers.FoldWorkers.run
+    monkeypatch.setattr(workers.FoldWorkers, "run",
+                        lambda self, jobs, fold_of: calls.append(jobs) or run(self, jobs, fold_of))
+    kept = Evaluator(small, 3)
+    kept.prefetch(first)
+    with kept.workers_kept():
+        kept.prefetch(then[:1])         # two calls: the same two workers serve both
+        kept.prefetch(then[1:])
+    assert len(calls) == 2 and kept._kept is None
+    monkeypatch.setattr(workers, "parallel", lambda: False)
+    plain = Evaluator(small, 3)
+    plain.prefetch(first + then)
+    for model in first + then:
+        np.testing.assert_equal(asdict(kept.summary(model)), asdict(plain.summary(model)),
+                                err_msg=str(model))

@@ -160,11 +160,12 @@ def _rank_and_select(ev: Evaluator, names, say):
     preload_imports()       # before the first workers that may need them are forked
     if not ev.decimates:
         say("candidate effects")
-        ranked = rank_effects(ev, names)
-        say("combination")
-        ev.chance = null.Calibration(ev, ranked, len(testable(ev, candidates(names))),
-                                     say=say, within="combination")
-        selection = forward_selection(ev, ranked, chance_on_top=null.chance_on_top)
+        with ev.workers_kept():
+            ranked = rank_effects(ev, names)
+            say("combination")
+            ev.chance = null.Calibration(ev, ranked, len(testable(ev, candidates(names))),
+                                         say=say, within="combination")
+            selection = forward_selection(ev, ranked, chance_on_top=null.chance_on_top)
         return rank(ranked), selection
     slow_names = [n for n in candidates(names) if n not in FINE_EFFECTS]
     fine_names = [n for n in candidates(names) if n in FINE_EFFECTS]
@@ -177,13 +178,14 @@ def _rank_and_select(ev: Evaluator, names, say):
             ev.chance.calibrated(s.name)
     carried = tuple(s.name for s in ranked_fine if s.supported and s.name in SHAPES_BLOCK_MEANS)
     say("slow candidate effects (block means)")
-    ranked_slow = rank_effects(ev.slow, slow_names, base=carried)
-    say("combination")
-    ev.chance.within = "combination"
-    ev.slow.chance = null.Calibration(ev.slow, ranked_slow, family, base=carried, say=say,
-                                      within="combination")
-    slow = forward_selection(ev.slow, ranked_slow, base=carried,
-                             chance_on_top=null.chance_on_top)
+    with ev.slow.workers_kept():
+        ranked_slow = rank_effects(ev.slow, slow_names, base=carried)
+        say("combination")
+        ev.chance.within = "combination"
+        ev.slow.chance = null.Calibration(ev.slow, ranked_slow, family, base=carried, say=say,
+                                          within="combination")
+        slow = forward_selection(ev.slow, ranked_slow, base=carried,
+                                 chance_on_top=null.chance_on_top)
     fine = forward_selection(ev, ranked_fine, base=tuple(slow.order()),
                              chance_on_top=null.chance_on_top)
     return rank(ranked_slow + ranked_fine), merged(slow, fine)

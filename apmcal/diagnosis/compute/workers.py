@@ -102,6 +102,48 @@ def _pool(target, workers: int):
             _TARGET = _SHIP_DIR = None
 
 
+class FoldWorkers:
+    """One forked worker per fold, kept across calls (:func:`per_fold`): each runs every job of
+    its fold, so what a job leaves in its worker (the fold's fits, the content memos, the
+    integration plans) serves the next job of that fold, and the worker faults its memory in
+    once, not once per call."""
+
+    def __init__(self, pools: dict):
+        self._pools = pools
+
+    def run(self, jobs: list[tuple[str, tuple]], fold_of) -> list:
+        """``[target.method(*args) for method, args in jobs]``, job i in the worker of fold
+        ``fold_of(jobs[i])``."""
+        pending = [self._pools[fold_of(job)].apply_async(_call, (job,)) for job in jobs]
+        return [_unship(p.get()) for p in pending]
+
+
+@contextlib.contextmanager
+def per_fold(target, folds):
+    """:class:`FoldWorkers` for ``folds``, forked now (they inherit ``target`` as it is now:
+    what it learns later they find themselves) and stopped on leaving; None where work is not
+    spread (:func:`parallel`)."""
+    if not parallel() or (os.cpu_count() or 1) < len(folds):
+        yield None
+        return
+    global _TARGET, _SHIP_DIR
+    shm = "/dev/shm" if os.path.isdir("/dev/shm") else None
+    with tempfile.TemporaryDirectory(dir=shm, prefix="apmcal-") as ship_dir:
+        _TARGET, _SHIP_DIR = target, ship_dir
+        context = multiprocessing.get_context("fork")
+        pools = {}
+        try:
+            for fold in folds:
+                pools[fold] = context.Pool(1, _ignore_ctrl_c)
+            _TARGET = _SHIP_DIR = None      # the workers keep theirs
+            yield FoldWorkers(pools)
+        finally:
+            _TARGET = _SHIP_DIR = None
+            for pool in pools.values():
+                pool.terminate()
+                pool.join()
+
+
 def _ignore_ctrl_c() -> None:
     """A worker leaves Ctrl-C to the main process, which stops the pool and says so in one
     line (a worker's own KeyboardInterrupt would print its traceback on the terminal)."""

@@ -7,6 +7,7 @@ average in-sample as well as held-out.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 from dataclasses import dataclass, replace
 from functools import cached_property
@@ -241,6 +242,7 @@ class Evaluator:
         self._summaries: dict[frozenset, Summary] = {}
         self._motion: dict = {}     # per fold: the real motion (poses, moves, hold motion)
         self._real_models: dict = {}    # (effects but the noise's, fold, σ) -> _model's result
+        self._kept = None               # workers kept per fold (workers_kept), while kept
 
     # What the session offers every model, each found from the session alone on first use: an
     # evaluator made only for its block means (:attr:`slow`, e.g. a null session's scored on
@@ -581,9 +583,30 @@ class Evaluator:
 
     def map(self, jobs: list[tuple[str, tuple]]) -> list:
         """``[self.method(*args) for method, args in jobs]``, spread over every core
-        (:func:`apmcal.diagnosis.compute.workers.run`)."""
+        (:func:`apmcal.diagnosis.compute.workers.run`), or over the workers kept per fold
+        (:meth:`workers_kept`) when every job is one fold's."""
         self.facts()
+        if not jobs:
+            return []
+        if self._kept is not None and all(_fold_of(job) is not None for job in jobs):
+            return self._kept.run(jobs, _fold_of)
         return workers.run(self, jobs)
+
+    @contextlib.contextmanager
+    def workers_kept(self):
+        """Within it, :meth:`map` runs each fold's jobs in a worker of that fold forked once
+        (:func:`apmcal.diagnosis.compute.workers.per_fold`), not in workers forked anew for
+        each call: for an evaluator whose many models are each a little work (the block
+        means'), where workers forked per call spent as much on starting cold as on the
+        models."""
+        self.facts()
+        self.warm()
+        with workers.per_fold(self, FOLDS) as kept:
+            self._kept = kept
+            try:
+                yield self
+            finally:
+                self._kept = None
 
     def gap_of(self, effects) -> dict:
         """The model's gaps with their breakdowns (:func:`apmcal.diagnosis.scoring.breakdown.
@@ -662,6 +685,16 @@ class Evaluator:
                           compare(real, tw, train, in_sample=True, floors=self.floors),
                           compare(real, tw, test, in_sample=False, floors=self.floors),
                           {name: effect_params(name, fit, noise) for name in effects})
+
+
+_FOLD_ARGUMENT = {"fold_summary": 1, "_nominal_fold": 0, "_warm_fold": 0}
+
+
+def _fold_of(job: tuple) -> int | None:
+    """The fold a job of :meth:`Evaluator.map` computes (None: not one fold's)."""
+    method, args = job
+    at = _FOLD_ARGUMENT.get(method)
+    return None if at is None else args[at]
 
 
 class _Cold:
