@@ -138,3 +138,31 @@ def test_workers_kept_per_fold_give_the_summaries_made_in_one_process(session, m
     for model in first + then:
         np.testing.assert_equal(asdict(kept.summary(model)), asdict(plain.summary(model)),
                                 err_msg=str(model))
+
+
+def test_null_sessions_drawn_in_the_kept_workers_give_the_summaries_made_here(session,
+                                                                             monkeypatch):
+    """Evaluator.prefetch_nulls: each kept worker draws the null session itself and fits its
+    fold; the summaries are those of the same session drawn and fitted in one process."""
+    from apmcal.diagnosis.scoring.evaluate import Evaluator
+    from apmcal.diagnosis.session.decimate import decimated
+
+    small = decimated(session, 2)
+    models = [(), ("temperature_drift",)]
+    monkeypatch.setattr(workers, "parallel", lambda: True)
+    monkeypatch.setattr("os.cpu_count", lambda: 2)
+    source = Evaluator(small, 3)
+    source.prefetch([()])
+    drawn = {(effects, k): Evaluator(source.model_draw(effects, k), 3)
+             for effects in ((), ("bias_drift",)) for k in (0, 1)}
+    with source.workers_kept():
+        assert source.kept
+        source.prefetch_nulls([(effects, k, null, models) for (effects, k), null in drawn.items()])
+    monkeypatch.setattr(workers, "parallel", lambda: False)
+    for (effects, k), null in drawn.items():
+        assert null._cold()             # fitted in the workers, kept here as summaries
+        here = Evaluator(source.model_draw(effects, k), 3)
+        here.prefetch(models)
+        for model in models:
+            np.testing.assert_equal(asdict(null.summary(model)), asdict(here.summary(model)),
+                                    err_msg=f"{effects} {k} {model}")

@@ -243,6 +243,7 @@ class Evaluator:
         self._motion: dict = {}     # per fold: the real motion (poses, moves, hold motion)
         self._real_models: dict = {}    # (effects but the noise's, fold, σ) -> _model's result
         self._kept = None               # workers kept per fold (workers_kept), while kept
+        self._nulls_here: dict = {}     # in such a worker: the null sessions it drew
 
     # What the session offers every model, each found from the session alone on first use: an
     # evaluator made only for its block means (:attr:`slow`, e.g. a null session's scored on
@@ -497,6 +498,45 @@ class Evaluator:
         :meth:`_prefetch_by_fold` does."""
         return [self._nominal_fold(fold, True)] + [self.fold_summary(key, fold) for key in todo]
 
+    def prefetch_nulls(self, work: list) -> None:
+        """:meth:`prefetch` on null sessions drawn from this evaluator's models, in the
+        workers kept per fold (:meth:`workers_kept`), each of which draws the session itself
+        (:meth:`model_draw`: the same readings, bit for bit, wherever drawn) and keeps it for
+        its next jobs: no workers forked per null session.
+
+        Parameters
+        ----------
+        work : list of (effects, draw, Evaluator, models)
+            ``effects`` and ``draw`` as for :meth:`model_draw`; the evaluator of that session
+            in this process (the summaries are kept there); the models to prefetch on it.
+        """
+        jobs, kept = [], []
+        for effects, draw, null, models in work:
+            todo = [key for key in dict.fromkeys(frozenset(m) for m in models)
+                    if key and not null._known(key)]
+            kept.append((null, todo))
+            jobs += [("_null_fold", (tuple(sorted(effects)), draw, fold, todo))
+                     for fold in FOLDS]
+        results = iter(self.map(jobs))
+        for null, todo in kept:
+            folds = [next(results) for _ in FOLDS]
+            null._summaries.setdefault(frozenset(),
+                                       Summary.of_folds(frozenset(), [n for n, _ in folds]))
+            for i, key in enumerate(todo):
+                null._summaries[key] = Summary.of_folds(key, [parts[i] for _, parts in folds])
+
+    def _null_fold(self, effects: tuple, draw: int, fold: int, todo: list) -> tuple:
+        """A job of a worker kept per fold (:meth:`prefetch_nulls`): fold ``fold`` of the
+        null session ``model_draw(effects, draw)``, drawn and kept in this worker on first
+        use; (its nominal model's FoldSummary, the FoldSummaries of ``todo``)."""
+        key = (effects, draw)
+        if key not in self._nulls_here:
+            self._nulls_here[key] = (Evaluator(self.model_draw(effects, draw), self.seed), {})
+        null, nominal = self._nulls_here[key]
+        if fold not in nominal:
+            nominal[fold] = null._nominal_fold(fold, True)[0]
+        return nominal[fold], [null.fold_summary(k, fold) for k in todo]
+
     def _keep_lanes(self, todo: list, lanes: list) -> None:
         """Keep what :meth:`_cold_lane` gave for each fold (``lanes``, in fold order)."""
         self.keep_nominal_folds([lane[0] for lane in lanes])
@@ -591,6 +631,11 @@ class Evaluator:
         if self._kept is not None and all(_fold_of(job) is not None for job in jobs):
             return self._kept.run(jobs, _fold_of)
         return workers.run(self, jobs)
+
+    @property
+    def kept(self) -> bool:
+        """Whether workers are kept per fold for this evaluator now (:meth:`workers_kept`)."""
+        return self._kept is not None
 
     @contextlib.contextmanager
     def workers_kept(self):
@@ -687,7 +732,7 @@ class Evaluator:
                           {name: effect_params(name, fit, noise) for name in effects})
 
 
-_FOLD_ARGUMENT = {"fold_summary": 1, "_nominal_fold": 0, "_warm_fold": 0}
+_FOLD_ARGUMENT = {"fold_summary": 1, "_nominal_fold": 0, "_warm_fold": 0, "_null_fold": 2}
 
 
 def _fold_of(job: tuple) -> int | None:

@@ -116,25 +116,27 @@ class NullDraws:
                                                      or p > self.level * DECISIVE)
 
 
-def _draw(draws: dict, real: dict, session_of, base: tuple, say=None) -> None:
+def _draw(draws: dict, real: dict, session_of, base: tuple, say=None, fetch=None) -> None:
     """Score the undecided candidates of ``draws`` ({name: NullDraws}) on null session after
     null session (``session_of(k)``: the k-th one's evaluator, the same one for the same k),
-    each until its decision against its real evidence ``real[name]`` is plain."""
-    def models(null_ev, pending):
-        return [base] + [base + (n,) for n in testable(null_ev, pending)]
+    each until its decision against its real evidence ``real[name]`` is plain.
+    ``fetch(work)`` fits the models of several null sessions at once (``work``: (k, models)
+    pairs); by default :func:`~apmcal.diagnosis.scoring.evaluate.prefetch_cold`."""
+    def models(k: int, pending: list) -> list:
+        return [base] + [base + (n,) for n in testable(session_of(k), pending)]
 
+    fetch = fetch or (lambda work: prefetch_cold([(session_of(k), m) for k, m in work]))
     for draw in range(MAX_DRAWS):
         pending = [n for n, d in draws.items() if not d.decided(real[n])]
         if not pending:
             return
         if say:
             say(f"null session {draw + 1} ({', '.join(pending)})")
-        if draw == 0:   # the first MIN_DRAWS every candidate needs: fitted all at once
-            first = [session_of(k) for k in range(MIN_DRAWS)]
-            prefetch_cold([(ev, models(ev, pending)) for ev in first])
+        if draw == 0 or draw >= MIN_DRAWS:     # the first MIN_DRAWS, which every candidate
+            ahead = range(MIN_DRAWS) if draw == 0 else [draw]   # needs, fitted all at once
+            fetch([(k, models(k, pending)) for k in ahead])
         null_ev = session_of(draw)
         names = testable(null_ev, pending)
-        null_ev.prefetch(models(null_ev, pending))
         for n in pending:
             draws[n].evidence.append(score(null_ev, base, n).evidence if n in names
                                      else float("nan"))
@@ -174,8 +176,18 @@ def calibrate(evaluator, ranked: list, family: int, base: tuple = (), say=None,
             sessions[k] = Evaluator(evaluator.model_draw(drawn_from, k), evaluator.seed)
         return sessions[k]
 
-    _draw(draws, real, session_of, tuple(base), say)
+    _draw(draws, real, session_of, tuple(base), say, _fetch(evaluator, drawn_from, session_of))
     return draws
+
+
+def _fetch(evaluator, drawn_from: tuple, session_of):
+    """How :func:`_draw` fits null sessions drawn from ``evaluator``'s model nominal +
+    ``drawn_from``: in its workers kept per fold when it has them
+    (:meth:`~apmcal.diagnosis.scoring.evaluate.Evaluator.prefetch_nulls`), else the default."""
+    if not evaluator.kept:
+        return None
+    return lambda work: evaluator.prefetch_nulls([(drawn_from, k, session_of(k), models)
+                                                  for k, models in work])
 
 
 class Calibration:
@@ -229,7 +241,8 @@ class Calibration:
             alone = self.alone[name]
             draws = {name: NullDraws(name, [], self.family)}
             self.say(f"null sessions for {name}")
-            _draw(draws, {name: alone.evidence}, self._session, self.base, self.say)
+            _draw(draws, {name: alone.evidence}, self._session, self.base, self.say,
+                  _fetch(self.evaluator, (), self._session))
             self.say(self.within)
             self.draws[name] = draws[name]
             apply(alone, draws[name], self.evaluator)
