@@ -6,6 +6,11 @@ memory (/dev/shm), not through the pool's pipe: on this kind of machine (a virtu
 the pipe moved about 35 MB/s — two 28 MB motion paths took 1.6 s, a file 0.1 s. With each
 result come the entries the job added to the memos of :mod:`apmcal.diagnosis.compute.memo`, which this
 process keeps: workers forked later start with them.
+
+:func:`run`, :func:`run_lanes` and :func:`beside` fork their workers for one call;
+:func:`per_fold` forks one worker per fold that serves many calls (each new worker starts cold:
+it faults its memory in and fills its caches anew, which for many small calls costs as much as
+the work).
 """
 from __future__ import annotations
 

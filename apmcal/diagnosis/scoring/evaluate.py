@@ -514,6 +514,8 @@ class Evaluator:
         for effects, draw, null, models in work:
             todo = [key for key in dict.fromkeys(frozenset(m) for m in models)
                     if key and not null._known(key)]
+            if not todo and null._known(frozenset()):
+                continue
             kept.append((null, todo))
             jobs += [("_null_fold", (tuple(sorted(effects)), draw, fold, todo))
                      for fold in FOLDS]
