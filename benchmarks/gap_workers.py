@@ -11,6 +11,7 @@ them system seconds, minor page faults, and the number of worker pools forked (a
 per fold counts once); then the
 speed-up the workers give (one-process wall / workers' wall) and the CPU they add. The log is
 read and cut before the clock starts; the imports the diagnosis needs are made before it too.
+Another revision's tree on ``PYTHONPATH`` (e.g. a ``git worktree``) is measured the same way.
 """
 from __future__ import annotations
 
@@ -37,17 +38,21 @@ def measure(parallel: bool) -> dict:
     if not parallel:
         workers.parallel = lambda: False
     pools = []
-    pool, per_fold = workers._pool, workers.per_fold
+    pool, per_fold = workers._pool, getattr(workers, "per_fold", None)    # (an older tree
+                                                                          # on PYTHONPATH)
 
     def counted(target, n):
         pools.append(n)
         return pool(target, n)
 
     def counted_per_fold(target, folds):
-        pools.append(len(folds))
+        if workers.parallel():      # else it forks none
+            pools.append(len(folds))
         return per_fold(target, folds)
 
-    workers._pool, workers.per_fold = counted, counted_per_fold
+    workers._pool = counted
+    if per_fold is not None:
+        workers.per_fold = counted_per_fold
     preload_imports()
     session = session_from_log(read_log(SESSION), Options(lat_deg=47.4, lon_deg=8.5))
     before, start = _usage(), time.perf_counter()
