@@ -33,8 +33,9 @@ without each of its effects. An effect whose fitted parameters lie beyond physic
 something else; nor is one whose parameters are all within their noise of the values that
 switch it off (:mod:`apmcal.diagnosis.model.wald`). Nor, last, is one whose evidence chance gives
 it on this very session: each candidate that passes the tests above is scored on sessions drawn
-from the fitted nominal model (:mod:`apmcal.diagnosis.scoring.null`), which set the evidence it
-must reach (:func:`required_evidence`, never below ``MIN_EVIDENCE_NATS``), and the effect a
+from the fitted nominal model (:mod:`apmcal.diagnosis.scoring.null`) when a decision first turns
+on it, which set the evidence it must reach (:func:`required_evidence`, never below
+``MIN_EVIDENCE_NATS``; :func:`beyond_chance` asks for it), and the effect a
 round is about to add is checked against sessions drawn from the combination it would join
 (the ``chance_on_top`` the caller hands :func:`forward_selection`).
 """
