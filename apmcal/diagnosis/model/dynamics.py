@@ -14,12 +14,13 @@ holds', and the ``gyro_scale``, ``time_offset`` and ``cross_axis`` parameters ar
 from __future__ import annotations
 
 from collections import OrderedDict
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from apmcal.diagnosis.model.static_fit import non_orthogonality
 from apmcal.diagnosis.scoring.gap import ResidualBlock
 from apmcal.diagnosis.session.trajectory import prefix_products
 
@@ -109,10 +110,6 @@ def acc_with_terms(geo, terms: dict):
     GeometryFit
         A copy; ``geo`` is left as it is.
     """
-    from dataclasses import replace
-
-    from apmcal.diagnosis.model.static_fit import non_orthogonality
-
     out = replace(geo, params=dict(geo.params))
     if "alpha" in terms:
         scale = np.exp(np.asarray(geo.params["log_scale"]))
@@ -197,7 +194,8 @@ def relative_attitudes(rate: np.ndarray, t: np.ndarray, moves: Moves, step: int 
 class _Plan:
     """What integrating ``moves`` on sample times ``t`` every ``step``-th sample reads and
     where it puts it: the same for every gyro matrix a fit tries, so found once per
-    (moves, times, step) and kept on the Moves (:func:`_plan`).
+    (moves, times, step) and kept (:func:`_plan`), with the last turns integrated through it
+    (``recent``, :func:`_known_turns`).
 
     ``rows`` are :meth:`Moves.rows` (each move's samples and the last hold sample before it):
     a rate is handed to :func:`_attitudes` as its values at those rows only, ``(len(rows), 3)``.
@@ -214,6 +212,8 @@ class _Plan:
     hold: np.ndarray            # (m,) hold before each kept sample
     kept: np.ndarray            # (m,) position in rows of each kept sample
     kept_starts: np.ndarray     # (k + 1,) each move's first kept sample, and their number
+    recent: list = field(default_factory=list, compare=False)   # (gyro matrix bytes,
+                                # calibrated rates at rows, turns), newest last (_known_turns)
 
 
 _PLANS: OrderedDict = OrderedDict()     # the recent plans, by moves, times and step
@@ -386,19 +386,14 @@ def _known_turns(plan: _Plan, forward: np.ndarray, cal_rows: np.ndarray) -> tupl
     """:func:`_turns`, or the turns kept on ``plan`` for the same gyro matrix and the same
     calibrated rates value for value: models that leave the gyro alone integrate the same
     moves again and again (a comparison reads the rates once, the integration many times)."""
-    kept = plan.__dict__.get("_recent")
-    if kept is None:
-        kept = OrderedDict()
-        object.__setattr__(plan, "_recent", kept)
     key = forward.tobytes()
-    for token, (matrix, rows, turns) in kept.items():
+    for i, (matrix, rows, turns) in enumerate(plan.recent):
         if matrix == key and np.array_equal(rows, cal_rows):
-            kept.move_to_end(token)
+            plan.recent.append(plan.recent.pop(i))      # the newest last
             return turns
     turns = _turns(plan, forward, cal_rows)
-    kept[object()] = (key, cal_rows, turns)
-    while len(kept) > TURNS_KEPT:
-        kept.popitem(last=False)
+    plan.recent.append((key, cal_rows, turns))
+    del plan.recent[:-TURNS_KEPT]
     return turns
 
 
@@ -572,8 +567,6 @@ def move_jacobian(session, fit, dyn: Dynamics, layout: dict, start: dict, plan: 
                 d_acc[col + j, :, j] = slope[2][:, j] ** 2
             col += 3
         elif name == "alpha":
-            from apmcal.diagnosis.model.static_fit import non_orthogonality
-
             alpha = np.asarray(dyn.acc_terms["alpha"], float)
             scale = np.exp(np.asarray(geo.params["log_scale"]))
             n_inv = np.linalg.inv(non_orthogonality(alpha))
@@ -714,14 +707,17 @@ def fit_dynamics(session, fit, effects, train: np.ndarray, rate_cal, hold_f, hol
 
     turns: dict = {}    # by gyro matrix: the steps of the other parameters turn the moves alike
 
-    def residuals(p):
-        d = _unpack(p, layout, start)
+    def turns_of(d: Dynamics) -> tuple:
         key = d.forward.tobytes()
         if key not in turns:
             if len(turns) >= 2:             # a gyro fit's matrices are new step after step
                 turns.pop(next(iter(turns)))
             turns[key] = _turns(plan, d.forward, cal_rows)
-        _, acc, mag = _predicted(session, fit, d, plan, turns[key], hold_f, fit_b)
+        return turns[key]
+
+    def residuals(p):
+        d = _unpack(p, layout, start)
+        _, acc, mag = _predicted(session, fit, d, plan, turns_of(d), hold_f, fit_b)
         r = [((acc_seen - acc) * weight["acc"]).ravel()]
         if with_mag:
             r.append(((mag_seen - mag) * weight["mag"]).ravel())
@@ -730,10 +726,7 @@ def fit_dynamics(session, fit, effects, train: np.ndarray, rate_cal, hold_f, hol
 
     def jacobian(p):        # analytic (move_jacobian): no integration per gyro parameter
         d = _unpack(p, layout, start)
-        key = d.forward.tobytes()
-        if key not in turns:
-            turns[key] = _turns(plan, d.forward, cal_rows)
-        d_acc, d_mag = move_jacobian(session, fit, d, layout, start, plan, turns[key],
+        d_acc, d_mag = move_jacobian(session, fit, d, layout, start, plan, turns_of(d),
                                      cal_rows, cal_turns, hold_f, hold_b, with_mag)
         rows = [-weight["acc"] * d_acc.reshape(-1, d_acc.shape[-1])]
         if with_mag:

@@ -117,13 +117,15 @@ def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _hamilton(a, b) -> tuple:
-    """The components (x, y, z, w) of a·b from those of a and b (arrays of any shape)."""
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return (aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-            aw * bw - ax * bx - ay * by - az * bz)
+    """The components (x, y, z, w) of a·b from those of a and b (arrays of any shape), each
+    summed term by term in :func:`_hamilton_terms`' order."""
+    out = []
+    for (u, v, _), *rest in _hamilton_terms(*a, *b):
+        component = u * v
+        for u, v, sign in rest:
+            component = component + u * v if sign > 0 else component - u * v
+        out.append(component)
+    return tuple(out)
 
 
 def prefix_products(q: np.ndarray, segment: np.ndarray | None = None) -> np.ndarray:
@@ -184,7 +186,8 @@ def _hamilton_into(a: np.ndarray, b: np.ndarray, out: np.ndarray, tmp: np.ndarra
 
 
 def _hamilton_terms(ax, ay, az, aw, bx, by, bz, bw) -> tuple:
-    """The terms of :func:`_hamilton`'s components (u, v, sign of u·v), in its order."""
+    """The Hamilton product's components (x, y, z, w) of a·b as their terms (u, v, sign of
+    u·v), in the order they are summed: x = aw·bx + ax·bw + ay·bz − az·by, and so on."""
     return (((aw, bx, 1), (ax, bw, 1), (ay, bz, 1), (az, by, -1)),
             ((aw, by, 1), (ax, bz, -1), (ay, bw, 1), (az, bx, 1)),
             ((aw, bz, 1), (ax, by, 1), (ay, bx, -1), (az, bw, 1)),
