@@ -144,7 +144,8 @@ def main(argv=None) -> int:
             note = (f"(every non-number equal; {len(moved)} numbers moved, {beyond} by more "
                     f"than 1e-6 relative, at most {moved[0][0]:.1e} ({moved[0][1]}: "
                     f"{moved[0][2]!r} → {moved[0][3]!r}); parameters at most {in_sigma:.1e} σ)"
-                    if same else f"{other[:3]}")
+                    if same and moved else "(every number and non-number equal)" if same
+                    else f"{other[:3]}")
         differ += not same
         print(f"{'same' if same else 'DIFFERENT':9s} {log.name} {note}", flush=True)
     print(f"{differ} of the sessions differ from {args.before}" if differ else
