@@ -2,6 +2,7 @@
 
     python benchmarks/gap_speed.py [--rate 400] [--seconds S] [--runs 3] [--repeat 2]
                                    [--before REV | --before none] [--stages-before REV]
+                                   [--floor]
 
 The session is simulated once with sitl (the ``diagnosis`` script, 635 s, or padded to
 ``--seconds`` with a still hold; the nominal errors plus temperature drift, a board warming
@@ -21,6 +22,11 @@ up) and kept in ``benchmarks/_data/``. Printed:
 * the peer, measured in the same run: pymavlink's DFReader reading the same file's IMU and
   MAG records (``recv_match(type=["IMU", "MAG"])`` to the end), in a fresh process each time
   too (the read timed, not the import), median wall and CPU seconds;
+* with ``--floor``, the smallest diagnoses the command makes, in the same alternation: with
+  one candidate only, ``--effects lowpass_filter`` (the nominal model, one effect scored at
+  the recorded rate, the selected model and the reports; no block means) and ``--effects
+  temperature_drift`` (the same with one effect scored on the block means, its null
+  sessions drawn): what every diagnosis of this session costs before the other candidates;
 * on the last line, the ratio of the whole command to the peer, CPU and wall. The issue's
   target: the whole command no slower than the peer (ratio ≤ 1), the null sessions included.
 """
@@ -41,6 +47,9 @@ from end_to_end import export_tree  # the sibling benchmark (this script's folde
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / "_data"
 BEFORE = "e130e47"      # main before the memo and the log read beside the imports
+# --floor: the smallest diagnoses, one candidate each: one scored at the recorded rate, one on
+# the block means (with its null sessions)
+FLOOR = ("lowpass_filter", "temperature_drift")
 
 
 def make_session(path: Path, rate: float, seconds: float) -> None:
@@ -161,16 +170,20 @@ def print_stages(title: str, repeats: list) -> None:
             print(f"  {name:28s} {wall:7.2f}s {cpu:7.2f}s")
 
 
-def whole_command(path: Path, tree: Path = ROOT) -> tuple[float, float]:
+def whole_command(path: Path, tree: Path = ROOT, effects: str | None = None
+                  ) -> tuple[float, float]:
     """Wall time of ``apmcal gap FILE`` as a user runs it — a fresh Python, the imports
     (scipy, pandas, sitl), the diagnosis and the printed summary — and the CPU time it took,
     user and system, its workers included [s]; ``tree``'s apmcal and sitl (run from
-    benchmarks/_data: ``python -m`` would put the current directory first)."""
+    benchmarks/_data: ``python -m`` would put the current directory first); ``effects``:
+    its ``--effects`` (default: every candidate)."""
     env = dict(os.environ, PYTHONPATH=str(tree))
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
+    only = ["--effects", effects] if effects else []
     subprocess.run([sys.executable, "-m", "apmcal", "gap", str(path), "--lat", "47.4",
-                    "--lon", "8.5"], check=True, stdout=subprocess.DEVNULL, cwd=DATA, env=env)
+                    "--lon", "8.5", *only], check=True, stdout=subprocess.DEVNULL, cwd=DATA,
+                   env=env)
     wall = time.perf_counter() - start
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -191,6 +204,9 @@ def main(argv=None) -> None:
     ap.add_argument("--stages-before", default=None, metavar="REV",
                     help="also time the stages of revision REV, alternating (its apmcal must "
                          "have diagnosis.scoring.null)")
+    ap.add_argument("--floor", action="store_true",
+                    help="also time the command with one candidate only (--effects "
+                         f"{' / '.join(FLOOR)}), alternating with the rest")
     ap.add_argument("--stages-of", type=Path, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.stages_of is not None:      # one fresh run of stage_times_fresh
@@ -210,13 +226,16 @@ def main(argv=None) -> None:
         if stages_before is not None:
             repeats_before.append(stage_times_fresh(path, stages_before))
     commands, commands_before, peers = [], [], []
+    floors: dict = {name: [] for name in (FLOOR if args.floor else ())}
     for _ in range(args.runs):      # alternating: all see the same load
         commands.append(whole_command(path))
         peers.append(pymavlink_read(path))
         if before is not None:
             commands_before.append(whole_command(path, before))
+        for name, runs in floors.items():
+            runs.append(whole_command(path, effects=name))
     print(repeats[0]["_about"])
-    print_stages("the diagnosis in one process, stage by stage", repeats)
+    print_stages("the diagnosis stage by stage, with its forked workers", repeats)
     if repeats_before:
         print_stages(f"the same at {args.stages_before}", repeats_before)
     walls = [w for w, _ in commands]
@@ -236,6 +255,11 @@ def main(argv=None) -> None:
     peer_cpu = statistics.median(c for _, c, _ in peers)
     print(f"  {'pymavlink DFReader IMU+MAG':28s} {peer_wall:7.2f}s {peer_cpu:7.2f}s   "
           f"({peers[0][2]} records, median of {len(peers)})")
+    for name, runs in floors.items():
+        wall = statistics.median(w for w, _ in runs)
+        print(f"  {'--effects ' + name:28s} {wall:7.2f}s "
+              f"{statistics.median(c for _, c in runs):7.2f}s   (one candidate only: "
+              f"{wall / peer_wall:.2f}× the peer's wall time)")
     print(f"apmcal gap / DFReader (IMU and MAG records): CPU {cpu / peer_cpu:.2f}×, "
           f"wall {command / peer_wall:.2f}×   (target ≤ 1)")
 
