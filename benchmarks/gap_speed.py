@@ -23,9 +23,9 @@ up) and kept in ``benchmarks/_data/``. Printed:
   MAG records (``recv_match(type=["IMU", "MAG"])`` to the end), in a fresh process each time
   too (the read timed, not the import), median wall and CPU seconds;
 * with ``--floor``, the smallest diagnoses the command makes, in the same alternation: with
-  one candidate only, ``--effects lowpass_filter`` (the nominal model, one effect scored at
-  the recorded rate, the selected model and the reports; no block means) and ``--effects
-  temperature_drift`` (the same with one effect scored on the block means, its null
+  one candidate only, ``--effects lowpass_filter`` (the nominal model at both rates, one
+  effect scored at the recorded rate, the selected model and the reports) and ``--effects
+  temperature_drift`` (the same with one effect scored on the block means instead, its null
   sessions drawn): what every diagnosis of this session costs before the other candidates;
 * on the last line, the ratio of the whole command to the peer, CPU and wall. The issue's
   target: the whole command no slower than the peer (ratio ≤ 1), the null sessions included.
