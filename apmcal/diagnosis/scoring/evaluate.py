@@ -473,12 +473,9 @@ class Evaluator:
         """Summaries of several models at once, on every core. The jobs are single folds (each
         fold of each model is independent of the others), so that an odd number of models
         still keeps both cores busy to the end."""
-        todo = list(dict.fromkeys(frozenset(m) for m in models if not self._known(frozenset(m))))
+        todo = _slowest_first(m for m in models if not self._known(frozenset(m)))
         if not todo:
             return
-        # the slowest models first, so that the last jobs are short ones and no core waits
-        # long for the other (longest-processing-time-first scheduling)
-        todo.sort(key=lambda key: -len(key & SLOW_TO_FIT))
         if frozenset() in todo and self._cold():
             # the nominal model's folds warm the evaluator: its fit is each fold's nominal fit
             todo.remove(frozenset())
@@ -548,17 +545,9 @@ class Evaluator:
     def _prefetch_by_fold(self, todo: list) -> None:
         """:meth:`prefetch` on a cold evaluator with no more cores than folds: one worker per
         fold fits that fold's nominal model and then, building on it, the fold of every model
-        of ``todo`` — one set of workers instead of one for the nominal folds and another,
-        forked once their state has come back, for the models (a null session's evaluator,
-        :mod:`apmcal.diagnosis.scoring.null`, is always cold). The same numbers: every
-        fold's computation is the same wherever it runs."""
-        lanes = self.run_lanes([[("_cold_lane", (fold, todo))] for fold in FOLDS])
-        self._keep_lanes(todo, [lane[0] for lane in lanes])
-
-    def run_lanes(self, lanes: list) -> list:
-        """:func:`apmcal.diagnosis.compute.workers.run_lanes` of this evaluator's methods."""
-        self.facts()
-        return workers.run_lanes(self, lanes)
+        of ``todo`` (:func:`_by_fold`) — one set of workers instead of one for the nominal
+        folds and another, forked once their state has come back, for the models."""
+        _by_fold([self], [todo])
 
     def fold_summary(self, key: frozenset, fold: int) -> FoldSummary:
         """One fold of one model, summarised (a :meth:`map` job)."""
@@ -772,13 +761,26 @@ def prefetch_cold(work: list) -> None:
         for ev, models in work:
             ev.prefetch(models)
         return
-    todos = []
-    for ev, models in work:
-        todo = list(dict.fromkeys(m for m in models if m))
-        todo.sort(key=lambda key: -len(key & SLOW_TO_FIT))     # as prefetch orders them
-        todos.append(todo)
+    _by_fold([ev for ev, _ in work], [_slowest_first(m for m in models if m)
+                                      for _, models in work])
+
+
+def _by_fold(evaluators: list, todos: list) -> None:
+    """Cold ``evaluators`` each warmed by its nominal model and then given the summaries of
+    its models ``todos[i]``, by one worker per fold: each worker fits its fold of every
+    evaluator, one after the other (:meth:`Evaluator._cold_lane`). The same numbers: every
+    fold's computation is the same wherever it runs."""
+    for ev in evaluators:
         ev.facts()
-    evaluators = [ev for ev, _ in work]
     lanes = workers.run_lanes(_Cold(evaluators, todos), [[("lane", (fold,))] for fold in FOLDS])
     for i, (ev, todo) in enumerate(zip(evaluators, todos)):
         ev._keep_lanes(todo, [lane[0][i] for lane in lanes])
+
+
+def _slowest_first(models) -> list:
+    """The distinct models (frozensets of effects), the slowest to fit first: then the last
+    jobs are short ones and no core waits long for the other (longest-processing-time-first
+    scheduling)."""
+    todo = list(dict.fromkeys(frozenset(m) for m in models))
+    todo.sort(key=lambda key: -len(key & SLOW_TO_FIT))
+    return todo

@@ -169,25 +169,33 @@ def calibrate(evaluator, ranked: list, family: int, base: tuple = (), say=None,
     """
     real = {s.name: s.evidence for s in ranked if s.supported}
     draws = {name: NullDraws(name, [], family) for name in real}
-    sessions: dict = {}
-
-    def session_of(k: int) -> Evaluator:
-        if k not in sessions:
-            sessions[k] = Evaluator(evaluator.model_draw(drawn_from, k), evaluator.seed)
-        return sessions[k]
-
-    _draw(draws, real, session_of, tuple(base), say, _fetch(evaluator, drawn_from, session_of))
+    sessions = _Sessions(evaluator, tuple(drawn_from))
+    _draw(draws, real, sessions, tuple(base), say, sessions.fetch())
     return draws
 
 
-def _fetch(evaluator, drawn_from: tuple, session_of):
-    """How :func:`_draw` fits null sessions drawn from ``evaluator``'s model nominal +
-    ``drawn_from``: in its workers kept per fold when it has them
-    (:meth:`~apmcal.diagnosis.scoring.evaluate.Evaluator.prefetch_nulls`), else the default."""
-    if not evaluator.kept:
-        return None
-    return lambda work: evaluator.prefetch_nulls([(drawn_from, k, session_of(k), models)
-                                                  for k, models in work])
+class _Sessions:
+    """The null sessions drawn from ``evaluator``'s model nominal + ``drawn_from``: called
+    with k, the k-th one's evaluator (made on first use, the same one after)."""
+
+    def __init__(self, evaluator, drawn_from: tuple = ()):
+        self.evaluator, self.drawn_from = evaluator, drawn_from
+        self._made: dict[int, Evaluator] = {}
+
+    def __call__(self, k: int) -> Evaluator:
+        if k not in self._made:
+            self._made[k] = Evaluator(self.evaluator.model_draw(self.drawn_from, k),
+                                      self.evaluator.seed)
+        return self._made[k]
+
+    def fetch(self):
+        """How :func:`_draw` fits them: in the workers ``evaluator`` keeps per fold when it
+        has them (:meth:`~apmcal.diagnosis.scoring.evaluate.Evaluator.prefetch_nulls`), else
+        the default (None)."""
+        if not self.evaluator.kept:
+            return None
+        return lambda work: self.evaluator.prefetch_nulls(
+            [(self.drawn_from, k, self(k), models) for k, models in work])
 
 
 class Calibration:
@@ -232,7 +240,7 @@ class Calibration:
         self.say = say or (lambda _text: None)
         self.within = within
         self.draws: dict[str, NullDraws] = {}
-        self._sessions: dict[int, Evaluator] = {}
+        self._sessions = _Sessions(evaluator)
 
     def calibrated(self, name: str) -> NullDraws:
         """``name``'s null draws, drawn now when not yet, and its entry in ``ranked``
@@ -241,18 +249,12 @@ class Calibration:
             alone = self.alone[name]
             draws = {name: NullDraws(name, [], self.family)}
             self.say(f"null sessions for {name}")
-            _draw(draws, {name: alone.evidence}, self._session, self.base, self.say,
-                  _fetch(self.evaluator, (), self._session))
+            _draw(draws, {name: alone.evidence}, self._sessions, self.base, self.say,
+                  self._sessions.fetch())
             self.say(self.within)
             self.draws[name] = draws[name]
             apply(alone, draws[name], self.evaluator)
         return self.draws[name]
-
-    def _session(self, draw: int) -> Evaluator:
-        if draw not in self._sessions:
-            self._sessions[draw] = Evaluator(self.evaluator.model_draw((), draw),
-                                             self.evaluator.seed)
-        return self._sessions[draw]
 
 
 def on_top(evaluator, model: tuple, trial) -> NullDraws | None:
