@@ -23,6 +23,7 @@ from scipy.spatial.transform import Rotation
 from apmcal.diagnosis.model.static_fit import non_orthogonality
 from apmcal.diagnosis.scoring.gap import ResidualBlock
 from apmcal.diagnosis.session.trajectory import prefix_products
+from apmcal.solvers.strapdown import hat
 
 AXES = ("x", "y", "z")
 FIT_RATE_HZ = 50.0      # the dynamic fits integrate the moves in steps of about 1/50 s
@@ -416,14 +417,6 @@ def _predicted(session, fit, dyn: Dynamics, plan: _Plan, turns: tuple, hold_f: n
     return idx, acc, mag
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    """[v]× (..., 3, 3) of vectors v (..., 3)."""
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
-    return out
-
-
 def right_jacobian(theta: np.ndarray) -> np.ndarray:
     """SO(3)'s right Jacobian J_r(θ) (m, 3, 3) of rotation vectors θ (m, 3) [rad]:
     Exp(θ + δθ) = Exp(θ)·Exp(J_r(θ)·δθ) to first order.
@@ -435,7 +428,7 @@ def right_jacobian(theta: np.ndarray) -> np.ndarray:
     safe = np.where(small, 1.0, a)
     c1 = np.where(small, 0.5 - a ** 2 / 24, (1 - np.cos(safe)) / safe ** 2)
     c2 = np.where(small, 1 / 6 - a ** 2 / 120, (safe - np.sin(safe)) / safe ** 3)
-    k = _skew(theta)
+    k = hat(theta)
     return np.eye(3) - c1[:, None, None] * k + c2[:, None, None] * (k @ k)
 
 
