@@ -58,7 +58,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path[:0] = [str(Path(__file__).resolve().parents[1] / d) for d in (".", "sitl")]
 
 from apmcal.core.constants import EARTH_RATE, MG_TO_MS2, MRAD_TO_RAD  # noqa: E402
 from apmcal.preprocessing.ferraris_regions import ferraris_regions  # noqa: E402

@@ -157,7 +157,7 @@ def export_tree(ref: str, folders: tuple | None = None) -> Path:
 def _run(tree: Path, argv: list[str]) -> tuple[float, str, float]:
     """(wall time [s], stdout, CPU time [s], user + system) of ``python argv`` with ``tree``
     first on the path."""
-    env = dict(os.environ, PYTHONPATH=str(tree))
+    env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{tree}/sitl")
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     done = subprocess.run([sys.executable, *argv], env=env, cwd=DATA, capture_output=True,

@@ -39,7 +39,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+sys.path[:0] = [str(ROOT), str(ROOT / "sitl")]   # the package and the simulator
 
 
 DASK_DEFAULT_ENV = "--dask-default-env" in sys.argv

@@ -78,7 +78,7 @@ def sessions(with_real: bool) -> list[tuple[Path, list[str]]]:
 def gap_json(tree: Path, log: Path, extra: list[str], out: Path) -> None:
     """``apmcal gap LOG --json OUT`` with ``tree``'s apmcal (run from the data folder:
     ``python -m`` would put the current directory first)."""
-    env = dict(os.environ, PYTHONPATH=str(tree))
+    env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{tree}/sitl")
     subprocess.run([sys.executable, "-m", "apmcal", "gap", str(log), *extra, "--json", str(out)],
                    check=True, stdout=subprocess.DEVNULL, cwd=DATA, env=env)
 

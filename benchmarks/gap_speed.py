@@ -153,7 +153,7 @@ def stage_times(path: Path) -> dict:
 def stage_times_fresh(path: Path, tree: Path = ROOT) -> dict:
     """:func:`stage_times` in a fresh process (nothing cached from an earlier run), with
     ``tree``'s apmcal."""
-    env = dict(os.environ, PYTHONPATH=str(tree))
+    env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{tree}/sitl")
     out = subprocess.run([sys.executable, __file__, "--stages-of", str(path)], check=True,
                          capture_output=True, text=True, env=env).stdout
     return json.loads(out.strip().splitlines()[-1])
@@ -177,7 +177,7 @@ def whole_command(path: Path, tree: Path = ROOT, effects: str | None = None
     user and system, its workers included [s]; ``tree``'s apmcal and sitl (run from
     benchmarks/_data: ``python -m`` would put the current directory first); ``effects``:
     its ``--effects`` (default: every candidate)."""
-    env = dict(os.environ, PYTHONPATH=str(tree))
+    env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{tree}/sitl")
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     only = ["--effects", effects] if effects else []

@@ -28,7 +28,7 @@ HEAVY = ("numpy", "pandas", "scipy", "rich", "pymavlink")
 
 def once(tree: Path) -> float:
     """Wall time [s] of ``python -m apmcal --help`` with ``tree`` first on the path."""
-    env = dict(os.environ, PYTHONPATH=str(tree))
+    env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{tree}/sitl")
     t0 = time.perf_counter()
     subprocess.run([sys.executable, "-m", "apmcal", "--help"], env=env, cwd=DATA, check=True,
                    stdout=subprocess.DEVNULL)
@@ -39,7 +39,8 @@ def heavy_imports(tree: Path) -> list[str]:
     """The heavy packages that building the parser imports."""
     code = ("import sys; from apmcal.cli import build_parser; build_parser(); "
             f"print(','.join(m for m in {HEAVY!r} if m in sys.modules))")
-    out = subprocess.run([sys.executable, "-c", code], env=dict(os.environ, PYTHONPATH=str(tree)),
+    env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{tree}/sitl")
+    out = subprocess.run([sys.executable, "-c", code], env=env,
                          cwd=DATA, check=True, capture_output=True, text=True).stdout.strip()
     return [m for m in out.split(",") if m]
 

@@ -41,7 +41,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "benchmarks" / "_data"
-sys.path.insert(0, str(ROOT))
+sys.path[:0] = [str(ROOT), str(ROOT / "sitl")]   # the package and the simulator
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 SESSION = DATA / "joint_speed_handheld.bin"
@@ -100,7 +100,7 @@ def timed(contents, method: str, runs: int):
 
 def joint_in(tree: Path, session: Path, runs: int) -> dict:
     site = dict(SITE, date=SITE["date"].isoformat())      # (its first run includes the imports)
-    env = dict(os.environ, PYTHONPATH=str(tree))
+    env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{tree}/sitl")
     done = subprocess.run([sys.executable, "-c", _CHILD, str(session), json.dumps(site),
                            str(runs)], env=env, cwd=DATA, capture_output=True, text=True,
                           check=True)
@@ -112,7 +112,7 @@ def command(tree: Path, session: Path, method: str, runs: int) -> tuple[float, f
     with ``tree`` first on the path, best of ``runs`` by CPU time (user + system)."""
     argv = [sys.executable, "-m", "apmcal", "log", str(session), "--method", method,
             "--lat", str(SITE["lat_deg"]), "--lon", str(SITE["lon_deg"]), "--quiet"]
-    env = dict(os.environ, PYTHONPATH=str(tree))
+    env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{tree}/sitl")
     best = None
     for _ in range(runs):
         before = resource.getrusage(resource.RUSAGE_CHILDREN)

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+sys.path[:0] = [str(ROOT), str(ROOT / "sitl")]   # the package and the simulator
 
 from apmcal.calibration.log import Options
 from apmcal.calibration.validation import check, fit, session

@@ -58,7 +58,7 @@ def log_json(tree: Path, log: Path, extra: list[str], out: Path) -> bytes:
     """``apmcal log LOG --json OUT`` with ``tree``'s package: the exit status and the JSON file
     (empty when none was written), as bytes."""
     out.unlink(missing_ok=True)
-    env = dict(os.environ, PYTHONPATH=str(tree))
+    env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{tree}/sitl")
     done = subprocess.run([sys.executable, "-m", "apmcal", "log", str(log), *extra, "--json",
                            str(out)], cwd=DATA, env=env, capture_output=True)
     return f"exit {done.returncode}\n".encode() + (out.read_bytes() if out.exists() else b"")

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+sys.path[:0] = [str(ROOT), str(ROOT / "sitl"), str(ROOT / "tests")]
 
 from lossy_udp import vehicle_behind_lossy_link  # noqa: E402
 

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+sys.path[:0] = [str(ROOT), str(ROOT / "sitl")]   # the package and the simulator
 
 from apmcal.sources import _fastscan, dataflash, sniff_format, tlog  # noqa: E402
 from apmcal.sources._common import load_bytes  # noqa: E402

@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path[:0] = [str(Path(__file__).resolve().parents[1] / d) for d in (".", "sitl")]
 
 from apmcal.diagnosis.noise.bias_track import fit_random_walk_ml  # noqa: E402
 from apmcal.diagnosis.noise.terms import fit_noise_terms, noise_terms_allan_lines  # noqa: E402

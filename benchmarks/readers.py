@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+sys.path[:0] = [str(ROOT), str(ROOT / "sitl")]   # the package and the simulator
 sys.path.insert(0, str(ROOT / "tests"))       # pymavlink_ref: the tests' reference decoder
 
 import pymavlink_ref as ref  # noqa: E402

@@ -13,8 +13,9 @@ import pytest
 
 # make the package importable when it is not installed (e.g. a plain clone + venv)
 _ROOT = Path(__file__).resolve().parents[1]
-if str(_ROOT) not in sys.path:
-    sys.path.insert(0, str(_ROOT))
+for _folder in (_ROOT, _ROOT / "sitl"):      # the package; the simulator and the SITL driver
+    if str(_folder) not in sys.path:
+        sys.path.insert(0, str(_folder))
 
 SKIP_REASON = "../shared/data absent: real recordings not available"
 
@@ -32,3 +33,46 @@ def shared_data() -> Path:
     if p is None:
         pytest.skip(SKIP_REASON)
     return p
+
+
+# -- ArduPilot's own firmware (SITL) --------------------------------------------------------------
+def pytest_collection_modifyitems(config, items):
+    """Tests marked ``ardupilot_sitl`` skip, with the reason, where the firmware is absent."""
+    from ardupilot_sitl import unavailable_reason
+
+    reason = unavailable_reason()
+    if reason is None:
+        return
+    for item in items:
+        if "ardupilot_sitl" in item.keywords:
+            item.add_marker(pytest.mark.skip(reason=reason))
+
+
+@pytest.fixture
+def ardupilot_sitl(tmp_path):
+    """A factory of ArduPilot SITL instances (``sitl/ardupilot_sitl.py``), each started in its
+    own scratch folder under the test's tmp_path; every one is stopped when the test ends,
+    whether it passed, failed or was interrupted. Skips when the firmware is absent.
+
+    ``ardupilot_sitl(vehicle="copter", model="calibration", **kw)`` returns a started
+    :class:`ardupilot_sitl.ArduPilotSitl`.
+    """
+    from ardupilot_sitl import ArduPilotSitl, unavailable_reason
+
+    reason = unavailable_reason()
+    if reason:
+        pytest.skip(reason)
+    started = []
+
+    def start(vehicle: str = "copter", model: str = "calibration", name: str | None = None,
+              **kw) -> ArduPilotSitl:
+        workdir = tmp_path / (name or f"sitl-{len(started)}")
+        sitl = ArduPilotSitl(workdir, vehicle=vehicle, model=model, **kw)
+        started.append(sitl)
+        return sitl.start()
+
+    try:
+        yield start
+    finally:
+        for sitl in started:
+            sitl.stop()

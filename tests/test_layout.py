@@ -12,15 +12,16 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("apmcal", "apmcal_sim")
+# each package and the folder it lives in: the simulator sits in sitl/, under its own import name
+PACKAGES = {"apmcal": ROOT / "apmcal", "apmcal_sim": ROOT / "sitl" / "apmcal_sim"}
 
 
-def module_name(path: Path) -> str:
-    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+def module_name(path: Path, package_dir: Path) -> str:
+    parts = list(path.relative_to(package_dir.parent).with_suffix("").parts)
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-MODULES = {module_name(p): p for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py")}
+MODULES = {module_name(p, d): p for d in PACKAGES.values() for p in d.rglob("*.py")}
 
 
 def resolve(name: str) -> str | None:
@@ -109,9 +110,17 @@ def test_the_library_never_imports_the_simulator():
     assert {m: ts for m, ts in offenders.items() if ts} == {}
 
 
-def test_the_simulator_is_not_a_generic_top_level_name():
-    """Installed beside apmcal: its name must not clash with another package (a bare "sitl")."""
-    assert (ROOT / "apmcal_sim" / "__init__.py").exists() and not (ROOT / "sitl").exists()
+def test_the_simulator_lives_in_sitl_under_a_name_that_cannot_clash():
+    """sitl/ holds the simulator and the driver of ArduPilot's SITL; installed beside apmcal, the
+    simulator keeps the import name apmcal_sim (a bare "sitl" could clash with another package),
+    and the driver is not installed at all."""
+    import tomllib
+
+    assert (ROOT / "sitl" / "apmcal_sim" / "__init__.py").exists()
+    assert not (ROOT / "apmcal_sim").exists() and not (ROOT / "sitl" / "__init__.py").exists()
+    found = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]["find"]
+    assert found["where"] == [".", "sitl"]
+    assert all(name.startswith("apmcal") for name in found["include"])
 
 
 def test_at_most_four_modules_at_the_top_of_the_package():
