@@ -13,7 +13,6 @@ import time
 from pathlib import Path
 
 import pytest
-
 from ardupilot_sitl import ArduPilotSitl, SitlError, pwm_of_angle, pwm_of_rate
 
 pytestmark = pytest.mark.ardupilot_sitl
