@@ -51,8 +51,8 @@ BASE_TCP_PORT = 5760        # SERIAL0; SERIAL1 = +2, SERIAL2 = +3; every port + 
 RC_IN_UDP_PORT = 5501
 MAX_INSTANCES = 60
 
-GCS_SYSTEM_ID = 250         # this driver's own MAVLink ids (apmcal's link uses 255/190)
-GCS_COMPONENT_ID = 191
+GCS_SYSTEM_ID = 255         # the id the firmware takes RC overrides from (MAV_GCS_SYSID)
+GCS_COMPONENT_ID = 191      # apmcal's own link uses 190
 
 # MAVLink numbers used here (common.xml)
 MAV_CMD_DO_SET_SERVO = 183
@@ -543,6 +543,7 @@ class ArduPilotSitl:
     def takeoff(self, altitude_m: float) -> None:
         """Copter: GUIDED, arm, take off to ``altitude_m`` above home and wait to reach it."""
         self.wait_position_estimate()
+        self.request_message(33, 5.0)           # GLOBAL_POSITION_INT: the height above home
         self.set_mode("GUIDED")
         self.arm()
         self.command(MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, altitude_m)
