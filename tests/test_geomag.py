@@ -65,3 +65,46 @@ def test_an_old_recording_is_calibrated_with_the_field_of_its_date(tmp_path):
     field_2018 = np.linalg.norm(earth_field_ned(*ACCRA, 0.0, decimal_year(
         datetime.date(2018, 6, 1)))[0])
     assert cal.report.magnetic_field.mgauss == pytest.approx(field_2018)
+
+
+def test_the_fields_uncertainty_is_the_wmms_own_for_its_magnitude():
+    """WMM2025's error model gives 138 nT (1σ) for the total intensity F: 1.38 mGauss."""
+    from apmcal.core.geomag import field_magnitude_sigma
+
+    sigma = field_magnitude_sigma(-35.363262, 149.165237, datetime.date(2026, 11, 29))
+    assert sigma == pytest.approx(1.38)
+
+
+def _sphere_samples(n: int, radius: float, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    v = rng.normal(size=(n, 3))
+    return np.round(radius * v / np.linalg.norm(v, axis=1, keepdims=True)) + [40.0, -25.0, 10.0]
+
+
+def test_a_site_puts_the_fields_uncertainty_into_the_soft_iron_matrix_sigma():
+    """The ellipsoid gives the matrix's shape; its gain comes from the field it is scaled to,
+    known to the WMM's 0.24 %: every matrix entry's σ carries |M_ij| × that, the offsets none."""
+    from apmcal.solvers.magnetometer import calibrate_magnetometer
+
+    mag = _sphere_samples(4000, 580.0)
+    when = datetime.date(2026, 11, 29)
+    site = calibrate_magnetometer(mag, -35.363262, 149.165237, when, resolution_mgauss=1.0)
+    none = calibrate_magnetometer(mag, None, None, when, resolution_mgauss=1.0)
+    relative = site.magnetic_field.sigma_mgauss / site.magnetic_field.mgauss
+    diag_sigma = np.diag(site.sensor.sigma["matrix"])
+    assert np.all(diag_sigma >= relative * np.abs(np.diag(site.sensor.matrix)) * 0.999)
+    assert np.all(np.diag(none.sensor.sigma["matrix"]) < 0.2 * diag_sigma)
+    np.testing.assert_allclose(site.sensor.sigma["offset"], none.sensor.sigma["offset"], rtol=0.2)
+
+
+def test_a_reading_repeated_exactly_counts_once():
+    """A quantized compass held still repeats one reading, with one rounding error: the fit and
+    its σ take it once (a noise-free compass in six still poses: σ would shrink with the hold
+    time otherwise)."""
+    from apmcal.solvers.magnetometer import distinct_readings
+
+    mag = _sphere_samples(300, 500.0)
+    held = np.concatenate([mag[:100], np.repeat(mag[100:101], 5000, axis=0), mag[100:]])
+    kept = distinct_readings(held)
+    assert len(kept) == len(np.unique(mag, axis=0))
+    np.testing.assert_array_equal(kept[:101], held[:101])          # time order kept

@@ -65,8 +65,14 @@ def _offset_sigma(sensors: dict, name: str):
 
 
 def field_line(f: MagneticField) -> str:
-    """The field magnitude [mGauss] the compass was scaled to, and where it came from."""
-    return f"mag: field magnitude {f.mgauss:.1f} mGauss from {f.source}"
+    """The field magnitude [mGauss] the compass was scaled to, where it came from, and what
+    that means for the soft-iron matrix's overall gain."""
+    if f.sigma_mgauss:
+        return (f"mag: field magnitude {f.mgauss:.1f} ± {f.sigma_mgauss:.2g} mGauss from "
+                f"{f.source} (the model's own uncertainty, carried into the matrix's ±)")
+    return (f"mag: field magnitude {f.mgauss:.1f} mGauss from {f.source}: the matrix's overall "
+            "gain is the readings' own, as ArduPilot's compass calibration without a position; "
+            "--lat/--lon scale it to the Earth's field")
 
 
 # --------------------------------------------------------------------------- ellipsoid fits

@@ -3,13 +3,13 @@ with its second-order bias removed (:mod:`apmcal.solvers.ellipsoid.debias`)."""
 from __future__ import annotations
 
 import datetime
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from apmcal.core.blas_threads import single_threaded_blas
 from apmcal.core.errors import ApmcalError
-from apmcal.core.geomag import field_magnitude
+from apmcal.core.geomag import field_magnitude, field_magnitude_sigma
 from apmcal.solvers.ellipsoid.debias import debiased, warm_refit
 from apmcal.solvers.ellipsoid.fit import fit_ellipsoid_robust, fit_report, relative_mse, sphere_fit
 from apmcal.solvers.report_types import EllipsoidFit, MagneticField, MseScore
@@ -166,10 +166,13 @@ def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: floa
     check_coverage(mag)
     check_distinct_directions(mag)
     warnings: list[str] = []
+    mag = distinct_readings(mag)
     sphere = sphere_fit(mag)           # [Niespodziany] step 1: the field check and the fit's box
+    radius_sigma = 0.0
     if lat_deg is not None and lon_deg is not None:
         date = f"recording date {when}" if when else f"today's date {datetime.date.today()}"
         radius, note = field_magnitude(lat_deg, lon_deg, when)
+        radius_sigma = field_magnitude_sigma(lat_deg, lon_deg, when)
         origin = f"WMM at {date}"
         if note:
             warnings.append(f"mag: {note}")
@@ -186,7 +189,39 @@ def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: floa
     fit.debias = bias
     fit.held_out = held_out_score(mag, radius, info["parameterisation"], start=fitted,
                                   f_scale=info["f_scale"])
-    return CompassFit(cal, fit, MagneticField(float(radius), origin), warnings)
+    cal = with_field_gain_sigma(cal, radius_sigma / radius)
+    return CompassFit(cal, fit, MagneticField(float(radius), origin, sigma_mgauss=radius_sigma),
+                      warnings)
+
+
+def distinct_readings(mag: np.ndarray) -> np.ndarray:
+    """The samples [mGauss] with exact repeats dropped, in time order.
+
+    A quantized compass read while still and with less noise than one step (a noise-free
+    simulated compass, a quiet sensor read as whole int16 mGauss) repeats the same reading:
+    every repeat carries the same rounding error, so it is one point of the ellipsoid, not
+    many. Counted as many, they would shrink σ by the square root of the repeats (seen on
+    ArduPilot's SITL: 80 distinct readings in 2,679 samples of a six-pose session, offsets off
+    by 11σ). Noisy readings rarely repeat exactly, and keep their weight.
+    """
+    _, first = np.unique(mag, axis=0, return_index=True)
+    return mag if len(first) == len(mag) else mag[np.sort(first)]
+
+
+def with_field_gain_sigma(cal: SensorCalibration, relative_sigma: float) -> SensorCalibration:
+    """``cal`` with the field reference's uncertainty in its matrix σ.
+
+    The ellipsoid gives the matrix's shape; its overall gain comes from the field magnitude it
+    is scaled to (|M·(raw − offset)| = radius). A radius known to ``relative_sigma`` (the WMM's
+    own error for the field's magnitude) scales the whole matrix by a common factor of that
+    uncertainty: each entry's σ gains |M_ij|·relative_sigma, in quadrature with the fit's. The
+    offsets do not depend on the radius.
+    """
+    if not relative_sigma or cal.sigma is None or cal.sigma.get("matrix") is None:
+        return cal
+    gain = np.abs(cal.matrix) * relative_sigma
+    sigma = dict(cal.sigma, matrix=np.hypot(np.asarray(cal.sigma["matrix"]), gain))
+    return replace(cal, sigma=sigma)
 
 
 HELD_OUT_FIT_SAMPLES = 20_000    # the held-out score's fit uses at most about this many

@@ -213,6 +213,7 @@ class MagneticField:
     source: str
     coverage_fraction: float | None = None
     coverage_min_eig: float | None = None
+    sigma_mgauss: float = 0.0       # one sigma of the true field about ``mgauss`` (WMM's error)
 
 
 @dataclass
