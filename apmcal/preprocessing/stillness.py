@@ -182,13 +182,22 @@ def hysteresis_mask(s: np.ndarray, enter: float, leave: float) -> np.ndarray:
     return np.cumsum(edges[:-1]) > 0
 
 
+# the gyro bias a turn is measured against is the median of the still samples within this many
+# moving-std windows around each sample (2 minutes at the default 0.5 s window): long beside a
+# turn, short beside a warming board's bias drift, which moves most in its first minutes
+BIAS_WINDOWS = 240
+
+
 def slow_mask(gyr: np.ndarray, w: int, still: np.ndarray, max_rate: float,
-          blocks: list[tuple[int, int]]) -> np.ndarray:
+              blocks: list[tuple[int, int]]) -> np.ndarray:
     """Samples whose moving-mean rate stays within ``max_rate`` of the bias.
 
     A turn at constant rate (a turntable, or a steady hand) has a small moving std; only its
-    mean betrays it. The bias is the median rate over the samples the std test kept, which
-    are mostly true holds.
+    mean betrays it. The bias is the median rate of the samples the std test kept, which are
+    mostly true holds, taken near each sample (:func:`local_bias`): a warming board's gyro
+    bias drifts by more than a slow turn's rate (ArduPilot's SITL with an injected temperature
+    drift: 0.4 °/s over its warm-up), and against one median for the whole record the cold
+    start of a warm-up read as a turn.
 
     Parameters
     ----------
@@ -209,11 +218,37 @@ def slow_mask(gyr: np.ndarray, w: int, still: np.ndarray, max_rate: float,
     """
     if not np.any(still):
         return still
-    bias = np.median(gyr[still], axis=0)
+    bias = local_bias(gyr, still, w, BIAS_WINDOWS)
     mean = np.empty_like(gyr)
     for b0, b1 in blocks:                   # as moving_std: no window across a logging hole
-        mean[b0:b1] = uniform_filter1d(gyr[b0:b1] - bias, min(w, b1 - b0), axis=0, mode="nearest")
+        mean[b0:b1] = uniform_filter1d(gyr[b0:b1] - bias[b0:b1], min(w, b1 - b0), axis=0,
+                                       mode="nearest")
     return np.linalg.norm(mean, axis=1) < max_rate
+
+
+def local_bias(gyr: np.ndarray, still: np.ndarray, w: int, windows: int) -> np.ndarray:
+    """The median rate of the ``still`` samples within ``windows`` chunks of ``w`` samples
+    around each sample, per axis (n, 3).
+
+    Median of chunk medians, for speed on long logs: each chunk of ``w`` samples gives the
+    median of its still samples (none: no vote), and each sample takes the median of the votes
+    of the ``windows`` chunks centred on its own; where none voted, the nearest chunk that did.
+    """
+    n = len(gyr)
+    starts = np.arange(0, n, w)
+    votes = np.full((len(starts), 3), np.nan)
+    for k, i0 in enumerate(starts):
+        kept = gyr[i0:i0 + w][still[i0:i0 + w]]
+        if len(kept):
+            votes[k] = np.median(kept, axis=0)
+    voted = np.flatnonzero(~np.isnan(votes[:, 0]))
+    half = windows // 2
+    chunk_bias = np.empty_like(votes)
+    for k in range(len(starts)):
+        lo, hi = np.searchsorted(voted, [k - half, k + half + 1])
+        near = voted[lo:hi] if hi > lo else voted[[np.argmin(np.abs(voted - k))]]
+        chunk_bias[k] = np.median(votes[near], axis=0)
+    return np.repeat(chunk_bias, w, axis=0)[:n]
 
 
 def true_runs(mask: np.ndarray) -> list[tuple[int, int]]:
