@@ -37,8 +37,11 @@ import socket
 import subprocess
 import tempfile
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 SITL_DIR = Path(os.environ.get("APMCAL_ARDUPILOT_SITL", ROOT.parent / "shared" / "ardupilot-sitl"))
@@ -62,6 +65,16 @@ MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_RESULT_ACCEPTED = 0
 FORCE_ARM_MAGIC = 21196
 MAV_FRAME_LOCAL_NED = 1
+MAV_CMD_PREFLIGHT_CALIBRATION = 241
+MAV_CMD_ACCELCAL_VEHICLE_POS = 42429
+MAV_CMD_DO_START_MAG_CAL = 42424
+ACCELCAL_SUCCESS = 16777215     # ACCELCAL_VEHICLE_POS_SUCCESS
+MAG_CAL_SUCCESS = 4
+# the poses ArduPilot's accelerometer calibration asks for (ACCELCAL_VEHICLE_POS 1-6) as the
+# calibration model's attitude [deg]: level, left side down, right side down, nose down, nose
+# up, on its back
+ACCELCAL_ATTITUDES = {1: (0, 0, 0), 2: (-90, 0, 0), 3: (90, 0, 0), 4: (0, -90, 0),
+                      5: (0, 90, 0), 6: (180, 0, 0)}
 # SET_POSITION_TARGET_LOCAL_NED type_mask bits (POSITION_TARGET_TYPEMASK)
 IGNORE_VELOCITY = 8 | 16 | 32
 IGNORE_ACCELERATION = 64 | 128 | 256
@@ -100,10 +113,12 @@ class Attitude:
 
 
 def pwm_of_angle(degrees: float) -> int:
-    """The calibration model's servo PWM for an angle in [-180, 180] deg (1000 ↔ -180°)."""
-    if not -180.0 <= degrees <= 180.0:
-        raise ValueError(f"angle {degrees} deg outside [-180, 180]")
-    return int(round(1500 + degrees * 500.0 / 180.0))
+    """The calibration model's servo PWM for an angle [deg], taken into [-180, 180)
+    (1000 ↔ -180°, 1500 ↔ 0°)."""
+    if not math.isfinite(degrees):
+        raise ValueError(f"angle {degrees} deg")
+    wrapped = (degrees + 180.0) % 360.0 - 180.0
+    return int(round(1500 + wrapped * 500.0 / 180.0))
 
 
 def pwm_of_rate(rate_rad_s: float) -> int:
@@ -219,6 +234,7 @@ class ArduPilotSitl:
         self._lock = None
         self.tlog = self.workdir / "sitl.tlog"
         self.time_boot_s = 0.0          # the firmware's clock, from its timestamped messages
+        self._last_simstate = None
 
     # -- start and stop -----------------------------------------------------------------------
     @property
@@ -371,8 +387,23 @@ class ArduPilotSitl:
             stamp = getattr(msg, "time_boot_ms", None)
             if stamp is not None and msg.get_srcComponent() == 1:
                 self.time_boot_s = max(self.time_boot_s, stamp / 1000.0)
+            if msg.get_type() == "SIMSTATE":
+                self._last_simstate = msg
             if types is None or msg.get_type() in types:
                 return msg
+
+    def catch_up(self) -> None:
+        """Read every message already waiting (none is waited for): what was received is then
+        the firmware's present, not a queue of its past."""
+        while True:
+            msg = self.master.recv_match(blocking=False)
+            if msg is None:
+                return
+            stamp = getattr(msg, "time_boot_ms", None)
+            if stamp is not None and msg.get_srcComponent() == 1:
+                self.time_boot_s = max(self.time_boot_s, stamp / 1000.0)
+            if msg.get_type() == "SIMSTATE":
+                self._last_simstate = msg
 
     def request_message(self, message_id: int, rate_hz: float) -> None:
         """Ask for a message at ``rate_hz`` (SET_MESSAGE_INTERVAL), acknowledged."""
@@ -383,6 +414,7 @@ class ArduPilotSitl:
         """SYSTEM_TIME at 10 Hz from now on, and the first one read: :attr:`time_boot_s` is
         the firmware's clock from the start (no other message is sure to carry it)."""
         self.request_message(2, 10.0)
+        self.request_message(164, 10.0)         # SIMSTATE: the true attitude, from the start
         if self.recv({"SYSTEM_TIME"}, timeout_s=timeout_s) is None:
             raise SitlError("no SYSTEM_TIME from the firmware")
 
@@ -429,6 +461,26 @@ class ArduPilotSitl:
                 return float(msg.param_value)
         raise SitlError(f"parameter {name} not readable: does this firmware have it?")
 
+    def all_params(self, timeout_s: float = 60.0) -> dict[str, float]:
+        """Every parameter the firmware holds (PARAM_REQUEST_LIST, then each index that did
+        not arrive asked for by index): name -> value, as stored (float32)."""
+        got: dict[int, tuple[str, float]] = {}
+        count = None
+        deadline = time.monotonic() + timeout_s
+        self.master.mav.param_request_list_send(self.master.target_system, 1)
+        while count is None or len(got) < count:
+            if time.monotonic() > deadline:
+                raise SitlError(f"parameter list incomplete: {len(got)} of {count}")
+            msg = self.recv({"PARAM_VALUE"}, timeout_s=1.0)
+            if msg is not None:
+                count = msg.param_count
+                got[msg.param_index] = (_param_name(msg), float(msg.param_value))
+            elif count is not None:
+                for index in sorted(set(range(count)) - set(got))[:20]:
+                    self.master.mav.param_request_read_send(self.master.target_system, 1, b"",
+                                                            index)
+        return dict(got.values())
+
     def _param_echo(self, name: str, timeout_s: float):
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
@@ -439,13 +491,15 @@ class ArduPilotSitl:
 
     def set_params(self, values: dict, attempts: int = 5) -> None:
         """Write each parameter by name and confirm it from the firmware's PARAM_VALUE echo
-        (the float32 value it now holds); a parameter it does not echo raises SitlError."""
+        (the float32 value it now holds); a parameter it does not echo raises SitlError.
+
+        Simulated time runs on during each round trip (at speedup 200, twenty writes can take
+        a simulated minute or more): what must hold from the first sample goes in
+        ``boot_params`` instead (and may be confirmed here afterwards)."""
         for name, value in values.items():
             self._set_param(name, float(value), attempts)
 
     def _set_param(self, name: str, value: float, attempts: int) -> None:
-        import numpy as np
-
         want = float(np.float32(value))
         for _ in range(attempts):
             self.master.mav.param_set_send(self.master.target_system, 1, name.encode(), value, 9)
@@ -461,15 +515,51 @@ class ArduPilotSitl:
         """MAV_CMD_DO_SET_SERVO, acknowledged."""
         self.command(MAV_CMD_DO_SET_SERVO, servo, pwm)
 
-    def pose(self, roll: float, pitch: float, yaw: float, settle_s: float = 3.0) -> None:
+    def pose(self, roll: float, pitch: float, yaw: float, settle_s: float = 3.0,
+             rate_deg_s: float | None = None) -> None:
         """Turn the ``calibration`` model to an attitude [deg] and hold it; returns after
-        ``settle_s`` simulated seconds (its attitude loop settles in about 1 s)."""
-        self.set_servo(SERVO_MODE, MODE_STOP_PWM)
-        for servo, angle in ((6, roll), (7, pitch), (8, yaw)):
-            self.set_servo(servo, pwm_of_angle(angle))
-        self.set_servo(SERVO_MODE, MODE_ATTITUDE_PWM)
+        ``settle_s`` simulated seconds (its attitude loop settles in about 1 s).
+
+        The model's own attitude loop snaps to a new attitude at up to ~20 rad/s; with
+        ``rate_deg_s`` the attitude asked for moves there along the shortest rotation at that
+        rate instead (steps of 0.1 s), as a person turns a vehicle.
+        """
+        if rate_deg_s is not None:
+            self._sweep_to(roll, pitch, yaw, rate_deg_s)
+        self._hold_attitude(roll, pitch, yaw, stop_first=rate_deg_s is None)
         if settle_s > 0:
             self.run_for(settle_s)
+
+    def _hold_attitude(self, roll: float, pitch: float, yaw: float, stop_first: bool,
+                       acknowledged: bool = True) -> None:
+        send = self.set_servo if acknowledged else self._send_servo
+        if stop_first:
+            send(SERVO_MODE, MODE_STOP_PWM)
+        for servo, angle in ((6, roll), (7, pitch), (8, yaw)):
+            send(servo, pwm_of_angle(angle))
+        send(SERVO_MODE, MODE_ATTITUDE_PWM)
+
+    def _send_servo(self, servo: int, pwm: int) -> None:
+        """MAV_CMD_DO_SET_SERVO without waiting for its acknowledgement (over tcp it arrives)."""
+        self.master.mav.command_long_send(self.master.target_system, 1, MAV_CMD_DO_SET_SERVO, 0,
+                                          servo, pwm, 0, 0, 0, 0, 0)
+
+    def _sweep_to(self, roll: float, pitch: float, yaw: float, rate_deg_s: float) -> None:
+        from scipy.spatial.transform import Rotation, Slerp
+
+        now = self.true_attitude()
+        ends = Rotation.from_euler("ZYX", [[now.yaw, now.pitch, now.roll], [yaw, pitch, roll]],
+                                   degrees=True)
+        angle = math.degrees((ends[1] * ends[0].inv()).magnitude())
+        step_s = 0.1          # the clock ticks at SYSTEM_TIME's 10 Hz
+        steps = max(1, int(math.ceil(angle / rate_deg_s / step_s)))
+        path = Slerp([0.0, 1.0], ends)(np.linspace(0.0, 1.0, steps + 1)[1:])
+        with warnings.catch_warnings():     # at ±90° pitch roll and yaw are one angle: any split
+            warnings.simplefilter("ignore", UserWarning)
+            angles = path.as_euler("ZYX", degrees=True)
+        for y, p, r in angles:      # unacknowledged: a step waits for nothing but the clock
+            self._hold_attitude(r, p, y, stop_first=False, acknowledged=False)
+            self.run_for(step_s)
 
     def spin(self, rate_rad_s: float, axis=(1.0, 0.0, 0.0)) -> None:
         """Turn the ``calibration`` model at ``rate_rad_s`` about ``axis`` (body frame) until
@@ -487,14 +577,67 @@ class ArduPilotSitl:
         self.set_servo(SERVO_MODE, MODE_STOP_PWM)
 
     def true_attitude(self, timeout_s: float = 5.0) -> Attitude:
-        """The simulation's true attitude (SIMSTATE, asked for at 10 Hz) [deg]."""
-        if not getattr(self, "_simstate_requested", False):
-            self.request_message(164, 10.0)
-            self._simstate_requested = True
-        msg = self.recv({"SIMSTATE"}, timeout_s=timeout_s)
+        """The simulation's true attitude now [deg]: the latest SIMSTATE (10 Hz from the start)
+        once every message waiting has been read, so a driver that fell behind its link does
+        not act on an attitude of seconds ago."""
+        self._last_simstate = None
+        self.catch_up()
+        msg = self._last_simstate or self.recv({"SIMSTATE"}, timeout_s=timeout_s)
         if msg is None:
             raise SitlError("no SIMSTATE from the firmware")
         return Attitude(math.degrees(msg.roll), math.degrees(msg.pitch), math.degrees(msg.yaw))
+
+    # -- ArduPilot's own calibrators ---------------------------------------------------------
+    def onboard_accel_calibration(self, rate_deg_s: float = 90.0, settle_s: float = 2.0,
+                                  timeout_sim_s: float = 600.0) -> float:
+        """ArduPilot's own six-pose accelerometer calibration, as a ground station runs it:
+        MAV_CMD_PREFLIGHT_CALIBRATION (accelerometer), then for each pose the firmware asks for
+        (COMMAND_LONG MAV_CMD_ACCELCAL_VEHICLE_POS to us) the model is turned there at
+        ``rate_deg_s``, left ``settle_s`` and the pose confirmed with the same command. The
+        firmware saves INS_ACCOFFS/INS_ACCSCAL itself. Returns the simulated seconds it took.
+        """
+        start = self.time_boot_s
+        self.command(MAV_CMD_PREFLIGHT_CALIBRATION, 0, 0, 0, 0, 1)
+        while self.time_boot_s - start < timeout_sim_s:
+            msg = self.recv({"COMMAND_LONG"}, timeout_s=1.0)
+            if msg is None or msg.command != MAV_CMD_ACCELCAL_VEHICLE_POS:
+                continue
+            position = int(msg.param1)
+            if position == ACCELCAL_SUCCESS:
+                return self.time_boot_s - start
+            if position not in ACCELCAL_ATTITUDES:
+                raise SitlError(f"the firmware's accelerometer calibration failed ({position})")
+            self.pose(*ACCELCAL_ATTITUDES[position], settle_s=settle_s, rate_deg_s=rate_deg_s)
+            self.master.mav.command_long_send(self.master.target_system, 1,
+                                              MAV_CMD_ACCELCAL_VEHICLE_POS, 0, position,
+                                              0, 0, 0, 0, 0, 0)
+        raise SitlError("the firmware's accelerometer calibration did not finish")
+
+    def onboard_compass_calibration(self, axes, seconds_per_axis: float = 8.0,
+                                    rate_rad_s: float = 1.2, compass_mask: int = 1,
+                                    timeout_sim_s: float = 900.0):
+        """ArduPilot's own compass calibration: MAV_CMD_DO_START_MAG_CAL (autosave on) for the
+        compasses of ``compass_mask``, the model turned about ``axes`` in turn (and round again)
+        until MAG_CAL_REPORT says it succeeded. Returns (the report, simulated seconds)."""
+        start = self.time_boot_s
+        self.request_message(192, 5.0)                          # MAG_CAL_REPORT
+        self.command(MAV_CMD_DO_START_MAG_CAL, compass_mask, 0, 1, 0, 0)
+        k = 0
+        while self.time_boot_s - start < timeout_sim_s:
+            self.spin(rate_rad_s, axes[k % len(axes)])
+            k += 1
+            end = self.time_boot_s + seconds_per_axis
+            while self.time_boot_s < end:
+                msg = self.recv({"MAG_CAL_REPORT"}, timeout_s=1.0)
+                if msg is None:
+                    continue
+                if msg.cal_status == MAG_CAL_SUCCESS:
+                    self.halt()
+                    self.request_message(192, 0)
+                    return msg, self.time_boot_s - start
+                raise SitlError(f"the firmware's compass calibration failed (status "
+                                f"{msg.cal_status}, fitness {msg.fitness:.1f})")
+        raise SitlError("the firmware's compass calibration did not finish")
 
     # -- flying and driving -------------------------------------------------------------------
     def set_mode(self, name: str, timeout_s: float = 10.0) -> None:

@@ -41,8 +41,12 @@ def test_pwm_of_angle_and_rate_follow_the_calibration_model():
     # SIM_Calibration.cpp: angle = -π + 2π (PWM - 1000) / 1000; rate = 2π (PWM - 1300) / 700
     assert pwm_of_angle(0) == 1500 and pwm_of_angle(-180) == 1000 and pwm_of_angle(90) == 1750
     assert pwm_of_rate(2 * 3.141592653589793) == 2000 and pwm_of_rate(3.141592653589793) == 1650
+    # an angle is taken into [-180, 180): 180° and a hair over it are -180° (a sweep's Euler
+    # angles land there), not an error that would stop the model mid-session
+    assert pwm_of_angle(180) == pwm_of_angle(180.0000001) == pwm_of_angle(-180) == 1000
+    assert pwm_of_angle(270) == pwm_of_angle(-90) == 1250
     with pytest.raises(ValueError):
-        pwm_of_angle(181)
+        pwm_of_angle(float("nan"))
 
 
 def test_a_fresh_vehicle_takes_parameters_by_name_and_poses_where_told(ardupilot_sitl):
