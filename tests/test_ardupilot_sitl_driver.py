@@ -107,7 +107,8 @@ SCRIPT = textwrap.dedent("""
 
 def run_script(tmp_path, tail: str) -> tuple[subprocess.Popen, int]:
     code = SCRIPT.format(sitl_dir=str(ROOT / "sitl"), workdir=str(tmp_path / "v"), tail=tail)
-    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True)
     pid = int(proc.stdout.readline())
     assert alive(pid)
     return proc, pid
@@ -115,9 +116,13 @@ def run_script(tmp_path, tail: str) -> tuple[subprocess.Popen, int]:
 
 @pytest.mark.parametrize("how", ["ctrl-c", "sigkill", "exit-without-stop"])
 def test_no_firmware_outlives_the_process_that_started_it(tmp_path, how):
-    tail = "sys.exit(0)" if how == "exit-without-stop" else "time.sleep(60)"
+    # the exit waits for a line on stdin: the firmware is seen alive first
+    tail = "sys.stdin.readline(); sys.exit(0)" if how == "exit-without-stop" else "time.sleep(60)"
     proc, pid = run_script(tmp_path, tail)
-    if how == "ctrl-c":
+    if how == "exit-without-stop":
+        proc.stdin.write("\n")
+        proc.stdin.flush()
+    elif how == "ctrl-c":
         proc.send_signal(signal.SIGINT)
     elif how == "sigkill":
         proc.kill()

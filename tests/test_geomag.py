@@ -97,14 +97,18 @@ def test_a_site_puts_the_fields_uncertainty_into_the_soft_iron_matrix_sigma():
     np.testing.assert_allclose(site.sensor.sigma["offset"], none.sensor.sigma["offset"], rtol=0.2)
 
 
-def test_a_reading_repeated_exactly_counts_once():
-    """A quantized compass held still repeats one reading, with one rounding error: the fit and
-    its σ take it once (a noise-free compass in six still poses: σ would shrink with the hold
-    time otherwise)."""
+def test_a_reading_held_unchanged_counts_once_and_noisy_repeats_keep_their_weight():
+    """A quantized compass held still without noise repeats one reading, with one rounding
+    error: the run is taken once (σ would shrink with the hold time otherwise). A noisy one
+    repeats a reading a few times in a row by chance, each with its own noise: kept."""
     from apmcal.solvers.magnetometer import distinct_readings
 
     mag = _sphere_samples(300, 500.0)
-    held = np.concatenate([mag[:100], np.repeat(mag[100:101], 5000, axis=0), mag[100:]])
+    held = np.concatenate([mag[:100], np.repeat(mag[100:101], 5000, axis=0), mag[101:]])
     kept = distinct_readings(held)
-    assert len(kept) == len(np.unique(mag, axis=0))
-    np.testing.assert_array_equal(kept[:101], held[:101])          # time order kept
+    np.testing.assert_array_equal(kept, mag)                       # time order kept
+    rng = np.random.default_rng(1)
+    noisy = np.round(np.array([300.0, -100.0, 200.0]) + rng.normal(0, 1.0, (5000, 3)))
+    assert len(distinct_readings(noisy)) == len(noisy)
+    twice = np.repeat(mag[:50], 2, axis=0)                          # short runs: all kept
+    assert len(distinct_readings(twice)) == 100

@@ -194,18 +194,30 @@ def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: floa
                       warnings)
 
 
-def distinct_readings(mag: np.ndarray) -> np.ndarray:
-    """The samples [mGauss] with exact repeats dropped, in time order.
+# a reading repeated this many times in a row is a compass quieter than its quantization step
+MIN_STUCK_RUN = 5
+
+
+def distinct_readings(mag: np.ndarray, min_run: int = MIN_STUCK_RUN) -> np.ndarray:
+    """The samples [mGauss] with each run of ``min_run`` or more identical consecutive readings
+    kept once, in time order.
 
     A quantized compass read while still and with less noise than one step (a noise-free
-    simulated compass, a quiet sensor read as whole int16 mGauss) repeats the same reading:
-    every repeat carries the same rounding error, so it is one point of the ellipsoid, not
-    many. Counted as many, they would shrink σ by the square root of the repeats (seen on
-    ArduPilot's SITL: 80 distinct readings in 2,679 samples of a six-pose session, offsets off
-    by 11σ). Noisy readings rarely repeat exactly, and keep their weight.
+    simulated compass, a quiet sensor read as whole int16 mGauss) repeats one reading for as
+    long as it is held: every repeat carries the same rounding error, so the run is one point
+    of the ellipsoid, not thousands. Counted as many, they shrink σ by the square root of the
+    repeats (ArduPilot's SITL: 80 distinct readings in 2,679 samples of a six-pose session,
+    offsets 3σ off and more). A noisy compass repeats a reading a few times in a row by chance,
+    each time with its own noise: shorter runs keep their weight.
     """
-    _, first = np.unique(mag, axis=0, return_index=True)
-    return mag if len(first) == len(mag) else mag[np.sort(first)]
+    if len(mag) < min_run:
+        return mag
+    same = np.all(mag[1:] == mag[:-1], axis=1)
+    run_start = np.concatenate([[True], ~same])
+    run_id = np.cumsum(run_start) - 1
+    run_length = np.bincount(run_id)
+    keep = run_start | (run_length[run_id] < min_run)
+    return mag if keep.all() else mag[keep]
 
 
 def with_field_gain_sigma(cal: SensorCalibration, relative_sigma: float) -> SensorCalibration:
