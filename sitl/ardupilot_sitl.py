@@ -384,26 +384,23 @@ class ArduPilotSitl:
             msg = self.master.recv_match(blocking=True, timeout=min(remaining, 0.5))
             if msg is None or msg.get_type() == "BAD_DATA":
                 continue
-            stamp = getattr(msg, "time_boot_ms", None)
-            if stamp is not None and msg.get_srcComponent() == 1:
-                self.time_boot_s = max(self.time_boot_s, stamp / 1000.0)
-            if msg.get_type() == "SIMSTATE":
-                self._last_simstate = msg
+            self._note(msg)
             if types is None or msg.get_type() in types:
                 return msg
 
     def catch_up(self) -> None:
         """Read every message already waiting (none is waited for): what was received is then
         the firmware's present, not a queue of its past."""
-        while True:
-            msg = self.master.recv_match(blocking=False)
-            if msg is None:
-                return
-            stamp = getattr(msg, "time_boot_ms", None)
-            if stamp is not None and msg.get_srcComponent() == 1:
-                self.time_boot_s = max(self.time_boot_s, stamp / 1000.0)
-            if msg.get_type() == "SIMSTATE":
-                self._last_simstate = msg
+        while (msg := self.master.recv_match(blocking=False)) is not None:
+            self._note(msg)
+
+    def _note(self, msg) -> None:
+        """The firmware's clock and true attitude, from every message received."""
+        stamp = getattr(msg, "time_boot_ms", None)
+        if stamp is not None and msg.get_srcComponent() == 1:
+            self.time_boot_s = max(self.time_boot_s, stamp / 1000.0)
+        if msg.get_type() == "SIMSTATE":
+            self._last_simstate = msg
 
     def request_message(self, message_id: int, rate_hz: float) -> None:
         """Ask for a message at ``rate_hz`` (SET_MESSAGE_INTERVAL), acknowledged."""

@@ -12,6 +12,7 @@ benchmarks (not a test module).
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import subprocess
 import sys
@@ -175,6 +176,26 @@ class _Pump:
             raise self.error
 
 
+@contextlib.contextmanager
+def _live_with_pump(sitl, tmp_path: Path, *args: str):
+    """(apmcal live process, the driver's pump) for the block; after it apmcal is killed if
+    still running and the pump stopped (its error, if any, raised)."""
+    proc = apmcal_live(sitl, tmp_path, *args)
+    pump = _Pump(sitl)
+    try:
+        yield proc, pump
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+        pump.close()
+
+
+def _json_result(tmp_path: Path) -> dict | None:
+    out = tmp_path / "live.json"
+    return json.loads(out.read_text()) if out.exists() else None
+
+
 def guided_six_faces(sitl, tmp_path: Path, hold_s: float = 5.0, timeout_s: float = 240.0,
                      turn_rate_deg_s: float = 90.0, extra=()) -> tuple[int, str, dict | None]:
     """``apmcal live --guide ardupilot6 --auto`` with the model posed as each prompt asks,
@@ -183,13 +204,11 @@ def guided_six_faces(sitl, tmp_path: Path, hold_s: float = 5.0, timeout_s: float
     Returns (exit status (None: still running at ``timeout_s`` [s wall], then killed),
     everything apmcal printed, its --json result or None).
     """
-    proc = apmcal_live(sitl, tmp_path, "--guide", "ardupilot6", "--auto", "--hold",
-                       f"{hold_s:g}", "--face-timeout", "120", *extra)
-    pump = _Pump(sitl)
     lines = []
     asked = None
     deadline = time.monotonic() + timeout_s
-    try:
+    with _live_with_pump(sitl, tmp_path, "--guide", "ardupilot6", "--auto", "--hold",
+                         f"{hold_s:g}", "--face-timeout", "120", *extra) as (proc, pump):
         for line in proc.stdout:
             lines.append(line)
             if pump.error is not None:          # the model can no longer be posed: stop now
@@ -209,13 +228,7 @@ def guided_six_faces(sitl, tmp_path: Path, hold_s: float = 5.0, timeout_s: float
         except subprocess.TimeoutExpired:
             status = None
             lines.append(f"[no exit within {timeout_s:g} s]\n")
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(10)
-        pump.close()
-    out = tmp_path / "live.json"
-    return status, "".join(lines), (json.loads(out.read_text()) if out.exists() else None)
+    return status, "".join(lines), _json_result(tmp_path)
 
 
 # axes to turn about, body frame, each from the attitude the last one left: together they carry
@@ -234,24 +247,16 @@ def compass_turns(sitl, tmp_path: Path, seconds_per_axis: float = 8.0,
     """
     total_sim_s = seconds_per_axis * len(TURN_AXES)
     wall_s = total_sim_s / sitl.speedup + 2.0
-    proc = apmcal_live(sitl, tmp_path, "--duration", f"{wall_s:.1f}", "--min-still", "1", *extra)
-    pump = _Pump(sitl)
+    with _live_with_pump(sitl, tmp_path, "--duration", f"{wall_s:.1f}", "--min-still", "1",
+                         *extra) as (proc, pump):
+        def turn_round_the_axes(s):
+            for axis in TURN_AXES:
+                if pump.stop.is_set():
+                    return
+                s.spin(rate_rad_s, axis)
+                s.run_for(seconds_per_axis)
+            pump.call(turn_round_the_axes)
 
-    def turn_round_the_axes(s):
-        for axis in TURN_AXES:
-            if pump.stop.is_set():
-                return
-            s.spin(rate_rad_s, axis)
-            s.run_for(seconds_per_axis)
         pump.call(turn_round_the_axes)
-
-    pump.call(turn_round_the_axes)
-    try:
         out_text = proc.communicate(timeout=wall_s + 180)[0]
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(10)
-        pump.close()
-    out = tmp_path / "live.json"
-    return proc.returncode, out_text, (json.loads(out.read_text()) if out.exists() else None)
+    return proc.returncode, out_text, _json_result(tmp_path)
