@@ -195,11 +195,10 @@ def test_version_comes_from_the_package_metadata(capsys):
 
 def test_only_the_rejected_sensor_is_withheld_from_an_upload(capsys):
     """A compass out of the firmware's limits does not stop the gyro's upload."""
-    from apmcal.ardupilot.params import ParamProposal
-
     from types import SimpleNamespace
 
     from apmcal.ardupilot.limits import Writable
+    from apmcal.ardupilot.params import ParamProposal
 
     def report(proposal):
         return SimpleNamespace(proposal=proposal, writable=Writable.sort(

@@ -494,8 +494,10 @@ def print_calibration(calibration, proposal, console, verbose: bool = False, *,
                    verbose, writable, param_file)
     print_numbers(calibration, console, verbose, summary)
     said = {v.reason for v in verdicts.values()}
-    for line in calibration.report.warnings:
-        if any(plain(line.removeprefix("magnetometer not calibrated: ")) in r for r in said):
+    for line in dict.fromkeys(calibration.report.warnings):      # each once
+        core = line.removeprefix("magnetometer not calibrated: ").split(
+            "not measured by this session: ", 1)[-1]
+        if any(plain(core) in r for r in said):
             continue                                 # already the verdict's reason
         say(console, Text.assemble(("warning:", "yellow"), f" {plain(line)}"), "  ")
 

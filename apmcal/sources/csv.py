@@ -30,9 +30,10 @@ e.g. 9.80665/16384). ``None`` means the layout's own unit. Counts are flagged in
 ``LogContents.messages``. In the ``apmcal`` layout the header may declare them instead:
 ``acc_x[g]``, ``gyr_x[deg/s]``, ``mag_x[uT]``, ``acc_x[counts]``, ``t[s]``, ``t[ms]``, ``t[us]``
 (the same unit on the three axes of a sensor); an undeclared time column stepping by more than
-0.5 (an IMU at under 2 Hz if in seconds) is refused as milliseconds or microseconds. Without a declaration, values that no Earth-bound sensor reads in
-SI units (a still |a| near 1: g; gyro rates of deg/s; a field of tens: µT; thousands: raw
-counts) are refused with the fix (:func:`apmcal.sources.units.require_plausible_units`).
+0.5 (an IMU at under 2 Hz if in seconds) is refused as milliseconds or microseconds. Without a
+declaration, values that no Earth-bound sensor reads in SI units (a still |a| near 1: g; gyro
+rates of deg/s; a field of tens: µT; thousands: raw counts) are refused with the fix
+(:func:`apmcal.sources.units.require_plausible_units`).
 """
 from __future__ import annotations
 
