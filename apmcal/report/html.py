@@ -152,12 +152,19 @@ def session_figures(report, contents) -> list[tuple[str, bytes]]:
     if gyr_cal is not None and turns and raw.has("gyr"):
         spans = {axis: (tn.start_s, tn.end_s) for axis, tn in turns.items() if axis in "xyz"}
         g = raw.xyz("gyr")
-        before = fig.integrated_angles(t, g, spans)
-        after = fig.integrated_angles(t, fig.correct(gyr_cal, g, t), spans)
-        png = fig.gyro_figure(before, after)
+        corrected = fig.correct(gyr_cal, g, t)
+        # the turns made, in quarter turns; then each turn's angle as the fit integrates it:
+        # its motions only, against the rate at rest around them
+        expected = {a: 90.0 * round(v / 90.0)
+                    for a, v in fig.integrated_angles(t, corrected, spans).items()}
+        holds = find_static_segments(t, raw.xyz("acc"), g)
+        png = fig.gyro_figure(fig.turn_errors(t, g, spans, holds, expected),
+                              fig.turn_errors(t, corrected, spans, holds, expected), expected)
         if png:
-            out.append(("Gyroscope: each full turn's integrated angle minus the expected "
-                        "one, before (red) and after (green)", png))
+            out.append(("Gyroscope: each full turn's angle minus the expected one, before (red) "
+                        "and after (green) the calibration; integrated over the turn's motions "
+                        "against the rate at rest around them, as the fit does, so after it the "
+                        "turns read whole (that is how the gyro matrix is fitted)", png))
     return out
 
 
