@@ -57,3 +57,24 @@ def test_the_readme_live_demo_runs_as_written(tmp_path):
     # the simulated vehicle's own store holds the uploaded calibration (it starts at 0)
     stored = json.loads((tmp_path / "sitl-params.json").read_text())
     assert all(stored[f"INS_ACCOFFS_{a}"] != 0 for a in "XYZ"), stored
+
+
+def test_the_demo_vehicle_is_booted_before_a_ground_station_can_ask(tmp_path):
+    """`apmcal live` started at once after the demo's vehicle (a loaded machine, a short
+    sleep) must not fetch its parameters before the boot gyro calibration stores INS_GYROFFS:
+    the recording would be refused. The first answer already holds the calibrated offsets."""
+    from apmcal.sources.live import VehicleLink
+
+    port = free_udp_port()
+    sim = subprocess.Popen([sys.executable, "-m", "apmcal_sim", f"udpout:127.0.0.1:{port}",
+                            "--script", "ardupilot6", "--firmware", "3.3"], cwd=tmp_path,
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                           start_new_session=True)
+    try:
+        with VehicleLink(f"udp:127.0.0.1:{port}", timeout_s=60.0) as link:
+            first = link.fetch_params()
+        assert first["INS_GYR_CAL"] == 1
+        assert all(first[f"INS_GYROFFS_{a}"] != 0 for a in "XYZ"), first
+    finally:
+        os.killpg(sim.pid, signal.SIGKILL)
+        sim.wait()

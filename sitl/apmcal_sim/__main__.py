@@ -56,6 +56,12 @@ def main(argv=None) -> int:
                              duration=args.duration if args.script != "operator" else None,
                              full_params=args.full_params)
         apply_firmware_args(vehicle, args)
+        if person:
+            # on the bench, switched on a moment ago: booted, its gyro calibrated, before a
+            # ground station can ask for anything (apmcal refuses a recording across the boot
+            # calibration, however soon after this command it starts)
+            vehicle.run_for(vehicle.gyro_boot_s + 0.1)
+            vehicle.pop_messages()
         endpoint = MavlinkVehicle(vehicle, args.connection, args.speedup, args.tlog)
         if person:
             endpoint.on_poll.append(SixPosePerson(args.pose_hold).step)
