@@ -18,8 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from apmcal.ardupilot.limits import Writable
-from apmcal.ardupilot.paramfile import read_param_file, read_param_generation
+from apmcal.ardupilot.paramfile import read_param_file
 from apmcal.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -101,6 +100,8 @@ def test_a_gyro_graded_redo_is_not_written_unless_accepted(tmp_path, capsys):
 
 
 def test_writable_sorts_redo_and_out_of_limits_values():
+    from apmcal.ardupilot.limits import Writable
+
     values = {"INS_GYROFFS_X": 0.1, "COMPASS_OFS_X": 50.0, "INS_ACCOFFS_X": 0.2}
     redo = {"COMPASS_OFS_X": "the compass is graded REDO"}
     refused = {"INS_ACCOFFS_X": "|offset| 4 > 3.5 m/s²"}
@@ -193,6 +194,8 @@ def test_a_parameter_file_records_its_generation_and_upload_refuses_another(tmp_
     """A file made from the 3.2 sample says "3.2"; uploading it to a simulated 3.3 vehicle is
     refused before anything is written; --any-generation writes it, saying so."""
     from sim_operator import ThreadedSim
+
+    from apmcal.ardupilot.paramfile import read_param_generation
 
     param = tmp_path / "cal.param"
     assert main(["log", str(ROOT / "logs" / "ferraris.tlog"), "--param-file", str(param),
