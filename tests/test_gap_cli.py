@@ -208,3 +208,38 @@ def test_ctrl_c_during_the_diagnosis_is_one_line_and_130(tmp_path):
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130
     assert err.strip().splitlines() == ["apmcal: interrupted (Ctrl-C)"]
+
+
+def test_the_report_page_opens_with_the_consoles_advice_and_renders_its_markdown(diagnosed,
+                                                                                tmp_path):
+    """The gap page (index.html, rendered by headless Chromium) opens with the console's
+    first lines, the action in words, before any figure in nats; its Markdown is rendered (no
+    literal *emphasis*, "How this was computed" a list of whole items) and no table header is
+    empty."""
+    import io
+    import re
+
+    from rich.console import Console
+    from test_html_report import CHROMIUM, chromium
+
+    from apmcal.diagnosis.output.result import GapResult
+    from apmcal.diagnosis.output.summary import print_summary
+
+    if CHROMIUM is None:
+        pytest.skip("headless Chromium not installed (.ci/run installs Debian's chromium)")
+    _, out, _ = diagnosed
+    buf = io.StringIO()
+    print_summary(GapResult.load(out / "gap.json"), Console(file=buf, width=400,
+                                                             color_system=None))
+    first = buf.getvalue().splitlines()[0].strip().replace("`", "")   # `code` is code there
+    dom = chromium(out / "report" / "index.html", tmp_path, "--dump-dom").stdout
+    text = re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", dom))
+    start = text.index("What to do")
+    assert text.index(first[:60]) > start, (first, text[:600])
+    assert text.index(first[:60]) < text.index("nats")
+    assert not re.search(r"(?<![\w*])\*[A-Za-z][^*<]*\*", text), "literal *emphasis* on the page"
+    assert "**" not in text
+    assert not re.search(r"<th>\s*</th>", dom), "an empty table header"
+    method = dom[dom.index("How this was computed"):]
+    assert re.search(r"<ul>\s*<li><b>Real and twin\.</b> The log's samples", method)
+    assert "<em>nominal model</em>" in method

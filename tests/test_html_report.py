@@ -82,3 +82,45 @@ def test_gap_report_page_from_its_figures(tmp_path):
     text = self_contained(page)
     assert "data:image/png;base64," in text and "The gap lies in the gyro." in text
     rendered(page, tmp_path, "The gap lies in the gyro.")
+
+
+def test_the_tcal_page_opens_with_what_the_console_says_it_proposes(tmp_path, capsys):
+    """`apmcal tcal` says first what it proposes, in words, and its page opens with the same
+    words: on the warm-up sample it proposes the calibration, on the six-face sample (10 °C,
+    no significant drift) nothing."""
+    for name, said in (("warmup.bin", "IMU 0: proposed — enable its temperature calibration"),
+                       ("ferraris.tlog", "IMU 0: nothing proposed (INS_TCAL1_*)")):
+        out = tmp_path / name
+        assert main(["tcal", str(ROOT / "logs" / name), "--report", str(out)]) == 0
+        console = capsys.readouterr().out
+        assert console.startswith(said), console[:300]
+        if CHROMIUM is None:
+            continue
+        dom = chromium(out / "index.html", tmp_path, "--dump-dom").stdout
+        text = re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", dom))
+        first_words = " ".join(console.split()[:12])
+        assert first_words in text, (first_words, text[:500])
+        assert text.index(first_words) < text.index("Figures")
+
+
+def test_a_figure_title_is_never_cut():
+    """The gap report's figures are saved by plots.save, which shrinks a title wider than its
+    axes (or past the figure's edge) until it fits; checked on the geometry and titles that
+    were cut before (two panels of 4.2 in)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from apmcal.diagnosis.output.plots import fits, save
+
+    fig, axes = plt.subplots(1, 2, figsize=(8.4, 3.4))
+    for ax, sensor in zip(axes, ("gyr", "acc")):
+        ax.plot([25, 36], [0, 1])
+        ax.set_title(f"{sensor}: nominal-model residual vs temperature, a longer title still")
+    save(fig, Path(matplotlib.get_cachedir()) / "apmcal-title-test.png")
+    renderer = fig.canvas.get_renderer()
+    boxes = [ax.title.get_window_extent(renderer) for ax in axes]
+    assert all(fits(b, fig.bbox) for b in boxes)
+    assert boxes[0].x1 <= boxes[1].x0, "the titles overlap"
+    plt.close(fig)

@@ -48,11 +48,38 @@ def test_real_logs_read_plainly(capsys, name):
 
 def test_a_flight_log_is_graded_on_what_it_measured(capsys):
     """A real flight: one still moment measures the gyro offsets; the accelerometer and compass
-    are "not measured", the overall grade is the gyro's, not REDO, and the log is named a
+    are "not measured", and since the vehicle re-measures its gyro offsets at every boot
+    (INS_GYR_CAL 1) the overall verdict is not GOOD but NOTHING TO APPLY; the log is named a
     flight log."""
     path = DATA / "ardupilot" / "pixhawk1_copter368.bin"
     if not path.exists():
         pytest.skip("real recording absent (the test data folder ../shared/data)")
     lines = report_of(path, capsys)
-    assert lines[0].startswith("verdict: GOOD (gyroscope good; not measured:"), lines[0]
+    assert lines[0].startswith("verdict: NOTHING TO APPLY (gyroscope good; not measured:"), \
+        lines[0]
     assert "this is a flight log" in lines[1]
+
+
+# the real logs whose IMU path measures the gyro offsets only, and INS_GYR_CAL in force there
+GYRO_ONLY = {"ardupilot/pixhawk1_copter368.bin": 1, "ardupilot/pxf_copter_mag.BIN": 1,
+             "ardupilot/ardusub_small.BIN": 0, "ardupilot/ardusub_small.tlog": 0,
+             "ardupilot/sitl_vtol.tlog": 0}
+
+
+@pytest.mark.parametrize("name", sorted(GYRO_ONLY))
+def test_gyro_offsets_alone_are_never_good_when_they_change_nothing(capsys, name):
+    """Only gyro offsets measured: GOOD only where the vehicle keeps them (INS_GYR_CAL 0);
+    where it re-measures them at every boot the verdict says there is nothing to apply and
+    the apply lines never say "changes nothing" of a vehicle that keeps them."""
+    path = DATA / name
+    if not path.exists():
+        pytest.skip("real recording absent (the test data folder ../shared/data)")
+    lines = report_of(path, capsys)
+    text = "\n".join(lines)
+    if GYRO_ONLY[name]:
+        assert lines[0].startswith("verdict: NOTHING TO APPLY (gyroscope good;"), lines[0]
+        assert "changes nothing you will notice" in text
+    else:
+        assert lines[0].startswith("verdict: GOOD (gyroscope good;"), lines[0]
+        assert "changes nothing" not in text
+        assert "INS_GYR_CAL is 0 on this vehicle" in text

@@ -20,7 +20,7 @@ def test_ferraris_session_enables_nothing(tmp_path, capsys):
     assert "not proposed" in out.read_text() and "within 2σ" in out.read_text()
     result = json.loads(js.read_text())
     assert result["params"] == {} and result["tcal"][0]["significant"] is False
-    assert "not proposed" in capsys.readouterr().out
+    assert "nothing proposed" in capsys.readouterr().out
 
 
 def test_bundled_warmup_sample_is_enabled_and_matches_its_truth(tmp_path):

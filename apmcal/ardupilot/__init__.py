@@ -11,6 +11,8 @@ samples, and given a calibration which values make the firmware apply it.
   correction formulas, applied and undone on a recording;
 - :mod:`~apmcal.ardupilot.params` — a calibration turned into INS_*/COMPASS_* values within the
   firmware's limits (:class:`ParamProposal`);
+- :mod:`~apmcal.ardupilot.limits` — what of a proposal may be written: the firmware's limits
+  for a generation, and values graded REDO withheld unless the user says so (:class:`Writable`);
 - :mod:`~apmcal.ardupilot.tcal_params` — the temperature calibration's INS_TCALn_* values;
 - :mod:`~apmcal.ardupilot.paramfile` — .param files as MAVProxy and Mission Planner write them;
 - :mod:`~apmcal.ardupilot.scope` — which parameters upload and restore may write.

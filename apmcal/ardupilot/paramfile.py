@@ -33,12 +33,19 @@ def format_value(value: float) -> str:
 
 
 QGC_HEADER = "# Vehicle-Id Component-Id Name Value Type"
+#: The comment line recording the firmware generation a file's values were made for
+#: (ardupilot.firmware.GENERATIONS): its formulas differ, so values for one are wrong on the other
+GENERATION_COMMENT = "# apmcal firmware generation: "
+_GENERATION = re.compile(r"^#\s*apmcal firmware generation:\s*(\S+)")
 MAV_PARAM_TYPE_REAL32 = 9
 
 
 def write_param_file(path: str | Path, values: dict[str, float], header_comment: str = "",
-                     *, comment_non_finite: bool = False, fmt: str = "param") -> None:
-    """Write ``values`` as sorted ``NAME VALUE`` lines, ``header_comment`` as ``#`` lines first.
+                     *, comment_non_finite: bool = False, fmt: str = "param",
+                     generation: str | None = None) -> None:
+    """Write ``values`` as sorted ``NAME VALUE`` lines, ``header_comment`` as ``#`` lines first,
+    then (with ``generation``) the line recording the firmware generation the values were made
+    for (:data:`GENERATION_COMMENT`, read back by :func:`read_param_generation`).
 
     ``comment_non_finite`` (for backups of what a vehicle holds): a NaN/inf value becomes the
     line ``# NAME nan (not finite on the vehicle; not restorable)`` instead of an error.
@@ -55,6 +62,8 @@ def write_param_file(path: str | Path, values: dict[str, float], header_comment:
     fmt : {"param", "qgc"}
         ``NAME VALUE`` lines, or QGroundControl's tab-separated ``.params`` (vehicle 1,
         component 1, type REAL32).
+    generation : str, optional
+        The firmware generation ("3.2", "3.3+") the values were made for.
 
     Raises
     ------
@@ -65,6 +74,8 @@ def write_param_file(path: str | Path, values: dict[str, float], header_comment:
     if fmt not in ("param", "qgc"):
         raise ApmcalError(f"unknown parameter file format {fmt!r} (param or qgc)", path)
     lines = [f"# {line}".rstrip() for line in header_comment.splitlines()]
+    if generation is not None:
+        lines.append(f"{GENERATION_COMMENT}{generation}")
     if fmt == "qgc":
         lines.append(QGC_HEADER)
     for name in sorted(values):
@@ -135,3 +146,14 @@ def read_unrestorable(path: str | Path) -> list[str]:
     :func:`write_param_file`); the file must be readable (:func:`read_param_file` first)."""
     lines = Path(path).read_text().splitlines()
     return [m.group(1) for m in map(_UNRESTORABLE.match, lines) if m]
+
+
+def read_param_generation(path: str | Path) -> str | None:
+    """The firmware generation a parameter file records (:data:`GENERATION_COMMENT`), None
+    when it records none (a file of another tool, a backup); the file must be readable
+    (:func:`read_param_file` first)."""
+    for line in Path(path).read_text().splitlines():
+        m = _GENERATION.match(line)
+        if m:
+            return m.group(1)
+    return None

@@ -82,9 +82,12 @@ class ParamProposal:
     generation: str = "3.3+"
     costs: dict[str, float] = field(default_factory=dict)
 
-    def write(self, path, header_comment: str = "", fmt: str = "param") -> None:
-        """The proposed values as a .param file, or QGroundControl's .params with ``fmt="qgc"``
-        (:func:`apmcal.ardupilot.paramfile.write_param_file`).
+    def write(self, path, header_comment: str = "", fmt: str = "param",
+              values: dict[str, float] | None = None) -> None:
+        """The proposed values (or ``values``, those of them that may be written:
+        :class:`apmcal.ardupilot.limits.Writable`) as a .param file, or QGroundControl's
+        .params with ``fmt="qgc"`` (:func:`apmcal.ardupilot.paramfile.write_param_file`),
+        recording the generation they were made for.
 
         Raises
         ------
@@ -94,7 +97,8 @@ class ParamProposal:
         from apmcal.ardupilot.paramfile import write_param_file
 
         try:
-            write_param_file(path, self.values, header_comment, fmt=fmt)
+            write_param_file(path, self.values if values is None else values, header_comment,
+                             fmt=fmt, generation=self.generation)
         except OSError as exc:     # write_param_file wraps its own; this is belt and braces
             raise ApmcalError(f"cannot write parameter file ({exc.strerror or exc})",
                               str(path)) from None

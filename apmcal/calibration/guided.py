@@ -373,6 +373,9 @@ class FaceSession:
         and the wait goes on."""
         window, held = StillWindow(), []
         wrong_since, rejected_spell, shown = None, False, -1
+        # the pose just recorded, while the vehicle has not moved since: not a wrong pose, the
+        # operator has not turned it yet (with --auto nobody says when they start)
+        resting_in = next(reversed(self.done), None) if self.options.auto else None
         while True:
             self.check_keys()
             self.check_time("still hold in the pose" if held else
@@ -380,6 +383,8 @@ class FaceSession:
             for s in self.feed.receive(0.05):
                 window.add(s)
                 if not window.still():
+                    if window.full():      # moving (a window still filling says nothing)
+                        resting_in = None
                     if held and held[-1].t - held[0].t >= 1.0:
                         self.operator.tell(f"{self.where()}: the vehicle moved after "
                                            f"{held[-1].t - held[0].t:.1f} s: hold it still")
@@ -399,6 +404,8 @@ class FaceSession:
                                     np.mean([h.acc for h in held], axis=0))
                     continue
                 held = []
+                if seen is not None and seen.name == resting_in:
+                    continue
                 wrong_since = s.t if wrong_since is None else wrong_since
                 grace = WRONG_POSE_GRACE_S if self.options.auto else 0.0
                 if rejected_spell or s.t - wrong_since < grace:

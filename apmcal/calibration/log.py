@@ -358,13 +358,61 @@ def calibrate_log(contents, opts: Options | None = None):
     if not cal.sensors:
         raise ApmcalError("nothing could be calibrated: "
                           + "; ".join(cal.report.warnings), contents.path)
+    cal = with_parts(cal, at_rest=at_rest(recording, mag_recording, opts))
     if opts.generation is None and contents.format == "csv":
         return cal, None
-    generation = opts.generation or firmware_generation(contents.params, contents.firmware)
+    logged = (firmware_generation(contents.params, contents.firmware)
+              if contents.format != "csv" else None)
+    generation = opts.generation or logged
     proposal = to_ardupilot_params(cal, generation, instance=recording.instance,
                                    current_params=contents.params)
+    if logged is not None and generation != logged:
+        # the samples were un-corrected and the values made with another generation's formulas
+        # than the vehicle's own: said where the verdict is read, and in the proposal
+        said = contents.firmware or "its parameters"
+        cal = with_parts(cal, warnings=[
+            f"--firmware {generation} given, but this log's firmware ({said}) uses the "
+            f"{logged} formulas: the samples were un-corrected and the parameters made for "
+            f"{generation}, so they are wrong for this vehicle unless it runs {generation}"])
+        proposal.notes.append(f"made for firmware {generation} (--firmware), not for the "
+                              f"log's {logged}")
     withhold_undetermined(proposal, cal.report.undetermined)
     return replace(cal, params=dict(proposal.values)), proposal
+
+
+def at_rest(recording: Recording, mag_recording: Recording | None, opts: Options):
+    """What the sensors read at rest with the calibration in force, as logged
+    (:class:`~apmcal.solvers.report_types.AtRest`): the median |specific force| of the still
+    periods [m/s²] beside gravity at the site, the median |field| [mGauss] beside the WMM's
+    (with --lat/--lon). None without a still period."""
+    from apmcal.preprocessing.static import find_static_segments
+    from apmcal.solvers.report_types import AtRest
+
+    acc = recording.xyz("acc")
+    gyr = recording.xyz("gyr") if recording.has("gyr") else None
+    ok = np.all(np.isfinite(acc), axis=1) & (np.all(np.isfinite(gyr), axis=1)
+                                             if gyr is not None else True)
+    try:
+        segments = find_static_segments(recording.t[ok], acc[ok],
+                                        None if gyr is None else gyr[ok],
+                                        min_duration=opts.min_still_s)
+    except ApmcalError:
+        segments = []
+    if not segments:
+        return None
+    acc_norm = float(np.median([np.linalg.norm(s.acc_mean) for s in segments]))
+    mag_norm = wmm = None
+    compass = next((r for r in (recording, mag_recording)
+                    if r is not None and has_live_magnetometer(r)), None)
+    if compass is not None:
+        mag = compass.xyz("mag")
+        mag = mag[np.all(np.isfinite(mag), axis=1)]
+        mag_norm = float(np.median(np.linalg.norm(mag, axis=1))) if len(mag) else None
+    if mag_norm is not None and opts.lat_deg is not None and opts.lon_deg is not None:
+        from apmcal.core.geomag import field_magnitude
+
+        wmm = field_magnitude(opts.lat_deg, opts.lon_deg, opts.date)[0]
+    return AtRest(acc_norm, float(opts.gravity), mag_norm, wmm)
 
 
 @dataclass

@@ -132,6 +132,7 @@ def add_calibration_options(p: argparse.ArgumentParser) -> None:
                         "QGroundControl's .params with --param-format qgc)")
     p.add_argument("--param-format", choices=["param", "qgc"], default="param",
                    help="format of --param-file: param (default) or qgc (tab-separated .params)")
+    add_accept_redo_option(p)
     p.add_argument("--json", default=None, metavar="FILE",
                    help="write summary and calibration as JSON (also when --param-file fails)")
     p.add_argument("--report", default=None, metavar="DIR",
@@ -140,6 +141,14 @@ def add_calibration_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--verbose", action="store_true",
                    help="also print the specialist's lines (fit internals, paper references, "
                         "the model's misfit); the --json output always has them")
+
+
+def add_accept_redo_option(p: argparse.ArgumentParser) -> None:
+    """--accept-redo: write (and upload) the values of a sensor graded REDO too."""
+    p.add_argument("--accept-redo", action="store_true",
+                   help="also write (and upload) the values of a sensor graded REDO, which are "
+                        "otherwise left out (exit status 1); values out of the firmware's "
+                        "limits are never written")
 
 
 def console_for(args):
@@ -262,7 +271,8 @@ def default_backup_name() -> str:
 
 
 def upload_values(connection, values, backup, vehicle_params, console, baud,
-                  all_params=False):
+                  all_params=False, generation: str | None = None,
+                  any_generation: bool = False):
     """Write ``values`` to the vehicle (backed up to ``backup``, verified) and say so.
 
     Parameters
@@ -280,11 +290,16 @@ def upload_values(connection, values, backup, vehicle_params, console, baud,
         Serial baud rate.
     all_params : bool
         Allow parameters other than calibration ones.
+    generation : str, optional
+        The firmware generation the values were made for ("3.2", "3.3+"; None: not known).
+    any_generation : bool
+        Upload to a vehicle of another generation all the same.
 
     Raises
     ------
     ApmcalError
-        When the backup cannot be written or the upload fails.
+        When the backup cannot be written, the vehicle's firmware generation is not the one
+        the values were made for (unless ``any_generation``), or the upload fails.
     """
     from apmcal.link.upload import upload_params
     from apmcal.sources.live import VehicleLink
@@ -292,10 +307,49 @@ def upload_values(connection, values, backup, vehicle_params, console, baud,
     backup = backup or default_backup_name()
     check_writable(backup, "backup file")
     with VehicleLink(connection, baud=baud, announce=console.print) as link:
+        if generation is not None:
+            vehicle_params = vehicle_params or link.fetch_params()
+            check_generation(generation, vehicle_params, connection, any_generation, console)
         result = upload_params(link, values, backup, vehicle_params, all_params)
     console.print(f"wrote and verified {len(result.written)} parameters; backup in {backup} "
                   f"(undo: apmcal restore {connection} {backup})")
     print_skipped(result, console)
+
+
+#: the flag that uploads values made for another firmware generation than the vehicle's
+ANY_GENERATION_FLAG = "--any-generation"
+
+
+def add_any_generation_option(p: argparse.ArgumentParser) -> None:
+    """--any-generation: upload values made for another firmware generation all the same."""
+    p.add_argument(ANY_GENERATION_FLAG, action="store_true",
+                   help="upload although the values were made for another firmware generation "
+                        "than the vehicle's (3.2 and 3.3+ apply them by other formulas)")
+
+
+def check_generation(generation: str, vehicle_params: dict, connection: str,
+                     any_generation: bool, console) -> None:
+    """Refuse, before anything is written, values made for another firmware generation than
+    the vehicle's (:func:`apmcal.ardupilot.firmware.firmware_generation` of its parameters);
+    with ``any_generation`` say it and go on.
+
+    Raises
+    ------
+    ApmcalError
+        On a mismatch without ``any_generation``.
+    """
+    from apmcal.ardupilot.firmware import firmware_generation
+
+    vehicle = firmware_generation(vehicle_params)
+    if vehicle == generation:
+        return
+    said = (f"the values were made for firmware {generation}, the vehicle's parameters are "
+            f"those of {vehicle}: the two apply them by different formulas")
+    if not any_generation:
+        raise ApmcalError(f"{said}; nothing was written (calibrate again with this vehicle's "
+                          f"log, or {ANY_GENERATION_FLAG} to write them all the same)",
+                          connection)
+    console.print(f"warning: {said}; uploading all the same ({ANY_GENERATION_FLAG})")
 
 
 def print_skipped(result, console) -> None:

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from apmcal.cli.common import (
     POSITIVE_SECONDS,
+    add_any_generation_option,
     add_baud_option,
     add_calibration_options,
     check_outputs,
@@ -47,6 +48,7 @@ def add_parser(sub) -> None:
                       help="write the proposed parameters to the vehicle (backed up, verified)")
     live.add_argument("--backup", default=None,
                       help="backup file (default apmcal-files/apmcal-backup-<time>.param)")
+    add_any_generation_option(live)
     add_calibration_options(live)
 
 
@@ -84,29 +86,35 @@ def run(args) -> int:
     contents = read_log(log_path)
     report = summarise_and_calibrate(contents, args)
     if args.upload:
-        values = values_to_upload(report.proposal, args.connection, console)
-        upload_values(args.connection, values, args.backup, params, console, args.baud)
+        values = values_to_upload(report, args.connection, console)
+        if values:
+            upload_values(args.connection, values, args.backup, params, console, args.baud,
+                          generation=report.proposal.generation,
+                          any_generation=args.any_generation)
     return report.status
 
 
-def values_to_upload(proposal, connection: str, console) -> dict[str, float]:
-    """The proposed values that passed the firmware's limits (:meth:`ParamProposal.uploadable
-    <apmcal.ardupilot.params.ParamProposal.uploadable>`), saying which were withheld.
+def values_to_upload(report, connection: str, console) -> dict[str, float]:
+    """The proposed values that may be written (:attr:`SessionReport.writable
+    <apmcal.report.session.SessionReport.writable>`: none graded REDO unless --accept-redo,
+    none out of the firmware's limits), saying which were withheld; {} when none may be
+    (said: the exit status is then 1).
 
     Raises
     ------
     ApmcalError
-        When nothing was proposed or no value is within the firmware's limits.
+        When nothing was proposed.
     """
-    if proposal is None:
-        raise ApmcalError("not uploading: no parameter within the firmware's limits (none "
-                          "proposed)", connection)
-    values = proposal.uploadable(connection)
-    if proposal.rejected:
-        console.print("not uploading, out of the firmware's limits: "
-                      + ", ".join(proposal.rejected) + "; uploading the other "
-                      f"{len(values)} values")
-    return values
+    if report.proposal is None or not report.proposal.values and not report.proposal.rejected:
+        raise ApmcalError("not uploading: no parameter proposed", connection)
+    writable = report.writable
+    for line in writable.lines("the vehicle"):
+        console.print(line)
+    if not writable.values:
+        console.print("nothing uploaded: every value proposed is withheld; exit status 1")
+    elif writable.withheld:
+        console.print(f"uploading the other {len(writable.values)} values")
+    return dict(writable.values)
 
 
 def record_guided(link, args) -> int:

@@ -58,14 +58,24 @@ def run_flight(args) -> tuple[int | None, str | None]:
         console.print(line)
     console.print("IMU calibration: not attempted on a flight log (choose --method static, "
                   "ferraris, ... to calibrate the IMU from its still stretches)")
-    if args.param_file:
+    log_params, generation = flight_firmware(args.file)
+    writable = flight_writable(result, log_params, generation,
+                               getattr(args, "accept_redo", False))
+    for line in writable.lines(args.param_file or "the parameter file"):
+        console.print(line)
+    if args.param_file and writable.values:
         from pathlib import Path
 
         from apmcal.ardupilot.paramfile import write_param_file
 
-        write_param_file(args.param_file, result.params(),
-                         f"apmcal flight compass fit of {Path(args.file).name}")
+        write_param_file(args.param_file, writable.values,
+                         f"apmcal flight compass fit of {Path(args.file).name}",
+                         fmt=getattr(args, "param_format", "param"),
+                         generation=generation)
         console.print(f"wrote {args.param_file}")
+    elif args.param_file:
+        console.print(f"nothing written to {args.param_file}: every value proposed is withheld "
+                      "(above)")
     if getattr(args, "report", None):
         from apmcal.report.html import write_flight_html
 
@@ -73,7 +83,40 @@ def run_flight(args) -> tuple[int | None, str | None]:
     if args.json:
         result.save_json(args.json)
         console.print(f"wrote {args.json}")
-    return 0, None
+    return writable.status, None
+
+
+def flight_writable(result, log_params: dict, generation: str, accept_redo: bool = False):
+    """What of a flight's compass proposal may be written (the one rule of
+    :class:`apmcal.ardupilot.limits.Writable`): a compass whose proposed calibration is graded
+    REDO is withheld unless --accept-redo, one with a value out of the firmware's limits
+    always, whole."""
+    from apmcal.ardupilot.limits import Writable, firmware_limit_violations
+
+    values, redo, refused = result.params(), {}, {}
+    for c in result.compasses:
+        names = [n for n in c.proposed if n in values]
+        grade = getattr(getattr(c, "health_proposed", None), "verdict", None)
+        if grade == "redo":
+            redo |= {n: f"compass {c.instance}'s proposed calibration is graded REDO"
+                     for n in names}
+        limits = firmware_limit_violations({n: values[n] for n in names},
+                                           {**log_params, **c.in_force}, generation)
+        if limits:
+            first = next(iter(limits))
+            refused |= {n: limits.get(n, f"withheld with the rest of compass {c.instance} "
+                                         f"({first} refused)") for n in names}
+    return Writable.sort(values, redo, refused, accept_redo)
+
+
+def flight_firmware(path) -> tuple[dict, str]:
+    """The parameters of a flight log (its COMPASS_OFFS_MAX for the firmware's limits) and its
+    firmware generation ("3.2" or "3.3+")."""
+    from apmcal.ardupilot.firmware import firmware_generation
+    from apmcal.sources import read_log
+
+    contents = read_log(path)
+    return dict(contents.params), firmware_generation(contents.params, contents.firmware)
 
 
 def summarise_and_calibrate(contents, args):
@@ -114,6 +157,7 @@ def summarise_and_calibrate(contents, args):
 
         report = report.with_calibration(*calibrate_log(contents, Options(
             args.method, args.lat, args.lon, args.min_still, args.instance, args.firmware)))
+        report.accept_redo = getattr(args, "accept_redo", False)
         param_error = write_params(report, args.param_file, None,
                                    getattr(args, "param_format", "param"))
         # the verdict first, then how to apply it, the proposal, the numbers; what the file
@@ -122,7 +166,7 @@ def summarise_and_calibrate(contents, args):
         console.print()
         report.print_summary(console, args.verbose)
         if args.param_file and param_error is None:
-            console.print(f"wrote {args.param_file}")
+            say_written(console, args.param_file, report.outputs, report.writable)
     if getattr(args, "report", None) and report.calibration is not None:
         from apmcal.report.html import write_session_html
 
@@ -133,6 +177,17 @@ def summarise_and_calibrate(contents, args):
     if param_error is not None:
         raise param_error
     return report
+
+
+def say_written(console, path, outputs: dict, writable) -> None:
+    """"wrote FILE" (naming what was withheld from it), or why nothing was written."""
+    if "param_file" not in outputs:
+        console.print(f"nothing written to {path}: every value proposed is withheld (above); "
+                      "exit status 1")
+        return
+    withheld = len(writable.withheld) if writable is not None else 0
+    console.print(f"wrote {path}" + (f" without the {withheld} values withheld above; exit "
+                                     "status 1" if withheld else ""))
 
 
 def write_params(report, path, console, fmt: str = "param") -> ApmcalError | None:

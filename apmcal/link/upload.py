@@ -15,14 +15,12 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from apmcal.ardupilot.firmware import firmware_generation, mag_param_names
+from apmcal.ardupilot.limits import firmware_limit_violations
 from apmcal.ardupilot.paramfile import read_param_file, read_unrestorable, write_param_file
-from apmcal.ardupilot.params import acc_violations, offset_violations, soft_iron_violations
 from apmcal.ardupilot.scope import check_scope, may_write
 from apmcal.core.errors import ApmcalError
 from apmcal.link.params import ParamProtocol, same_float32
 
-INSTANCES = range(3)        # IMU / compass instances 1..3 (suffix "", "2", "3")
 # a put-back matters more than a write: at least this many tries before giving up (more when
 # the loss seen on the link calls for them, ParamProtocol.attempts)
 ROLLBACK_ATTEMPTS = 5
@@ -79,38 +77,6 @@ def check_before_writing(values: dict[str, float], vehicle_params: dict[str, flo
         more = f" (and {len(violations) - 1} more)" if len(violations) > 1 else ""
         raise ApmcalError(f"{why}: out of the firmware's limits{more}; nothing was written",
                           where, f"param {name}")
-
-
-def firmware_limit_violations(values: dict[str, float],
-                              vehicle_params: dict[str, float]) -> dict[str, str]:
-    """name -> reason, for values of ``values`` outside the limits of
-    :mod:`apmcal.ardupilot.params` (the same constants :func:`to_ardupilot_params` refuses by;
-    ardupilot-facts.md "How the firmware applies the parameters", "ArduPilot's own
-    calibrators"). The firmware stores any finite value; these are its parameter ranges and
-    pre-arm checks. The generation and COMPASS_OFFS_MAX come from ``vehicle_params``; compass
-    values are judged as the vehicle will hold them after the upload (a DIA or offset written
-    alone is checked with the other two axes the vehicle has)."""
-    generation = firmware_generation(vehicle_params)
-    merged = {**vehicle_params, **values}      # DIA is judged per instance, after the upload
-    reasons: dict[str, str] = {}
-    for instance in INSTANCES:
-        reasons |= acc_violations(values, instance, generation)
-        reasons |= _compass_violations(values, merged, instance, generation)
-    return reasons
-
-
-def _compass_violations(values, merged, instance: int, generation: str) -> dict[str, str]:
-    names = mag_param_names(instance)
-    # all-zero DIA is the firmware's "no soft-iron matrix" (identity), not a zero gain
-    dia_unset = all(merged.get(n) == 0 for n in names["dia"])
-    reasons = {}
-    if any(n in values for n in names["ofs"]):
-        reasons |= offset_violations([merged.get(n, 0.0) for n in names["ofs"]], names["ofs"],
-                                     merged, generation)
-    judged = {n: values[n] for n in names["odi"] if n in values}
-    if any(n in values for n in names["dia"]) and not dia_unset:
-        judged |= {n: merged.get(n, 1.0) for n in names["dia"]}   # all three, as they will be
-    return reasons | soft_iron_violations(judged, names)
 
 
 # ----------------------------------------------------------------------------- upload

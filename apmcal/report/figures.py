@@ -5,7 +5,8 @@ returns one PNG as bytes, or None when the session holds nothing to draw.
   calibration, and each hold's residual |a| − g;
 - :func:`compass_figure` — the samples on the sphere before/after, with the coverage, and the
   field magnitude along time against the reference field (WMM or the fit's sphere);
-- :func:`gyro_figure` — each full turn's integrated angle before/after against the expected one;
+- :func:`gyro_figure` — each full turn's angle, integrated over its motions against the rate
+  at rest around them, before/after against the expected one;
 - :func:`tcal_figure` — the drift against temperature before/after the temperature calibration;
 - :func:`heading_figure` — a flight's compass heading error along the flight, with the
   calibration in force and with the proposed one.
@@ -124,7 +125,7 @@ def compass_figure(t: np.ndarray, raw: np.ndarray, cal: np.ndarray, field_mgauss
 
 def integrated_angles(t: np.ndarray, gyr: np.ndarray, spans: dict) -> dict[str, float]:
     """The angle [deg] about each axis ("x", "y", "z") integrated over its span (start, end) [s]
-    (trapezoidal rule on the axis's own rate)."""
+    (trapezoidal rule on the axis's own rate): how many quarter turns were made."""
     out = {}
     for axis, (start, end) in spans.items():
         i = "xyz".index(axis)
@@ -135,21 +136,45 @@ def integrated_angles(t: np.ndarray, gyr: np.ndarray, spans: dict) -> dict[str, 
     return out
 
 
-def gyro_figure(before: dict[str, float], after: dict[str, float]) -> bytes | None:
-    """Each turn's integrated angle [deg] before/after against the nearest quarter turn."""
-    axes = [a for a in "xyz" if a in before and a in after]
+def turn_errors(t: np.ndarray, gyr: np.ndarray, spans: dict, holds: list,
+                expected: dict[str, float]) -> dict[str, float]:
+    """Per turn axis, how far [deg] the turn's angle about that axis lies from ``expected``
+    (axis → angle [deg]), integrated as the six-face fit integrates it
+    (:func:`apmcal.solvers.gyro_bias.integrate_motions`): only the motions between the still
+    ``holds`` (StaticSegment), each against the rate of the holds around it. Integrating the
+    pauses too would add every bias the offsets leave at rest (g-sensitivity, Earth rate)
+    times a minute of pauses: degrees that say nothing of the turn. Axes whose holds cannot be
+    found are left out."""
+    from types import SimpleNamespace
+
+    from apmcal.solvers.gyro_bias import integrate_motions, motions_between_holds
+
+    out = {}
+    for axis, (start, end) in spans.items():
+        turn = SimpleNamespace(i0=int(np.searchsorted(t, start)),
+                               i1=int(np.searchsorted(t, end, side="right")))
+        moves = motions_between_holds(turn, holds)
+        if not moves or axis not in expected:
+            continue
+        total, _ = integrate_motions(t, gyr, moves)
+        out[axis] = float(np.degrees(total["xyz".index(axis)]) - expected[axis])
+    return out
+
+
+def gyro_figure(before: dict[str, float], after: dict[str, float],
+                expected: dict[str, float]) -> bytes | None:
+    """Each full turn's error [deg] (:func:`turn_errors`) before and after, by axis, labelled
+    with the turn expected."""
+    axes = [a for a in "xyz" if a in before and a in after and a in expected]
     if not axes:
         return None
     fig = _figure(6, 3.5)
     ax = fig.add_subplot(1, 1, 1)
     k = np.arange(len(axes))
-    expected = np.array([90.0 * round(after[a] / 90.0) for a in axes])
-    ax.bar(k - 0.2, [before[a] - e for a, e in zip(axes, expected)], 0.4, color=BEFORE,
-           label="before")
-    ax.bar(k + 0.2, [after[a] - e for a, e in zip(axes, expected)], 0.4, color=AFTER,
-           label="after")
+    ax.bar(k - 0.2, [before[a] for a in axes], 0.4, color=BEFORE, label="before")
+    ax.bar(k + 0.2, [after[a] for a in axes], 0.4, color=AFTER, label="after")
     ax.axhline(0, color="k", linewidth=0.8)
-    ax.set_xticks(k, [f"{a} ({e:+.0f}°)" for a, e in zip(axes, expected)])
+    ax.set_xticks(k, [f"{a} ({expected[a]:+.0f}°)" for a in axes])
     ax.set_ylabel("integrated − expected [deg]")
     ax.set_title("full turns: integrated angle against the expected one")
     ax.legend()

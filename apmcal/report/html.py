@@ -17,6 +17,7 @@ from apmcal.core.errors import ApmcalError
 STYLE = """body{font-family:sans-serif;max-width:60em;margin:1em auto;padding:0 1em;color:#222}
 h1{font-size:1.4em}h2{font-size:1.15em;margin-top:1.6em}
 .good{color:#1a7f37}.usable{color:#9a6700}.redo{color:#cf222e}.not-measured{color:#57606a}
+.nothing-to-apply{color:#9a6700}
 pre{background:#f6f8fa;padding:.8em;overflow-x:auto;font-size:.85em}
 img{max-width:100%}figure{margin:1em 0}figcaption{font-size:.9em;color:#57606a}"""
 
@@ -151,12 +152,19 @@ def session_figures(report, contents) -> list[tuple[str, bytes]]:
     if gyr_cal is not None and turns and raw.has("gyr"):
         spans = {axis: (tn.start_s, tn.end_s) for axis, tn in turns.items() if axis in "xyz"}
         g = raw.xyz("gyr")
-        before = fig.integrated_angles(t, g, spans)
-        after = fig.integrated_angles(t, fig.correct(gyr_cal, g, t), spans)
-        png = fig.gyro_figure(before, after)
+        corrected = fig.correct(gyr_cal, g, t)
+        # the turns made, in quarter turns; then each turn's angle as the fit integrates it:
+        # its motions only, against the rate at rest around them
+        expected = {a: 90.0 * round(v / 90.0)
+                    for a, v in fig.integrated_angles(t, corrected, spans).items()}
+        holds = find_static_segments(t, raw.xyz("acc"), g)
+        png = fig.gyro_figure(fig.turn_errors(t, g, spans, holds, expected),
+                              fig.turn_errors(t, corrected, spans, holds, expected), expected)
         if png:
-            out.append(("Gyroscope: each full turn's integrated angle minus the expected "
-                        "one, before (red) and after (green)", png))
+            out.append(("Gyroscope: each full turn's angle minus the expected one, before (red) "
+                        "and after (green) the calibration; integrated over the turn's motions "
+                        "against the rate at rest around them, as the fit does, so after it the "
+                        "turns read whole (that is how the gyro matrix is fitted)", png))
     return out
 
 
@@ -166,17 +174,19 @@ def write_tcal_html(tcal, source: str, out_dir) -> Path:
     after per IMU, and the text report."""
     from apmcal.ardupilot.tcal_params import TEMP_REFERENCE_C, polynomial
     from apmcal.report import figures as fig
-    from apmcal.report.tcal import print_tcal
+    from apmcal.report.tcal import action, print_tcal
 
     text = _console_text(lambda c: print_tcal(tcal.results, c))
     figures = []
     items = []
+    for r, line in zip(tcal.results, action(tcal.results)):
+        # the console's own first lines, the outcome coloured
+        head, _, rest = line.partition(" — ")
+        css = "redo" if r.withheld else "good"
+        outcome, _, words = head.partition(": ")
+        items.append(f"<li>{html.escape(outcome)}: <span class='{css}'>{html.escape(words)}"
+                     f"</span> — {html.escape(rest)}</li>")
     for r in tcal.results:
-        state = (f"<span class='redo'>not proposed</span> — {html.escape(r.withheld)}"
-                 if r.withheld else
-                 f"<span class='good'>proposed</span>: INS_TCAL{r.instance + 1}_ENABLE 1 over "
-                 f"{r.tmin_c:.1f}-{r.tmax_c:.1f} °C")
-        items.append(f"<li>IMU {r.instance} ({html.escape(r.source)}): {state}</li>")
         if r.blocks:
             png = fig.tcal_figure(r.blocks, {s: f.coeffs for s, f in r.fits.items()},
                                   polynomial, TEMP_REFERENCE_C)
@@ -184,7 +194,8 @@ def write_tcal_html(tcal, source: str, out_dir) -> Path:
                 figures.append((f"IMU {r.instance}: drift of the still blocks against "
                                 "temperature, before and after subtracting the fitted "
                                 "polynomial (one constant per orientation removed)", png))
-    verdict = "<p><b>temperature calibration</b></p><ul>" + "".join(items) + "</ul>"
+    verdict = ("<p class='verdict'><b>temperature calibration</b></p><ul>" + "".join(items)
+               + "</ul>")
     title = f"apmcal temperature calibration of {Path(str(source)).name}"
     return write_page(out_dir, page(title, verdict, figures, text))
 

@@ -41,6 +41,8 @@ class SessionReport:
         firmware generation).
     outputs : dict
         The files written so far: "param_file" (its path) or "param_file_error" (why not).
+    accept_redo : bool
+        Values of a sensor graded REDO are written and uploaded too (``--accept-redo``).
     """
 
     path: str
@@ -48,6 +50,7 @@ class SessionReport:
     calibration: object = None
     proposal: object = None
     outputs: dict = field(default_factory=dict)
+    accept_redo: bool = False
 
     @classmethod
     def build(cls, contents, calibration=None, proposal=None) -> "SessionReport":
@@ -66,12 +69,28 @@ class SessionReport:
             return {}
         from apmcal.report.verdict import judge
 
-        return judge(self.calibration, self.proposal, raw_count_sensors(self.summary))
+        return judge(self.calibration, self.proposal, raw_count_sensors(self.summary),
+                     self.summary.get("gyro_cal_at_boot"))
+
+    @property
+    def writable(self):
+        """What of the proposal may be written to a parameter file or a vehicle
+        (:class:`apmcal.ardupilot.limits.Writable`): the values of a sensor graded REDO are
+        withheld unless :attr:`accept_redo`; those out of the firmware's limits always (they
+        are the proposal's ``rejected``). None without a proposal."""
+        if self.proposal is None:
+            return None
+        from apmcal.ardupilot.limits import Writable
+        from apmcal.report.verdict import redo_params
+
+        return Writable.sort(self.proposal.values, redo_params(self.verdict, self.proposal),
+                             self.proposal.rejected, self.accept_redo)
 
     @property
     def status(self) -> int:
-        """Exit status: 1 when the firmware would reject some proposed value, else 0."""
-        return 0 if self.proposal is None or not self.proposal.rejected else 1
+        """Exit status: 1 when some proposed value is withheld (graded REDO, or out of the
+        firmware's limits), else 0."""
+        return 0 if self.proposal is None else self.writable.status
 
     def print_summary(self, console, verbose: bool = True) -> None:
         """What the file holds (:func:`apmcal.report.text.print_summary`)."""
@@ -83,16 +102,20 @@ class SessionReport:
         if self.calibration is not None:
             print_calibration(self.calibration, self.proposal, console, verbose,
                               summary=self.summary, link=link,
-                              param_file=self.outputs.get("param_file"))
+                              param_file=self.outputs.get("param_file"),
+                              writable=self.writable)
 
     def to_dict(self) -> dict:
         """This report's own top-level JSON fields (the calibration's are added by :meth:`save`)."""
         out = {"summary": self.summary}
         if self.calibration is not None:
             out["verdict"] = verdict_dict(self.calibration, self.proposal,
-                                          raw_count_sensors(self.summary))
+                                          raw_count_sensors(self.summary),
+                                          self.summary.get("gyro_cal_at_boot"))
             if self.proposal is not None:       # its values are the calibration's own "params"
                 out["rejected_params"] = dict(self.proposal.rejected)
+                out["withheld_params"] = self.writable.withheld
+                out["firmware_generation"] = self.proposal.generation
         out.update(self.outputs)
         return out
 
@@ -108,18 +131,27 @@ class SessionReport:
         ``fmt="qgc"``); the outcome is kept for the JSON file
         ("param_file", or "param_file_error" with the reason) and an error raised again.
 
+        Only :attr:`writable` values are written; the file records the firmware generation
+        they were made for.
+
         Raises
         ------
         ApmcalError
             Without a proposal (no firmware generation) or when the file cannot be written.
+            With every value withheld nothing is written and nothing raised: the status says
+            it.
         """
         try:
             if self.proposal is None:
                 raise ApmcalError("not an ArduPilot log, so no firmware generation to write "
                                   "parameters for: add --firmware 3.2 or --firmware 3.3+",
                                   self.path)
+            values = self.writable.values
+            if not values:      # exit status 1 (:attr:`status`), the reasons printed
+                self.outputs["param_file_error"] = "nothing written: every value is withheld"
+                return
             self.proposal.write(path, f"apmcal {self.calibration.method} calibration of "
-                                      f"{self.path}", fmt)
+                                      f"{self.path}", fmt, values)
         except ApmcalError as err:
             self.outputs["param_file_error"] = str(err)
             raise

@@ -1,4 +1,5 @@
-"""What ``apmcal tcal`` prints: per IMU and sensor, ArduPilot's coefficients with their σ."""
+"""What ``apmcal tcal`` prints: first what it proposes, in words (the HTML page's first lines
+too), then per IMU and sensor ArduPilot's coefficients with their σ."""
 from __future__ import annotations
 
 import numpy as np
@@ -9,9 +10,38 @@ from apmcal.report.text import say
 UNITS = {"acc": ("m/s²", "accelerometer"), "gyr": ("rad/s", "gyro")}
 
 
+def action(results) -> list[str]:
+    """What ``apmcal tcal`` proposes, in words, one line per IMU instance: the console's and the
+    HTML page's first lines."""
+    out = []
+    for r in results:
+        n = r.instance + 1
+        if r.withheld:
+            why = r.withheld.removeprefix(f"INS_TCAL{n}_* not proposed: ")
+            out.append(f"IMU {r.instance}: nothing proposed (INS_TCAL{n}_*) — {why}")
+            continue
+        d = np.array([r.tmin_c, r.tmax_c]) - TEMP_REFERENCE_C
+        drift = {s: float(np.max(np.abs(np.diff(polynomial(f.coeffs, d), axis=0))))
+                 for s, f in r.fits.items()}
+        said = []
+        if "acc" in drift:
+            said.append(f"{drift['acc']:.2g} m/s² of the accelerometer")
+        if "gyr" in drift:
+            said.append(f"{np.degrees(drift['gyr']):.2g} °/s of the gyro")
+        out.append(f"IMU {r.instance}: proposed — enable its temperature calibration "
+                   f"(INS_TCAL{n}_ENABLE 1 and its coefficients, for {r.tmin_c:.1f} to "
+                   f"{r.tmax_c:.1f} °C): it takes out a drift of up to "
+                   + " and ".join(said) + " over that range; it takes effect at the next "
+                   "reboot")
+    return out
+
+
 def print_tcal(results, console) -> None:
-    """One block per IMU instance: data used, then c1, c2, c3 ± σ per axis (parameter units,
-    1e-6 unit/K^k) and the drift the polynomial describes over the data's range."""
+    """What is proposed, in words (:func:`action`); then one block per IMU instance: data
+    used, c1, c2, c3 ± σ per axis (parameter units, 1e-6 unit/K^k) and the drift the
+    polynomial describes over the data's range."""
+    for line in action(results):
+        say(console, line)
     for r in results:
         still = "" if r.still_s is None else f", {r.still_s:.0f} s still"
         console.print(f"IMU instance {r.instance} ({r.source}{still}): {r.tmin_c:.1f} to "
@@ -30,5 +60,3 @@ def print_tcal(results, console) -> None:
                 terms = " ".join(f"c{k + 1} {fit.coeffs[k, j]:+.4g} ± {fit.sigma[k, j]:.2g}"
                                  for k in range(3))
                 console.print(f"    {axis}  {terms}  drift {drift[j]:+.3g} {unit}")
-        if r.withheld:
-            say(console, r.withheld, "  ")

@@ -66,7 +66,17 @@ def summarize(contents: LogContents) -> dict:
             "notes": reader_notes(contents), "recorded_utc": _utc(contents.start_unix_s),
             "recorded_by": "ground station clock" if contents.format == "tlog" else "GPS time",
             "param_changes": [str(c) for c in contents.param_changes],
-            "moving_share": moving_share(contents)}
+            "moving_share": moving_share(contents),
+            "gyro_cal_at_boot": gyro_cal_at_boot(contents)}
+
+
+def gyro_cal_at_boot(contents: LogContents) -> bool | None:
+    """True when the vehicle re-measures its gyro offsets at every boot (INS_GYR_CAL not 0,
+    its default 1 when the log does not say; ardupilot-facts.md), False when INS_GYR_CAL is 0,
+    None for a CSV file (no vehicle to ask)."""
+    if contents.format == "csv":
+        return None
+    return contents.params.get("INS_GYR_CAL", 1.0) != 0
 
 
 FLIGHT_MOVING_FRACTION = 0.3    # moving in more than this share of 1 s windows: a flight log
@@ -186,7 +196,8 @@ def is_technical(line: str) -> bool:
     return any(marker in line for marker in TECHNICAL_MARKERS)
 
 
-GRADE_STYLE = {"good": "green", "usable": "yellow", "redo": "red", "not measured": "dim"}
+GRADE_STYLE = {"good": "green", "usable": "yellow", "redo": "red", "not measured": "dim",
+               "nothing to apply": "yellow"}
 MAX_WIDTH = 100        # default report lines are wrapped at this many characters
 
 
@@ -225,7 +236,7 @@ def print_verdict(verdicts: dict, console, session_note: str = "") -> None:
     session_note : str
         One plain sentence about the session ("" for none).
     """
-    from apmcal.report.verdict import NAMES
+    from apmcal.report.verdict import NAMES, NOTHING_TO_APPLY
 
     overall = verdicts.get("overall")
     if overall is None:
@@ -240,6 +251,8 @@ def print_verdict(verdicts: dict, console, session_note: str = "") -> None:
                                 f" ({grades})"))
     if session_note:
         say(console, session_note, "  ")
+    elif overall.grade == NOTHING_TO_APPLY:
+        say(console, overall.reason, "  ")
     for name, v in _worst_first(sensors):
         grade = v.grade if v.measured else "not measured by this session"
         say(console, Text.assemble(f"{NAMES[name]}: ", (grade, GRADE_STYLE[v.grade]),
@@ -254,7 +267,7 @@ def raw_count_sensors(summary: dict | None) -> list[str]:
             if "raw sensor counts" in n and n.split(":")[0] in ("acc", "gyr", "mag")]
 
 
-def verdict_dict(calibration, proposal, raw_counts=()) -> dict:
+def verdict_dict(calibration, proposal, raw_counts=(), gyro_cal_at_boot=None) -> dict:
     """The verdicts as plain dicts, for the JSON output.
 
     Parameters
@@ -270,7 +283,8 @@ def verdict_dict(calibration, proposal, raw_counts=()) -> dict:
     """
     from apmcal.report.verdict import judge
 
-    return {name: v.to_dict() for name, v in judge(calibration, proposal, raw_counts).items()}
+    return {name: v.to_dict()
+            for name, v in judge(calibration, proposal, raw_counts, gyro_cal_at_boot).items()}
 
 
 def _vector(values, fmt: str) -> str:
@@ -320,8 +334,10 @@ def _notes(proposal, verbose: bool) -> list[str]:
 
 
 def print_apply(proposal, verdicts: dict, console, link: str | None = None,
-                param_file: str | None = None) -> None:
-    """"apply it": the exact commands that put the proposal on the vehicle and take it off.
+                param_file: str | None = None, writable=None,
+                gyro_cal_at_boot: bool | None = None) -> None:
+    """"apply it": the exact commands that put the proposal on the vehicle and take it off,
+    or why there is nothing to put there.
 
     Parameters
     ----------
@@ -333,7 +349,14 @@ def print_apply(proposal, verdicts: dict, console, link: str | None = None,
         The vehicle's connection (live), else "LINK".
     param_file : str, optional
         The parameter file written (--param-file), else a placeholder and how to write it.
+    writable : Writable, optional
+        What of the proposal may be written (:class:`apmcal.ardupilot.limits.Writable`);
+        default: all of its values.
+    gyro_cal_at_boot : bool, optional
+        The vehicle re-measures its gyro offsets at every boot (None: unknown).
     """
+    from apmcal.ardupilot.limits import ACCEPT_REDO_FLAG
+
     console.print(Text("apply it:", style="bold"))
     overall = verdicts.get("overall")
     values = {} if proposal is None else proposal.values
@@ -344,13 +367,25 @@ def print_apply(proposal, verdicts: dict, console, link: str | None = None,
     if not values:
         say(console, "nothing to apply: no parameter is proposed", "  ")
         return
-    if overall is not None and overall.grade == "redo":
-        say(console, "not advised: the verdict is REDO; calibrate again first (the commands "
-                     "below apply it anyway)", "  ")
-    if all(n.startswith("INS_GYR") for n in values):
-        say(console, "only gyro offsets are proposed, and ArduPilot re-measures those at every "
-                     "boot (unless INS_GYR_CAL=0): applying them changes nothing you will notice",
-            "  ")
+    kept = values if writable is None else writable.values
+    if writable is not None and writable.redo:
+        say(console, "not advised: " + redo_words(verdicts) + "; its values are left out of "
+                     f"the parameter file and the upload ({ACCEPT_REDO_FLAG} puts them in); "
+                     "calibrate again first", "  ")
+    elif overall is not None and overall.grade == "redo":
+        say(console, "not advised: the verdict is REDO; calibrate again first", "  ")
+    if not kept:
+        say(console, "nothing to apply: every value proposed is withheld (below)", "  ")
+        return
+    if all(n.startswith("INS_GYR") for n in kept):
+        if gyro_cal_at_boot:
+            say(console, "only gyro offsets are proposed, and ArduPilot re-measures those at "
+                         "every boot (INS_GYR_CAL is not 0): applying them changes nothing you "
+                         "will notice", "  ")
+        elif gyro_cal_at_boot is False:
+            say(console, "only gyro offsets are proposed; INS_GYR_CAL is 0 on this vehicle, so "
+                         "it keeps the offsets it is given: these replace the ones it flies "
+                         "with", "  ")
     link = link or "LINK"
     target = param_file or "cal.param"
     if not param_file:
@@ -365,10 +400,22 @@ def print_apply(proposal, verdicts: dict, console, link: str | None = None,
         say(console, "LINK: the vehicle, e.g. /dev/ttyACM0 (USB) or udp:127.0.0.1:14550", "  ")
 
 
+def redo_words(verdicts: dict) -> str:
+    """"the compass is graded REDO" (the sensors graded redo, in words)."""
+    from apmcal.report.verdict import NAMES
+
+    names = [NAMES[n] for n, v in verdicts.items() if n in NAMES and v.grade == "redo"]
+    if not names:
+        return "the verdict is REDO"
+    return ("the " + " and the ".join(names) + (" are" if len(names) > 1 else " is")
+            + " graded REDO")
+
+
 def print_proposal(proposal, console, in_force: dict | None = None,
-                   verbose: bool = False) -> None:
+                   verbose: bool = False, writable=None, target: str | None = None) -> None:
     """The proposed parameters beside the values in force (old → new), those the firmware
-    would refuse, and the notes that concern them."""
+    would refuse, those withheld for a REDO grade (``writable``, written to ``target``), and
+    the notes that concern them."""
     if proposal is None:
         return
     in_force = in_force or {}
@@ -381,6 +428,9 @@ def print_proposal(proposal, console, in_force: dict | None = None,
         console.print(Text(f"  {name:<{width}} {old_txt} → {value:.6g}"))
     for name, why in proposal.rejected.items():
         say(console, Text.assemble(("not proposed", "red"), f" {name}: {why}"), "  ")
+    if writable is not None:
+        for line in writable.lines(target or "the parameter file or the vehicle"):
+            say(console, Text(line, style="red" if line.startswith("not") else "yellow"), "  ")
     for note in _notes(proposal, verbose):
         say(console, f"note: {note}", "  ")
 
@@ -411,7 +461,7 @@ def frame_words(calibration, summary: dict | None) -> str:
 
 def print_calibration(calibration, proposal, console, verbose: bool = False, *,
                       summary: dict | None = None, link: str | None = None,
-                      param_file: str | None = None) -> None:
+                      param_file: str | None = None, writable=None) -> None:
     """Render a Calibration top down: the verdict (first line), how to apply it, the proposed
     parameters beside the values in force, then the numbers and the findings (the technical
     ones, fit internals and the proposal's cost notes only when ``verbose``).
@@ -431,18 +481,23 @@ def print_calibration(calibration, proposal, console, verbose: bool = False, *,
         The vehicle's connection string (live) for the apply commands.
     param_file : str, optional
         The parameter file written, for the apply commands.
+    writable : Writable, optional
+        What of the proposal may be written (:class:`apmcal.ardupilot.limits.Writable`).
     """
     from apmcal.report.verdict import judge, plain
 
-    verdicts = judge(calibration, proposal, raw_count_sensors(summary))
+    at_boot = (summary or {}).get("gyro_cal_at_boot")
+    verdicts = judge(calibration, proposal, raw_count_sensors(summary), at_boot)
     print_verdict(verdicts, console, session_note(calibration, summary))
-    print_apply(proposal, verdicts, console, link, param_file)
+    print_apply(proposal, verdicts, console, link, param_file, writable, at_boot)
     print_proposal(proposal, console, (summary or {}).get("calibration_params_in_force"),
-                   verbose)
+                   verbose, writable, param_file)
     print_numbers(calibration, console, verbose, summary)
     said = {v.reason for v in verdicts.values()}
-    for line in calibration.report.warnings:
-        if any(plain(line.removeprefix("magnetometer not calibrated: ")) in r for r in said):
+    for line in dict.fromkeys(calibration.report.warnings):      # each once
+        core = line.removeprefix("magnetometer not calibrated: ").split(
+            "not measured by this session: ", 1)[-1]
+        if any(plain(core) in r for r in said):
             continue                                 # already the verdict's reason
         say(console, Text.assemble(("warning:", "yellow"), f" {plain(line)}"), "  ")
 

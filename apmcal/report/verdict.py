@@ -24,10 +24,18 @@ Thresholds, and why (1σ values, as reported):
 * Plausibility before grading: a gyro offset beyond ±GYR_OFFSET_PLAUSIBLE_RAD_S (20 °/s, the
   largest zero-rate offset MPU-6000-class datasheets allow) is not a bias, it is motion or the wrong
   unit: redo whatever its σ.
+* What the sensors read at rest with the calibration in force (the median |specific force| of
+  the still periods against gravity, the compass's |field| against the WMM with --lat/--lon),
+  whatever the method: a sensor the session could not measure but whose reading is implausible
+  (|a| off g by ACC_AT_REST_MS2 or more, the same limit as ``apmcal fleet``'s; |B| off the WMM by
+  MAG_AT_REST_FRACTION or more) is redo, not "not measured": the vehicle is wrong as it stands.
 * Grade only what the session measured: a sensor the session could not determine (one still pose
   cannot tell the accelerometer's offset from a tilt; a compass that was not turned) is
   "not measured" — with the session that would measure it — and left out of the overall grade.
   A sensor whose parameters the firmware would refuse is redo.
+* The overall grade is never "good" for a session whose proposal changes nothing the vehicle
+  keeps: gyro offsets alone, which ArduPilot measures itself at every boot unless INS_GYR_CAL=0
+  (ardupilot-facts.md). It is then NOTHING_TO_APPLY, naming what the session would need.
 """
 from __future__ import annotations
 
@@ -36,10 +44,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from apmcal.solvers.coverage import MIN_SCATTER_FULL
+from apmcal.solvers.magnetometer import NOT_MEASURED as MAG_NOT_MEASURED
 from apmcal.solvers.report_types import CalibrationReport, MagneticField
 
 GRADES = ("good", "usable", "redo")
 NOT_MEASURED = "not measured"         # outside GRADES: left out of the overall grade
+NOTHING_TO_APPLY = "nothing to apply"  # overall only: what was measured changes nothing
 NAMES = {"acc": "accelerometer", "gyr": "gyroscope", "mag": "compass"}
 
 ACC_OFFSET_SIGMA = (0.05, 0.2)        # m/s²: good, usable limits
@@ -49,6 +59,8 @@ MAG_OFFSET_SIGMA = (0.01, 0.05)       # fraction of the field magnitude
 MISFIT_BIRGE = 3.0                    # checks beyond 3× their noise: the model does not fit
 MIN_MAG_FRACTION = 0.5                # half the sphere within 20° of a sample
 GYR_OFFSET_PLAUSIBLE_RAD_S = 0.35     # 20 °/s: beyond any MEMS gyro's zero-rate offset at rest
+ACC_AT_REST_MS2 = 0.3                 # | |a| − g | at rest, in force: apmcal fleet's limit too
+MAG_AT_REST_FRACTION = 0.2            # | |B| − WMM | / WMM, in force: a heading error of ~10°+
 
 SIX_FACES = ("hold the vehicle still on each of its six faces (level, on its back, each side, "
              "nose up, nose down) for 10 s or more")
@@ -255,19 +267,23 @@ def compass(cal, report: CalibrationReport) -> Verdict:
 JUDGES = {"acc": accelerometer, "gyr": gyroscope, "mag": compass}
 
 
-def judge(calibration, proposal=None, raw_counts=()) -> dict[str, Verdict]:
+def judge(calibration, proposal=None, raw_counts=(), gyro_cal_at_boot=None
+          ) -> dict[str, Verdict]:
     """Per-sensor verdicts and an "overall" one (the worst), in report order.
 
     ``proposal`` (ParamProposal or None): a sensor whose parameters the firmware would refuse
     is redo whatever its numbers. ``raw_counts``: sensors whose data are raw counts of no known
     unit (a CSV layout without a scale): their σ cannot be graded against thresholds in m/s² or
-    rad/s, so they are "not measured" with the way to declare the unit.
+    rad/s, so they are "not measured" with the way to declare the unit. ``gyro_cal_at_boot``:
+    the vehicle re-measures its gyro offsets at every boot (INS_GYR_CAL not 0; None: unknown):
+    a proposal of gyro offsets alone then changes nothing (overall NOTHING_TO_APPLY).
 
     Parameters
     ----------
     calibration : Calibration
     proposal : ParamProposal, optional
     raw_counts : iterable of str, optional
+    gyro_cal_at_boot : bool, optional
 
     Returns
     -------
@@ -280,7 +296,8 @@ def judge(calibration, proposal=None, raw_counts=()) -> dict[str, Verdict]:
            if name in JUDGES}
     for name, why in report.not_calibrated.items():
         session = COMPASS_SESSION if name == "mag" else SIX_FACE_SESSION
-        why = why.removeprefix("magnetometer not calibrated: ")
+        why = why.removeprefix("magnetometer not calibrated: ").removeprefix(
+            f"{MAG_NOT_MEASURED}: ")
         # not measured: the session did not turn it enough (nothing wrong with the sensor);
         # any other failure is one of the data, and counts
         out[name] = (not_measured(why, session) if name in report.not_measured
@@ -291,11 +308,53 @@ def judge(calibration, proposal=None, raw_counts=()) -> dict[str, Verdict]:
                                               "offsets cannot be graded in physical units",
                                 "declare the unit (a CSV header such as acc_x[g] or "
                                 "gyr_x[deg/s]) to have it graded")
+    for name, verdict in implausible_at_rest(report.at_rest).items():
+        if name not in raw_counts and (name not in out or not out[name].measured):
+            out[name] = verdict
     for name in _refused(proposal):
         out[name] = Verdict("redo", "the firmware would refuse its parameters (listed below)",
                             "check the mounting and the data, then calibrate again")
     if out:
         out["overall"] = overall(out)
+        if changes_nothing(proposal, gyro_cal_at_boot) and out["overall"].grade != "redo":
+            out["overall"] = Verdict(
+                NOTHING_TO_APPLY, "this session measured the gyro offsets only, and ArduPilot "
+                                  "measures those itself at every boot (INS_GYR_CAL)",
+                next((v.next_step for v in out.values() if not v.measured),
+                     SIX_FACE_SESSION))
+    return out
+
+
+def changes_nothing(proposal, gyro_cal_at_boot) -> bool:
+    """True when every value proposed is a gyro offset and the vehicle re-measures those at
+    every boot (ardupilot-facts.md: INS_GYROFFS, INS_GYR_CAL)."""
+    values = {} if proposal is None else proposal.values
+    return bool(gyro_cal_at_boot) and bool(values) and all(
+        n.startswith(("INS_GYROFFS", "INS_GYR2OFFS", "INS_GYR3OFFS")) for n in values)
+
+
+def implausible_at_rest(at_rest) -> dict[str, Verdict]:
+    """"redo" verdicts for sensors whose reading at rest with the calibration in force is
+    implausible (:class:`~apmcal.solvers.report_types.AtRest`; thresholds ACC_AT_REST_MS2,
+    MAG_AT_REST_FRACTION), by sensor name; empty when all read plausibly or nothing is known."""
+    out = {}
+    if at_rest is None:
+        return out
+    acc, g = at_rest.acc_ms2, at_rest.gravity_ms2
+    if acc is not None and g and abs(acc - g) >= ACC_AT_REST_MS2:
+        out["acc"] = Verdict("redo", f"at rest it reads {acc:.2f} m/s² with the calibration in "
+                                     f"force, {100 * abs(acc - g) / g:.0f} % "
+                                     f"{'below' if acc < g else 'above'} gravity "
+                                     f"({g:.2f} m/s²): the calibration in force is far off, or "
+                                     "the accelerometer is faulty", SIX_FACE_SESSION)
+    mag, wmm = at_rest.mag_mgauss, at_rest.wmm_mgauss
+    if mag is not None and wmm and abs(mag - wmm) >= MAG_AT_REST_FRACTION * wmm:
+        out["mag"] = Verdict("redo", f"it reads a field of {mag:.0f} mGauss with the calibration "
+                                     f"in force where the World Magnetic Model has {wmm:.0f} "
+                                     f"({100 * abs(mag - wmm) / wmm:.0f} % "
+                                     f"{'less' if mag < wmm else 'more'}): the calibration in "
+                                     "force is far off, or iron or a magnet is near the compass",
+                             COMPASS_SESSION)
     return out
 
 
@@ -317,3 +376,18 @@ def _refused(proposal) -> list[str]:
         return []
     prefixes = {"acc": "INS_ACC", "gyr": "INS_GYR", "mag": "COMPASS_"}
     return [s for s, p in prefixes.items() if any(n.startswith(p) for n in proposal.rejected)]
+
+
+def redo_params(verdicts: dict[str, Verdict], proposal) -> dict[str, str]:
+    """name → why, for the proposed values of a sensor graded redo (the values
+    :class:`apmcal.ardupilot.limits.Writable` withholds unless the user accepts them)."""
+    from apmcal.ardupilot.params import SENSOR_PARAM_PREFIXES
+
+    out = {}
+    for sensor, prefixes in SENSOR_PARAM_PREFIXES.items():
+        v = verdicts.get(sensor)
+        if proposal is None or v is None or v.grade != "redo":
+            continue
+        why = f"the {NAMES[sensor]} is graded REDO"
+        out |= {n: why for n in proposal.values if n.startswith(prefixes)}
+    return out

@@ -217,6 +217,19 @@ class MagneticField:
 
 
 @dataclass
+class AtRest:
+    """What the sensors read at rest with the calibration in force (as logged): the median
+    |specific force| of the still periods [m/s²] beside gravity at the site [m/s²], and the
+    median |field| of the compass [mGauss] beside the World Magnetic Model's (None without a
+    site). Whatever the method, a reading far from either is reported (apmcal.report.verdict)."""
+
+    acc_ms2: float | None = None
+    gravity_ms2: float | None = None
+    mag_mgauss: float | None = None
+    wmm_mgauss: float | None = None
+
+
+@dataclass
 class OnePositionAcc:
     """[Oppong] §5.1 on the level hold (body FRD, m/s²): step-1 ``mean`` (3,), g := ‖mean‖,
     step-3 mean ``R`` and high-pass mean ``R_f`` (3,), ``bias`` (3,), F (3, 3) and its β, γ, μ,
@@ -370,6 +383,8 @@ class CalibrationReport:
         sensor → quality of its ellipsoid fit (:class:`EllipsoidFit`).
     magnetic_field : MagneticField or None
         The compass's field and coverage.
+    at_rest : AtRest or None
+        What the sensors read at rest with the calibration in force.
     """
 
     recording: str | None = None
@@ -386,6 +401,7 @@ class CalibrationReport:
     gyro_offset_only: bool = False
     ellipsoids: dict[str, EllipsoidFit] = field(default_factory=dict)
     magnetic_field: MagneticField | None = None
+    at_rest: AtRest | None = None
 
     def to_dict(self) -> dict:
         """The report as plain JSON values (:func:`to_plain`)."""

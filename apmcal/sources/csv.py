@@ -28,10 +28,12 @@ Units: ``acc_unit``/``gyr_unit``/``mag_unit`` take a name ("m/s^2", "g", "mg"; "
 "mrad/s"; "mGauss", "Gauss", "uT"), "counts" (keep as is) or a number (SI per file unit,
 e.g. 9.80665/16384). ``None`` means the layout's own unit. Counts are flagged in
 ``LogContents.messages``. In the ``apmcal`` layout the header may declare them instead:
-``acc_x[g]``, ``gyr_x[deg/s]``, ``mag_x[uT]``, ``acc_x[counts]``, ``t[s]`` (the same unit on
-the three axes of a sensor). Without a declaration, values that no Earth-bound sensor reads in
-SI units (a still |a| near 1: g; gyro rates of deg/s; a field of tens: µT; thousands: raw
-counts) are refused with the fix (:func:`apmcal.sources.units.require_plausible_units`).
+``acc_x[g]``, ``gyr_x[deg/s]``, ``mag_x[uT]``, ``acc_x[counts]``, ``t[s]``, ``t[ms]``, ``t[us]``
+(the same unit on the three axes of a sensor); an undeclared time column stepping by more than
+0.5 (an IMU at under 2 Hz if in seconds) is refused as milliseconds or microseconds. Without a
+declaration, values that no Earth-bound sensor reads in SI units (a still |a| near 1: g; gyro
+rates of deg/s; a field of tens: µT; thousands: raw counts) are refused with the fix
+(:func:`apmcal.sources.units.require_plausible_units`).
 """
 from __future__ import annotations
 
@@ -208,9 +210,11 @@ def header_units(data: pd.DataFrame, path) -> tuple[pd.DataFrame, dict]:
         sensor = name.split("_")[0]
         if sensor in ("acc", "gyr", "mag"):
             declared.setdefault(sensor, set()).add(unit.replace("µ", "u"))
-        elif name == "t" and unit not in ("s", ""):
-            raise ApmcalError(f"time column in {unit!r}: give t in seconds (t[s])", path,
-                              "line 1")
+        elif name == "t" and unit.replace("µ", "u") not in TIME_UNITS:
+            raise ApmcalError(f"time column in {unit!r}: give t in seconds (t[s]), "
+                              "milliseconds (t[ms]) or microseconds (t[us])", path, "line 1")
+        elif name == "t":
+            declared["t"] = {unit.replace("µ", "u") or "s"}
     for sensor, units in declared.items():
         plain = [c for c in data.columns if str(c).startswith(f"{sensor}_") and c not in renames]
         if len(units) > 1 or plain:
@@ -225,6 +229,9 @@ def _read_apmcal(path, units, rate_hz):
     missing = [c for c in ["t", *ACC, *GYR] if c not in data.columns]
     if missing:
         raise ApmcalError(f"missing column(s) {', '.join(missing)}", path, "line 1")
+    data["t"] = data["t"] * TIME_UNITS[declared.get("t", "s")]
+    if "t" not in declared:
+        _require_seconds(data["t"].to_numpy(), path)
     notes = []
     for sensor, cols, default in (("acc", ACC, "m/s^2"), ("gyr", GYR, "rad/s"),
                                   ("mag", MAG, "mGauss")):
@@ -313,8 +320,9 @@ def _read_table(path: Path, *, text_columns=(), **kwargs):
     no_header = kwargs.get("header", 0) is None
     first_line = skip + (1 if no_header else 2)
     try:
+        # nan and inf kept as text ("" alone is missing): told apart from empty fields below
         data = pd.read_csv(path, skip_blank_lines=False, engine="c", encoding="utf-8-sig",
-                           **kwargs)
+                           keep_default_na=False, na_values=[""], **kwargs)
     except FileNotFoundError:
         raise ApmcalError("no such file", path) from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -338,6 +346,9 @@ def _read_table(path: Path, *, text_columns=(), **kwargs):
     numeric = [c for c in data.columns if c not in text_columns]
     values = data[numeric].apply(pd.to_numeric, errors="coerce").astype(float)
     bad = ~np.isfinite(values.to_numpy())
+    # a sample written as nan or inf is data (a sensor that gave none): kept, and dropped and
+    # counted by the calibration's preparation (apmcal.preprocessing.prepare.drop_non_finite)
+    bad &= ~_written_non_finite(data[numeric], bad)
     if bad.any():
         row = int(np.flatnonzero(bad.any(axis=1))[0])
         line = int(data.index[row])
@@ -351,6 +362,27 @@ def _read_table(path: Path, *, text_columns=(), **kwargs):
         raise ApmcalError(what, path, f"line {line}")
     data[numeric] = values
     return data
+
+
+#: columns that place a sample (time, index): never non-finite
+_PLACING_COLUMNS = ("t", "n_samples", "samples")
+_NON_FINITE_WORDS = {"nan", "+nan", "-nan", "inf", "+inf", "-inf", "infinity", "+infinity",
+                     "-infinity"}
+
+
+def _written_non_finite(frame: pd.DataFrame, bad: np.ndarray) -> np.ndarray:
+    """Which ``bad`` cells of ``frame`` (as read, with ``keep_default_na=False``: the text
+    itself) are a value written as nan or inf in a sensor column, rather than an empty or
+    unreadable field."""
+    ok = np.zeros_like(bad)
+    for j, col in enumerate(frame.columns):
+        rows = np.flatnonzero(bad[:, j])
+        if not rows.size or col in _PLACING_COLUMNS:
+            continue
+        cells = frame[col].to_numpy()[rows]
+        ok[rows, j] = [isinstance(c, str) and c.strip().lower() in _NON_FINITE_WORDS
+                       or isinstance(c, float) and not math.isnan(c) for c in cells]
+    return ok
 
 
 def _split(line: str, kwargs) -> list[str]:
@@ -400,6 +432,25 @@ def _drop_trailing_blank(data: pd.DataFrame) -> pd.DataFrame:
     while end and blank[end - 1]:
         end -= 1
     return data.iloc[:end]
+
+
+#: time units a header may declare (``t[ms]``), in seconds
+TIME_UNITS = {"s": 1.0, "": 1.0, "ms": 1e-3, "us": 1e-6}
+#: an undeclared time column whose median step is longer than this [s] (an IMU at under 2 Hz)
+#: is taken for milliseconds or microseconds, and refused with the header that says so
+MAX_UNDECLARED_STEP_S = 0.5
+
+
+def _require_seconds(t: np.ndarray, path) -> None:
+    """Refuse an undeclared time column whose steps no IMU logs in seconds: ``t[ms]`` or
+    ``t[us]`` (or ``t[s]``, for a truly slow file) says what it is."""
+    steps = np.diff(t[np.isfinite(t)])
+    if steps.size and float(np.median(steps)) > MAX_UNDECLARED_STEP_S:
+        step = float(np.median(steps))
+        raise ApmcalError(f"the time column steps by {step:.4g} (median), {1 / step:.3g} Hz if "
+                          "in seconds, slower than any IMU log: if t is in milliseconds name "
+                          "the column t[ms] (microseconds: t[us]); t[s] keeps seconds", path,
+                          "column t")
 
 
 def _check_time(t: np.ndarray, path, lines: np.ndarray) -> None:

@@ -171,7 +171,8 @@ def csv_unit_problem(recording: Recording, sensor: str) -> str | None:
         return (f"acc: median |a| is {value:.4g}, where a still accelerometer reads "
                 f"{STANDARD_GRAVITY:.2f} m/s²: this looks like {guess}")
     if sensor == "gyr":
-        top = float(np.nanmax(np.linalg.norm(recording.xyz("gyr"), axis=1)))
+        norm = np.linalg.norm(recording.xyz("gyr"), axis=1)
+        top = float(np.max(norm[np.isfinite(norm)]))      # nan/inf samples are dropped later
         if value <= CSV_STILL_GYRO_RAD_S and top <= GYRO_RANGE_RAD_S:
             return None
         return (f"gyr: the stillest tenth reads {value:.3g} and the fastest {top:.3g}, where a "

@@ -18,7 +18,15 @@ def parse_args(argv=None):
                          "'pty': a simulated serial port, its device (/dev/pts/N) printed first")
     ap.add_argument("--write-truth", metavar="FILE.json", help="write the injected errors used")
     ap.add_argument("--speedup", type=float, default=1.0, help="simulated s per wall-clock s")
-    ap.add_argument("--script", default="onepos", choices=motion.SCRIPTS)
+    ap.add_argument("--script", default="onepos", choices=motion.SCRIPTS,
+                    help="the vehicle's motion (default onepos: still and level). ardupilot6: "
+                         "a simulated person turns it through ArduPilot's six accel-cal poses, "
+                         "each held --pose-hold s, from when a ground station starts recording "
+                         "(for apmcal live --guide ardupilot6 --auto); operator: you turn it by "
+                         "typing poses")
+    ap.add_argument("--pose-hold", type=float, default=15.0, metavar="S",
+                    help="with --script ardupilot6: simulated seconds each pose is held (default "
+                         "15, enough for the guide's --hold 10)")
     ap.add_argument("--firmware", default="3.2", choices=("3.2", "3.3"))
     ap.add_argument("--duration", type=float, help="stop after this many simulated seconds")
     ap.add_argument("--param-file", default="sitl-params.json",
@@ -38,15 +46,28 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     try:
         from apmcal_sim.mavlink_vehicle import MavlinkVehicle
-        from apmcal_sim.vehicle import SimVehicle
+        from apmcal_sim.vehicle import SimVehicle, SixPosePerson
         truth = make_truth(args)
         if args.write_truth:
             truth.save(args.write_truth)
-        vehicle = SimVehicle(truth, args.script, args.firmware, args.param_file, seed=args.seed,
+        person = args.script == "ardupilot6"      # the poses follow the ground station
+        vehicle = SimVehicle(truth, "operator" if person else args.script, args.firmware,
+                             args.param_file, seed=args.seed,
                              duration=args.duration if args.script != "operator" else None,
                              full_params=args.full_params)
         apply_firmware_args(vehicle, args)
+        if person:
+            # on the bench, switched on a moment ago: booted, its gyro calibrated, before a
+            # ground station can ask for anything (apmcal refuses a recording across the boot
+            # calibration, however soon after this command it starts)
+            vehicle.run_for(vehicle.gyro_boot_s + 0.1)
+            vehicle.pop_messages()
         endpoint = MavlinkVehicle(vehicle, args.connection, args.speedup, args.tlog)
+        if person:
+            endpoint.on_poll.append(SixPosePerson(args.pose_hold).step)
+            print(f"sitl: once a ground station starts recording, the vehicle is turned through "
+                  f"ArduPilot's six poses, {args.pose_hold:g} s each", file=sys.stderr,
+                  flush=True)
         if hasattr(endpoint.conn, "device"):        # a pty: say where the serial port is
             print(f"serial port: {endpoint.conn.device}", flush=True)
         if args.script == "operator":

@@ -91,6 +91,8 @@ class MavlinkVehicle:
         self._wall0 = None
         self._sim0 = vehicle.t
         self._calls: collections.deque = collections.deque()
+        #: called with the vehicle after every advance of its clock (a simulated person)
+        self.on_poll: list = []
 
     # wall seconds of simulation one poll may catch up; beyond that the simulated clock lags
     MAX_CATCH_UP_S = 0.1
@@ -115,6 +117,8 @@ class MavlinkVehicle:
             self._calls.popleft()(v)
         while v.t < target - 0.5 / v.fs:
             v.step(min(self.step_s, target - v.t))
+            for person in self.on_poll:
+                person(v)
             self._flush()
         self._flush()
         while True:

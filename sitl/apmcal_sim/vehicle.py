@@ -116,6 +116,8 @@ class SimVehicle:
         self._boot_gyro: list = [] if self.params["INS_GYR_CAL"] == 1 else None
         self.record, self._hist = record, []
         self.commands: list = []              # (time [s], COMMAND_LONG) received, for tests
+        self.stream_requested_at = None       # simulated time [s] a ground station first asked
+                                              # for the IMU stream (None: not yet)
         self.last: dict = {}
         self._next_1hz = 0.0
         self._param_stream: collections.deque = collections.deque()   # list still to send
@@ -383,6 +385,8 @@ class SimVehicle:
                     self._param_value(name)
         elif kind == "REQUEST_DATA_STREAM":
             self.request_stream(msg.req_stream_id, msg.req_message_rate, bool(msg.start_stop))
+            if msg.start_stop and self.stream_requested_at is None:
+                self.stream_requested_at = self.t
         elif kind == "COMMAND_LONG":
             self.commands.append((self.t, msg))
             self._command(msg)
@@ -442,6 +446,36 @@ class SimVehicle:
     def motion_done(self) -> bool:
         """True once every turn asked for is over (the vehicle rests in its last pose)."""
         return self.t >= self.motion.duration
+
+
+class SixPosePerson:
+    """The person at the vehicle during ``apmcal live --guide ardupilot6 --auto``: from the
+    moment a ground station first asks for the IMU stream (when ``apmcal live`` starts
+    recording), turns the vehicle through ArduPilot's six accelerometer-calibration poses in
+    the firmware's order (level, LEFT, RIGHT, nose DOWN, nose UP, BACK), each held still for
+    ``hold_s`` simulated seconds after a ``move_s`` turn, and starts over after the sixth.
+
+    ``hold_s`` must exceed the guide's ``--hold`` by the guide's second of stillness before a
+    pose is judged and some margin: the default 15 s serves the guide's default ``--hold 10``.
+    Call :meth:`step` after every advance of the vehicle (the network endpoint's ``on_poll``).
+    """
+
+    ORDER = tuple(motion.ACCELCAL_POSES[k] for k in range(1, 7))
+
+    def __init__(self, hold_s: float = 15.0, move_s: float = 3.0):
+        self.hold_s, self.move_s = float(hold_s), float(move_s)
+        self.poses_done = 0          # poses held so far (the first, level, counts once held)
+
+    def step(self, vehicle: SimVehicle) -> None:
+        """Start when the stream was asked for; turn to the next pose once the last is held."""
+        if vehicle.stream_requested_at is None or not vehicle.motion_done():
+            return
+        if self.poses_done == 0:       # the vehicle rests level: hold it from now
+            vehicle.stay(self.hold_s)
+        else:
+            vehicle.goto_pose(self.ORDER[self.poses_done % 6], self.move_s)
+            vehicle.stay(self.hold_s - 0.5)      # goto_pose holds 0.5 s itself
+        self.poses_done += 1
 
 
 _TEXT_POSES = (("nose down", "nosedown"), ("nosedown", "nosedown"), ("nose up", "noseup"),

@@ -2,9 +2,10 @@
 :func:`apmcal.diagnosis.output.report.write_report` leaves them in the report folder) turned into
 ``index.html``, the figures embedded as base64 PNG, nothing loaded from the network.
 
-The Markdown is the report's own small subset — headings, paragraphs, ``-`` lists, pipe tables,
-``**bold**``, ``code`` and ``![caption](file.png)`` figures — converted here (about forty lines)
-rather than with a Markdown library, which would be a new runtime dependency for one page.
+The Markdown is the report's own small subset — headings, paragraphs, ``-`` lists (an indented
+line continues an item), pipe tables, ``**bold**``, ``*emphasis*``, ``code`` and
+``![caption](file.png)`` figures — converted here (about sixty lines) rather than with a
+Markdown library, which would be a new runtime dependency for one page.
 """
 from __future__ import annotations
 
@@ -22,10 +23,18 @@ _IMAGE = re.compile(r"^!\[([^\]]*)\]\(([^)\s]+)\)\s*$")
 
 
 def _inline(text: str) -> str:
-    """HTML-escaped ``text`` with **bold** and `code` marked up."""
-    out = html.escape(text, quote=False)
-    out = re.sub(r"\*\*(.+?)\*\*", r"<b>\1</b>", out)
-    return re.sub(r"`([^`]+)`", r"<code>\1</code>", out)
+    """HTML-escaped ``text`` with **bold**, *emphasis* and `code` marked up (code first: an
+    asterisk inside code stays one)."""
+    parts = re.split(r"(`[^`]+`)", text)
+    out = []
+    for part in parts:
+        if part.startswith("`") and part.endswith("`") and len(part) > 1:
+            out.append(f"<code>{html.escape(part[1:-1], quote=False)}</code>")
+            continue
+        part = html.escape(part, quote=False)
+        part = re.sub(r"\*\*(.+?)\*\*", r"<b>\1</b>", part)
+        out.append(re.sub(r"(?<![\w*])\*(?!\s)(.+?)(?<!\s)\*(?![\w*])", r"<em>\1</em>", part))
+    return "".join(out)
 
 
 def _image(folder: Path, caption: str, name: str) -> str:
@@ -48,17 +57,30 @@ def _table(rows: list[str]) -> str:
 
 
 def markdown_to_html(text: str, folder: Path) -> str:
-    """The report's Markdown subset (see the module doc) as HTML, figures from ``folder``."""
-    out, para, table, items = [], [], [], []
+    """The report's Markdown subset (see the module doc) as HTML, figures from ``folder``.
+
+    A block (paragraph, table, list) ends where another kind begins or at a blank line, so the
+    blocks come out in the order written; an indented line continues the list item above it.
+    """
+    out, block, kind = [], [], None
 
     def flush():
-        if para:
-            out.append("<p>" + _inline(" ".join(para)) + "</p>")
-        if table:
-            out.append(_table(table))
-        if items:
-            out.append("<ul>" + "".join(f"<li>{_inline(i)}</li>" for i in items) + "</ul>")
-        para.clear(), table.clear(), items.clear()
+        nonlocal kind
+        if kind == "p":
+            out.append("<p>" + _inline(" ".join(block)) + "</p>")
+        elif kind == "table":
+            out.append(_table(block))
+        elif kind == "ul":
+            out.append("<ul>" + "".join(f"<li>{_inline(i)}</li>" for i in block) + "</ul>")
+        block.clear()
+        kind = None
+
+    def add(to: str, line: str):
+        nonlocal kind
+        if kind != to:
+            flush()
+            kind = to
+        block.append(line)
 
     for line in text.splitlines():
         heading = re.match(r"^(#{1,3}) (.*)$", line)
@@ -71,13 +93,15 @@ def markdown_to_html(text: str, folder: Path) -> str:
             flush()
             out.append(_image(folder, image.group(1), image.group(2)))
         elif line.startswith("|"):
-            table.append(line)
+            add("table", line)
         elif line.startswith("- "):
-            items.append(line[2:])
+            add("ul", line[2:].strip())
         elif not line.strip():
             flush()
+        elif kind == "ul" and line.startswith(" "):
+            block[-1] += " " + line.strip()         # the list item goes on
         else:
-            para.append(line.strip())
+            add("p", line.strip())
     flush()
     return "\n".join(out)
 

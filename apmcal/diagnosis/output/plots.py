@@ -8,6 +8,28 @@ from __future__ import annotations
 import numpy as np
 
 SENSOR_UNITS = {"acc": "m/s²", "gyr": "rad/s", "mag": "mGauss"}
+SENSOR_WORDS = {"acc": "accelerometer", "gyr": "gyro", "mag": "compass"}
+
+
+def save(fig, path) -> None:
+    """Lay ``fig`` out, shrink any title wider than its share of the figure until it fits (a
+    title is never cut at the figure's edge or under its neighbour's), save it as PNG."""
+    fig.tight_layout()
+    renderer = fig.canvas.get_renderer()
+    for ax in fig.axes:
+        title = ax.title
+        share = ax.get_window_extent(renderer).width + 40      # pixels: the axes and a margin
+        while title.get_text() and title.get_fontsize() > 5 and (
+                title.get_window_extent(renderer).width > share
+                or not fits(title.get_window_extent(renderer), fig.bbox)):
+            title.set_fontsize(title.get_fontsize() - 0.5)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def fits(box, frame) -> bool:
+    """True when the extent ``box`` lies within ``frame`` (both display bounding boxes)."""
+    return box.x0 >= frame.x0 - 0.5 and box.x1 <= frame.x1 + 0.5 and box.y1 <= frame.y1 + 0.5
 
 
 def _pyplot():
@@ -53,8 +75,7 @@ def gap_parts(diagnosis, key: str, path, title: str, top: int = 25) -> bool:
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(7, 1.0 + 0.22 * len(labels)))
     _bars(ax, labels, [before[k] for k in labels], [after.get(k, 0.0) for k in labels], title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save(fig, path)
     plt.close(fig)
     return True
 
@@ -81,8 +102,7 @@ def psd(diagnosis, path) -> bool:
         ax.set_xlabel("frequency [Hz]")
         ax.set_ylabel(f"[({SENSOR_UNITS[sensor]})²/Hz]")
         ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save(fig, path)
     plt.close(fig)
     return bool(real)
 
@@ -109,8 +129,7 @@ def allan(diagnosis, path) -> bool:
         ax.set_xlabel("τ [s]")
         ax.set_ylabel(f"[{SENSOR_UNITS[sensor]}]")
         ax.legend(fontsize=6, ncol=2)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save(fig, path)
     plt.close(fig)
     return bool(real)
 
@@ -131,9 +150,8 @@ def temperature(diagnosis, path) -> bool:
             ax.plot(temps, means, "o", ms=3, color=color, label="xyz"[axis])
         ax.set_xlabel("temperature [°C]")
         ax.set_ylabel(f"{sensor} residual, piece mean [{SENSOR_UNITS[sensor]}]")
-        ax.set_title(f"{sensor}: nominal-model residual vs temperature")
+        ax.set_title(f"{SENSOR_WORDS.get(sensor, sensor)}: residual vs temperature")
         ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save(fig, path)
     plt.close(fig)
     return True

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from apmcal.diagnosis.output import html, plots
+from apmcal.diagnosis.output.advice import advice
 from apmcal.diagnosis.output.summary import param_text, rate_note, verdict
 
 SPLITS = (("sensor", "sensor"), ("kind", "holds or moves"), ("band", "frequency band"),
@@ -70,7 +71,7 @@ def _session_table(result) -> str:
         rows.append(["battery current", "{:.1f} to {:.1f} A".format(*s["current_a"])])
     if s.get("integer_format"):
         rows.append(["stored as integers by the log format", ", ".join(s["integer_format"])])
-    return _table(rows, ["", ""])
+    return _table(rows, ["what", "value"])
 
 
 def _rate_paragraph(result) -> str:
@@ -124,8 +125,10 @@ def write_report(diagnosis, directory) -> Path:
         "allan.png": plots.allan(diagnosis, out / "allan.png"),
         "temperature.png": plots.temperature(diagnosis, out / "temperature.png"),
     }
-    text = [f"# apmcal gap report — {Path(result.source).name}", "",
-            f"**Verdict.** {verdict(result)}", "", "## The session", "",
+    # what to do first, in the console's words, then the same verdict in numbers
+    text = [f"# apmcal gap report — {Path(result.source).name}", "", "## What to do", "",
+            *[f"{line}\n" for line in advice(result)],
+            f"**The gap in numbers.** {verdict(result)}", "", "## The session", "",
             _session_table(result), "", "## How big is the gap", ""]
     g, a = result.gap, result.after
     text += [f"- nominal model: in-sample **{g['total']:.3g}**, held-out **{g['heldout']:.3g}** "
