@@ -231,9 +231,9 @@ def test_real_logs(tmp_path):
 
 def test_heading_error_hand_worked():
     """A compass sphere offset by 30 mGauss along x: asin(30 / B_h) at the WMM's B_h."""
+    from apmcal.calibration.health import compass_health
     from apmcal.core.geomag import earth_field_ned
     from apmcal.core.recording import Recording
-    from apmcal.fleet.health import compass_health
 
     rng = np.random.default_rng(0)
     site, year = (45.0, 7.0, 0.0), 2026.0

@@ -13,4 +13,8 @@ preparation and the solvers, and builds each result once.
   methods scored out of sample by the orientation change between still poses ([Chow] §5).
 - :mod:`~apmcal.calibration.flight` — the compass from an ordinary flight log: health check in
   heading degrees, COMPASS_* proposal with σ, orientation search (``apmcal log FLIGHT``);
+- :mod:`~apmcal.calibration.health` — the health of the calibration in force on one log as
+  logged, shared by ``apmcal log`` and ``apmcal fleet``: the flight compass check's figures per
+  compass on a flight, the compass's sphere residual on a session that turns it, gyro bias and
+  temperature, |specific force| − g, vibration.
 """

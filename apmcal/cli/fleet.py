@@ -26,13 +26,17 @@ def add_parser(sub) -> None:
     p.add_argument("--lat", type=float, default=None, help="site latitude [deg] for logs "
                    "without a GPS fix (the WMM field for the heading error)")
     p.add_argument("--lon", type=float, default=None, help="site longitude [deg]")
+    p.add_argument("--vehicles", default=None, metavar="FILE",
+                   help="your own mapping of logs to vehicles, one 'FOLDER_OR_GLOB = NAME' a "
+                        "line, over what the logs say (for logs without a board UID or a "
+                        "distinct system id)")
     p.add_argument("--no-cache", action="store_true", help="measure every log again")
     p.add_argument("--quiet", action="store_true", help="no progress bar or summary")
 
 
 def run(args) -> int:
-    """Run ``apmcal fleet``; exit 1 when a flag needs action, 0 when none (2 on bad input is
-    the caller's: ApmcalError)."""
+    """Run ``apmcal fleet``; exit 1 when a flag needs action, 0 when none (2 on bad input, or
+    when no log could be read, is the caller's: ApmcalError)."""
     from apmcal.core.errors import ApmcalError
     from apmcal.fleet.engine import require_dask
     from apmcal.fleet.run import run_fleet
@@ -57,7 +61,7 @@ def run(args) -> int:
                            scheduler=args.scheduler, site=site, cache=not args.no_cache,
                            serial=args.workers == 0,
                            on_found=lambda n: bar.update(task, total=n),
-                           progress=lambda: bar.advance(task))
+                           progress=lambda: bar.advance(task), vehicles=args.vehicles)
     if not args.quiet:
         print_summary(result)
     return EXIT_FLAGS if result.action_flags else 0
@@ -70,6 +74,10 @@ def print_summary(result) -> None:
     cached = int(f["cached"].fillna(False).astype(bool).sum())
     print(f"{len(f)} logs: {ok} read ({cached} from the cache), {len(f) - ok} not read; "
           f"{len(result.vehicles)} vehicles")
+    for r in result.vehicles.head(MAX_LINES).itertuples():
+        print(f"  {r.vehicle_id}: {r.flights} flight(s), identified by {r.identified_by}")
+    if len(result.vehicles) > MAX_LINES:
+        print(f"  ... {len(result.vehicles) - MAX_LINES} more vehicles (vehicles.parquet)")
     bad = f[f["status"] != "ok"]
     for r in bad.head(MAX_LINES).itertuples():
         print(f"  not read: {r.reason}")

@@ -47,10 +47,11 @@ def run_flight(args) -> tuple[int | None, str | None]:
     the check, or None): the caller calibrates it as before."""
     if args.method != "auto" or args.layout != "auto" or args.summary_only:
         return None, None
-    from apmcal.calibration.flight import calibrate_flight_log
+    from apmcal.calibration.health import flight_compass
 
     site = (args.lat, args.lon) if args.lat is not None and args.lon is not None else None
-    result, lacking = calibrate_flight_log(args.file, site)
+    checked = flight_compass(args.file, site)       # the figures apmcal fleet records too
+    result, lacking = checked.result, checked.lacking
     if result is None:
         return None, lacking
     console = console_for(args)

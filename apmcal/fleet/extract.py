@@ -17,7 +17,7 @@ from apmcal.core.blas_threads import single_threaded_blas
 from apmcal.core.errors import ApmcalError
 
 #: bump when a record's meaning changes: the cache key includes it, so old records are redone
-EXTRACT_VERSION = 4
+EXTRACT_VERSION = 5
 
 
 def base_record(path: Path) -> dict:
@@ -54,6 +54,41 @@ def _extra_messages(contents) -> dict:
     return msgs
 
 
+def _header_sysid(contents) -> int | None:
+    """The autopilot's system id from a .tlog's frame headers; None for other formats."""
+    if contents.format != "tlog":
+        return None
+    from apmcal.sources.tlog import autopilot_system_id
+
+    return autopilot_system_id(contents.path)
+
+
+def _compass(contents, mag, site, user_site, year, notes) -> dict:
+    """Compass figures: the flight compass check on a flight (what ``apmcal log`` reports),
+    else the sphere residual of a session that turns the compass; notes say what was not done."""
+    from apmcal.calibration import health
+    from apmcal.preprocessing.prepare import has_live_magnetometer
+
+    if contents.format in ("bin", "log", "tlog"):
+        try:
+            checked = health.flight_compass(contents.path, user_site and user_site[:2])
+        except ApmcalError as err:
+            notes.append(f"compass in flight not checked: {err.why}")
+        else:
+            if checked.result is not None:
+                return checked.figures(health.compasses_in_use(contents.params))
+            if checked.lacking:
+                notes.append(f"compass in flight not checked: {checked.lacking}")
+    if mag is None or not has_live_magnetometer(mag):
+        notes.append("no live compass")
+        return {}
+    figures, mag_notes = health.compass_health(mag, site, year[0])
+    notes += mag_notes + ([year[1]] if year[1] and "heading_error_deg" in figures else [])
+    if "heading_error_deg" in figures:
+        figures["heading_error_method"] = "sphere"
+    return figures
+
+
 def describe(contents, site: tuple[float, float, float] | None = None) -> dict:
     """The record's fields of a read log: identity, calibration, health, date and duration.
 
@@ -68,19 +103,20 @@ def describe(contents, site: tuple[float, float, float] | None = None) -> dict:
     ApmcalError
         When the log has no accelerometer recording, or is a CSV table (no ArduPilot log).
     """
-    from apmcal.fleet import health
+    from apmcal.calibration import health
     from apmcal.fleet.identity import calibration_in_force, dev_ids, identity
-    from apmcal.preprocessing.prepare import drop_non_finite, has_live_magnetometer, pick_recording
+    from apmcal.preprocessing.prepare import drop_non_finite, pick_recording
     from apmcal.preprocessing.timebase import monotonic
 
     if contents.format == "csv":
         raise ApmcalError("not an ArduPilot log (a text or CSV table)", contents.path)
-    rec = {"format": contents.format, **identity(contents)}
+    rec = {"format": contents.format, **identity(contents, _header_sysid(contents))}
     recording, mag_recording = pick_recording(contents, None)
     recording, notes = drop_non_finite(recording)
     recording, more = monotonic(recording)
     notes += more
     msgs = _extra_messages(contents)
+    user_site = site
     site = health.gps_site(msgs) or site
     rec["site_lat_deg"], rec["site_lon_deg"] = (site[0], site[1]) if site else (None, None)
     rec["start_unix_s"] = contents.start_unix_s
@@ -98,13 +134,7 @@ def describe(contents, site: tuple[float, float, float] | None = None) -> dict:
     rec.update(health.acc_health(segments, health.gravity_at(site)))
     mag = mag_recording if mag_recording is not None else (
         recording if recording.has("mag") else None)
-    if mag is not None and has_live_magnetometer(mag):
-        year, year_note = _year(contents.start_unix_s)
-        figures, mag_notes = health.compass_health(mag, site, year)
-        rec.update(figures)
-        notes += mag_notes + ([year_note] if year_note and "heading_error_deg" in figures else [])
-    else:
-        notes.append("no live compass")
+    rec.update(_compass(contents, mag, site, user_site, _year(contents.start_unix_s), notes))
     rec.update(health.vibration(msgs))
     rec["notes"] = "; ".join(notes)
     return rec

@@ -1,10 +1,14 @@
 """Per vehicle: the flights in time order, change points, drift rates with σ, and robust
 outliers against the other vehicles of the same type.
 
+- flights: each vehicle's read logs in date order (else by file name), numbered from 1
+  (``flight``);
 - change points: between consecutive flights, a calibration parameter with a new value
   (:func:`apmcal.fleet.identity.compares_as_change`: the boot gyro offsets excluded) or a
   sensor's DEV_ID with a new value (the hardware changed; 0 = no sensor); a parameter logged in
-  only one of the two flights is no change;
+  only one of the two flights is no change; and a compass's hard iron, as the flight compass
+  check fits it, moved between flights (:func:`hard_iron_moves`: the compass's surroundings
+  changed);
 - drift rates: least-squares slopes over time [per day] with their standard errors, over the
   flights since the last compass calibration change;
 - gyro temperature sensitivity: the slope of the gyro bias against board temperature between
@@ -30,6 +34,13 @@ OUTLIER_RATIO = 2.0            # and at least this many times the type's median
 OUTLIER_MIN_VEHICLES = 5
 MAD_FLOOR = 0.10
 OUTLIER_METRICS = ("gyro_noise_dps", "acc_noise_ms2")
+# a hard iron "moved" when some axis moved more than HARD_IRON_SIGMAS combined σ of the two
+# flights' fits, and those axes together by at least what costs compass_heading.GOOD_DEG of
+# heading across the horizontal field: the fits' σ alone are optimistic on short flights
+# (fits of one untouched vehicle scatter by a few σ), and a smaller move keeps a good
+# calibration good
+HARD_IRON_SIGMAS = 3.0
+MAX_COMPASSES = 3
 
 
 def flights_table(records: list[dict]) -> pd.DataFrame:
@@ -39,8 +50,12 @@ def flights_table(records: list[dict]) -> pd.DataFrame:
         if col not in df:
             df[col] = None
     df["date"] = pd.to_datetime(df["start_unix_s"], unit="s", utc=True)
-    return df.sort_values(["vehicle_id", "start_unix_s", "path"], na_position="last",
-                          kind="stable").reset_index(drop=True)
+    df = df.sort_values(["vehicle_id", "start_unix_s", "path"], na_position="last",
+                        kind="stable").reset_index(drop=True)
+    ok = df["status"] == "ok"
+    df["flight"] = pd.Series(pd.NA, index=df.index, dtype="Int64")
+    df.loc[ok, "flight"] = df[ok].groupby("vehicle_id", sort=False).cumcount() + 1
+    return df
 
 
 def _changed(old: dict, new: dict, keep) -> dict:
@@ -78,6 +93,48 @@ def change_points(flights: pd.DataFrame) -> list[dict]:
         for sensor in sorted({sensor_of(n) for n in dev}):
             out.append(dict(base, kind="hardware_changed", sensor=sensor,
                             changes={n: v for n, v in dev.items() if sensor_of(n) == sensor}))
+    return out + hard_iron_moves(flights)
+
+
+def _hard_iron(row: dict, instance: int) -> tuple[np.ndarray, np.ndarray] | None:
+    k = f"compass{instance}_hard_iron"
+    try:
+        v = np.array([row[f"{k}_{a}_mgauss"] for a in "xyz"], dtype=float)
+        s = np.array([row[f"{k}_sigma_{a}_mgauss"] for a in "xyz"], dtype=float)
+    except KeyError:
+        return None
+    return (v, s) if np.isfinite(v).all() and np.isfinite(s).all() else None
+
+
+def hard_iron_moves(flights: pd.DataFrame) -> list[dict]:
+    """Compasses whose fitted hard iron moved between consecutive flights that fitted it (see
+    :data:`HARD_IRON_SIGMAS`): kind "hard_iron_moved", compass, index, date, path, the move
+    [mGauss], its combined σ, the flight it is measured from, and the heading it is worth [deg]
+    (asin(|move| / horizontal field))."""
+    from apmcal.solvers.compass_heading import GOOD_DEG
+
+    out = []
+    rows = flights.to_dict("records")
+    for inst in range(MAX_COMPASSES):
+        last = None
+        for i, row in enumerate(rows):
+            fit = _hard_iron(row, inst)
+            if fit is None:
+                continue
+            if last is not None:
+                j, (v0, s0) = last
+                move, sigma = fit[0] - v0, np.hypot(fit[1], s0)
+                beyond = np.abs(move) > HARD_IRON_SIGMAS * sigma
+                size = float(np.linalg.norm(move[beyond]))
+                b_h = row.get("wmm_horizontal_mgauss")
+                b_h = float(b_h) if b_h is not None and np.isfinite(b_h) else np.nan
+                worth = float(np.degrees(np.arcsin(min(size / b_h, 1.0)))) if b_h > 0 else np.nan
+                if beyond.any() and worth >= GOOD_DEG:
+                    out.append({"vehicle_id": row["vehicle_id"], "kind": "hard_iron_moved",
+                                "compass": inst, "index": i, "date": row["date"],
+                                "path": row["path"], "from_index": j, "move": move.tolist(),
+                                "sigma": sigma.tolist(), "heading_deg": worth})
+            last = (i, fit)
     return out
 
 
@@ -123,9 +180,12 @@ def gyro_temperature_slope(flights: pd.DataFrame) -> dict:
 
 
 def since_last_compass_change(flights: pd.DataFrame, changes: list[dict]) -> pd.DataFrame:
-    """The flights after the last change of a COMPASS_* calibration or of the compass hardware."""
+    """The flights after the last change of a COMPASS_* calibration, of the compass hardware or
+    of its surroundings (a hard iron that moved)."""
     start = 0
     for c in changes:
+        if c["kind"] == "hard_iron_moved":
+            start = max(start, c["index"])
         if c["kind"] == "hardware_changed" and c.get("sensor") == "compass":
             start = max(start, c["index"])
         if c["kind"] == "calibration_changed" and any(n.startswith("COMPASS") for n in c["changes"]):
@@ -142,7 +202,8 @@ def vehicle_summary(vid: str, flights: pd.DataFrame, changes: list[dict]) -> dic
            "flights": len(flights), "first_date": flights["date"].min(),
            "last_date": flights["date"].max(),
            "calibration_changes": sum(c["kind"] == "calibration_changed" for c in changes),
-           "hardware_changes": sum(c["kind"] == "hardware_changed" for c in changes)}
+           "hardware_changes": sum(c["kind"] == "hardware_changed" for c in changes),
+           "identified_by": identified_by(flights)}
     for col in ("heading_error_deg", "acc_norm_err_ms2", "gyro_noise_dps", "acc_noise_ms2",
                 "vibe_x_ms2", "vibe_y_ms2", "vibe_z_ms2"):
         if col in flights:
@@ -158,6 +219,16 @@ def vehicle_summary(vid: str, flights: pd.DataFrame, changes: list[dict]) -> dic
             row[f"{col}_per_day"], row[f"{col}_per_day_sigma"] = k, s
     row.update(gyro_temperature_slope(flights))
     return row
+
+
+def identified_by(flights: pd.DataFrame) -> str:
+    """How a vehicle's logs were identified, in words, with counts when they differ."""
+    if "identified_by" not in flights:
+        return ""
+    counts = flights["identified_by"].fillna("?").value_counts(sort=True)
+    if len(counts) == 1:
+        return str(counts.index[0])
+    return "; ".join(f"{how}: {n} log{'s' if n > 1 else ''}" for how, n in counts.items())
 
 
 def robust_outliers(vehicles: pd.DataFrame) -> list[dict]:

@@ -537,6 +537,25 @@ def read_tlog_messages(path, names=IMU_MESSAGES) -> tuple[dict[str, np.ndarray],
     return scan(buf, names)
 
 
+def autopilot_system_id(path) -> int | None:
+    """The autopilot's MAVLink system id in a .tlog: the frame header of its first HEARTBEAT
+    whose autopilot is not MAV_AUTOPILOT_INVALID (:func:`_autopilot_source`, the source whose
+    parameters :func:`read_tlog` keeps); None without such a HEARTBEAT.
+
+    Every frame carries its sender's system id, so this names the vehicle even when the log
+    holds none of its parameters. Reads only the HEARTBEAT frames (a second, cheap pass).
+
+    Raises
+    ------
+    ApmcalError
+        Unreadable or empty file.
+    """
+    buf = load_bytes(path)
+    dec, _, _, offsets = _scan(buf, ("HEARTBEAT",))
+    source = _autopilot_source(buf, dec, offsets)
+    return None if source is None else source >> 8
+
+
 def read_tlog(path, *, progress: bool = False) -> LogContents:
     """Read a .tlog into a :class:`LogContents` (IMU recordings, params, firmware, messages).
 

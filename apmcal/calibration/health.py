@@ -1,20 +1,32 @@
-"""Health figures of one log, measured on the samples as logged (the calibration in force
-applied by the firmware), with the library's own stillness detection, sphere fit and WMM.
+"""The health of the calibration in force, measured on one log as logged: the one computation
+``apmcal log`` and ``apmcal fleet`` share, so that both say the same of the same log.
 
-- compass: the logged field's sphere-fit centre [mGauss, body frame] is the offset the
-  calibration in force leaves ([Niespodziany] Fig. 2 step 1, :func:`apmcal.solvers.ellipsoid.
-  paper.sphere_fit`); its radius against the WMM's intensity at the site and date
-  (:mod:`apmcal.core.geomag`) is the field residual. The heading error it implies, at worst over
-  all headings of a level vehicle, is asin(horizontal residual / horizontal field).
+- compass on a flight: the flight compass check (:func:`flight_compass`, which runs
+  :func:`apmcal.calibration.flight.calibrate_flight_log`, what ``apmcal log FLIGHT`` prints):
+  per compass the heading error of the calibration in force along the flight (95th percentile)
+  with its verdict, the proposal's, and the hard iron the flight fits (the proposed COMPASS_OFS,
+  which does not depend on the calibration in force) with its σ;
+- compass on a session that turns it through every direction (not a flight): the logged field's
+  sphere-fit centre [mGauss, body frame] is the offset the calibration in force leaves
+  ([Niespodziany] Fig. 2 step 1, :func:`apmcal.solvers.ellipsoid.paper.sphere_fit`); its radius
+  against the WMM's intensity at the site and date (:mod:`apmcal.core.geomag`) is the field
+  residual. The heading error it implies, at worst over all headings of a level vehicle, is
+  asin(horizontal residual / horizontal field);
 - gyro: the bias in the first and last still period [°/s, body frame]: the logged mean plus the
   boot offsets in force (INS_GYROFFS, ardupilot-facts.md "How the firmware applies the
   parameters"), with the board temperature [°C] there; the noise (median std of still periods).
+  A "still" period whose mean rate differs from the first one's by more than
+  :data:`MAX_STILL_RATE_DPS` is a steady turn (a yaw in the hover has a small moving std too),
+  not a still period: the first one is on the ground, and the reference is that period rather
+  than zero because an uncalibrated gyro logs tens of °/s at rest (pxf_copter_static_51.BIN);
 - accelerometer: |mean specific force| − g [m/s²] in still periods (median), the tilt of the
-  first still period from level [deg], the noise [m/s²].
+  first still period from level [deg], the noise [m/s²];
 - vibration: the VIBE record's mean VibeX/Y/Z [m/s²] and clip count, where logged (.bin;
   ardupilot-facts.md "Identity and vibration records").
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -28,19 +40,28 @@ MIN_SPREAD = 0.15
 # a logged field whose distance from the fitted centre scatters more than this fraction of the
 # radius is no offset sphere (soft iron, motor currents, a wrong DIA/ODI): no heading error then
 MAX_FIT_RMS_FRACTION = 0.10
+# largest difference [°/s] between a still period's mean rate and the first one's: a gyro's
+# bias moves by tenths of a degree per second over a flight; a copter yawing steadily in the
+# hover turns tens of degrees per second
+MAX_STILL_RATE_DPS = 3.0
 
 
 def still_segments(recording):
     """Still periods (:func:`apmcal.preprocessing.static.find_static_segments`) of an IMU
-    recording with accelerometer and gyro; [] when it has too few samples."""
+    recording with accelerometer and gyro [rad/s], without the steady turns (a mean rate more
+    than :data:`MAX_STILL_RATE_DPS` from the first period's); [] when it has too few samples."""
     from apmcal.preprocessing.static import find_static_segments
 
     if not (recording.has("acc") and recording.has("gyr")) or len(recording) < 20:
         return []
     try:
-        return find_static_segments(recording.t, recording.xyz("acc"), recording.xyz("gyr"))
+        segments = find_static_segments(recording.t, recording.xyz("acc"), recording.xyz("gyr"))
     except ApmcalError:
         return []
+    if not segments:
+        return []
+    limit, rest = np.radians(MAX_STILL_RATE_DPS), segments[0].gyr_mean
+    return [s for s in segments if np.linalg.norm(s.gyr_mean - rest) <= limit]
 
 
 def _temp_of(recording, seg) -> float:
@@ -193,3 +214,107 @@ def gravity_at(site) -> float:
     from apmcal.core.constants import normal_gravity
 
     return STD_GRAVITY if site is None else float(normal_gravity(site[0]))
+
+
+# ----------------------------------------------------------------------------- compass in flight
+@dataclass(frozen=True)
+class CompassHealth:
+    """One compass on one flight, as ``apmcal log FLIGHT`` reports it: the heading error of the
+    calibration in force (95th percentile along the flight [deg]) and its verdict (good /
+    usable / redo, :func:`apmcal.solvers.compass_heading.verdict`), the proposal's, and the
+    hard iron the flight fits [mGauss, COMPASS_OFS convention] with its 1-σ (None when the fit
+    sits on ArduPilot's limits and proposes nothing)."""
+
+    instance: int
+    heading_p95_deg: float
+    verdict: str
+    proposed_p95_deg: float
+    proposed_verdict: str
+    hard_iron_mgauss: tuple[float, float, float] | None
+    hard_iron_sigma_mgauss: tuple[float, float, float] | None
+
+
+@dataclass
+class FlightCompass:
+    """The flight compass check of one log: the :class:`~apmcal.calibration.flight.FlightResult`
+    (None when the log is no flight the check can use) and, for a log that flew but cannot be
+    checked, what it lacked (``lacking``), as :func:`~apmcal.calibration.flight.
+    calibrate_flight_log` returns them."""
+
+    result: object | None
+    lacking: str | None
+
+    @property
+    def compasses(self) -> list[CompassHealth]:
+        """One :class:`CompassHealth` per compass checked."""
+        if self.result is None:
+            return []
+        from apmcal.ardupilot.firmware import mag_param_names
+
+        out = []
+        for c in self.result.compasses:
+            ofs = mag_param_names(c.instance)["ofs"]
+            fitted = c.valid and all(n in c.proposed and n in c.sigma for n in ofs)
+            out.append(CompassHealth(
+                c.instance, float(c.health_in_force.p95_deg), c.health_in_force.verdict,
+                float(c.health_proposed.p95_deg), c.health_proposed.verdict,
+                tuple(float(c.proposed[n]) for n in ofs) if fitted else None,
+                tuple(float(c.sigma[n]) for n in ofs) if fitted else None))
+        return out
+
+    def figures(self, in_use: set[int] | None = None) -> dict:
+        """Flat record fields (``compass<i>_...`` per compass, and the headline
+        ``heading_error_deg``: the worst heading error of the compasses ``in_use``, all when
+        None); {} when there is no result."""
+        if self.result is None:
+            return {}
+        b = np.asarray(self.result.field_ned, dtype=float)
+        out: dict = {"heading_error_method": "flight", "wmm_field_mgauss": float(np.linalg.norm(b)),
+                     "wmm_horizontal_mgauss": float(np.hypot(b[0], b[1]))}
+        worst = None
+        for c in self.compasses:
+            k = f"compass{c.instance}"
+            out.update({f"{k}_heading_p95_deg": c.heading_p95_deg, f"{k}_verdict": c.verdict,
+                        f"{k}_proposed_p95_deg": c.proposed_p95_deg,
+                        f"{k}_proposed_verdict": c.proposed_verdict,
+                        f"{k}_in_use": in_use is None or c.instance in in_use})
+            if c.hard_iron_mgauss is not None:
+                for a, v, s in zip("xyz", c.hard_iron_mgauss, c.hard_iron_sigma_mgauss):
+                    out[f"{k}_hard_iron_{a}_mgauss"] = v
+                    out[f"{k}_hard_iron_sigma_{a}_mgauss"] = s
+            if out[f"{k}_in_use"] and (worst is None or c.heading_p95_deg > worst.heading_p95_deg):
+                worst = c
+        if worst is not None:
+            out["heading_error_deg"] = worst.heading_p95_deg
+            out["heading_error_compass"] = worst.instance
+        return out
+
+
+def flight_compass(path, site: tuple[float, float] | None = None) -> FlightCompass:
+    """The flight compass check of a log (:func:`apmcal.calibration.flight.
+    calibrate_flight_log`, exactly as ``apmcal log FLIGHT`` runs it).
+
+    Parameters
+    ----------
+    path : str or Path
+    site : (lat, lon) [deg], optional
+        For the WMM field when the log has no GPS fix.
+
+    Raises
+    ------
+    ApmcalError
+        A flight whose calibration in force cannot be undone, or whose compasses have no
+        usable samples.
+    """
+    from apmcal.calibration.flight import calibrate_flight_log
+
+    return FlightCompass(*calibrate_flight_log(path, site))
+
+
+COMPASS_USE_PARAMS = ("COMPASS_USE", "COMPASS_USE2", "COMPASS_USE3")
+
+
+def compasses_in_use(params: dict) -> set[int]:
+    """Compass instances the firmware uses (COMPASS_USE, USE2, USE3 not 0; absent counts as in
+    use: older firmware without the parameter uses every compass)."""
+    return {i for i, name in enumerate(COMPASS_USE_PARAMS) if params.get(name, 1) != 0}

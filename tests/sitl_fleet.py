@@ -1,0 +1,109 @@
+"""A fleet recorded from ArduPilot's own firmware (SITL), for the fleet tests and benchmark
+(not a test module).
+
+Each vehicle is one parameter store (``eeprom.bin`` in its own folder, kept between flights as
+on a real vehicle) and its own MAV_SYSID (``--sysid``); each flight is one boot of the firmware
+dated by ``--start-time``: logging from boot (LOG_DISARMED 1: the pre-flight wait is a still
+period on the ground), takeoff to 10 m, a square with the autopilot's own yaw, two slow full
+turns, land, a few seconds on the ground. Events are parameters written on the ground
+before the flight, followed by a reboot (as after a compass calibration), and kept in the store
+for the flights after: SIM_* for what happens to the hardware, COMPASS_*/INS_* for the
+calibration in force. The exact calibration of the simulated sensors
+is the one of ``../shared/ardupilot-sitl/README.md`` (COMPASS_OFS = SIM_MAG1_OFS, ...).
+
+The dataflash logs are copied into one flat folder under names that say nothing of the vehicle
+(the fleet must tell the vehicles apart from the logs' contents), and each flight's .tlog
+(RAW_IMU streamed at 10 Hz beside the driver's own messages) into another.
+"""
+from __future__ import annotations
+
+import datetime
+import json
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ardupilot_sitl import ArduPilotSitl
+
+FIRST_FLIGHT = datetime.datetime(2026, 3, 1, 9, 0, tzinfo=datetime.timezone.utc)
+DAYS_BETWEEN_FLIGHTS = 3.0
+# the same for every vehicle and flight: one compass (the analysis of each costs as much as a
+# log's reading), pre-arm checks off (a compass calibration far off fails them)
+BOOT_PARAMS = {"LOG_DISARMED": 1, "ARMING_CHECK": 0,
+               **{f"SIM_MAG{n}_DEVID": 0 for n in range(2, 9)}}
+RAW_IMU = 27                    # MAVLink message id, streamed into the .tlog
+SQUARE_M = 20.0
+LEG_S = 8.0
+TURN_RATE_DEG_S = 30.0
+TURNS_DEG = 720.0
+GROUND_AFTER_S = 5.0
+
+
+@dataclass
+class VehiclePlan:
+    """One vehicle: its MAV_SYSID, its number of flights and the parameters written before
+    given flights (flight index from 0 → {name: value}); ``event`` says what they mean."""
+
+    sysid: int
+    flights: int
+    writes: dict[int, dict[str, float]] = field(default_factory=dict)
+    event: str = "none"
+
+
+def fly_one(sitl: ArduPilotSitl) -> None:
+    """Takeoff, a square with the autopilot's yaw, two slow full turns, land, ground."""
+    sitl.request_message(RAW_IMU, 10.0)
+    sitl.takeoff(10.0)
+    for north, east in ((SQUARE_M, 0), (SQUARE_M, SQUARE_M), (0, SQUARE_M), (0, 0)):
+        sitl.fly_to(north, east, 10.0, LEG_S)
+    sitl.fly_to(0, 0, 10.0, TURNS_DEG / TURN_RATE_DEG_S, yaw_rate_deg_s=TURN_RATE_DEG_S)
+    sitl.land()
+    sitl.run_for(GROUND_AFTER_S)
+
+
+def _fly_vehicle(folder: Path, plan: VehiclePlan, position: int, n_plans: int,
+                 speedup: float) -> dict:
+    """Every flight of one vehicle, in order; its truth entry."""
+    flights = []
+    for k in range(plan.flights):
+        when = FIRST_FLIGHT + datetime.timedelta(days=k * DAYS_BETWEEN_FLIGHTS,
+                                                 hours=plan.sysid % 24)
+        work = folder / "work" / f"sysid{plan.sysid}"
+        writes = plan.writes.get(k, {})
+        boot = {"model": "quad", "speedup": speedup, "sysid": plan.sysid,
+                "start_time": when.timestamp(), "boot_params": BOOT_PARAMS}
+        read_back = {}
+        if writes:      # on the ground, then a reboot (as after a compass calibration)
+            with ArduPilotSitl(work, keep_eeprom=k > 0, **boot) as sitl:
+                sitl.set_params(writes)
+                read_back = {name: sitl.get_param(name) for name in writes}
+        with ArduPilotSitl(work, keep_eeprom=k > 0 or bool(writes), **boot) as sitl:
+            fly_one(sitl)
+        name = f"log_{k * n_plans + position + 1:03d}"       # vehicles interleaved
+        shutil.copy(sitl.dataflash_logs()[-1], folder / "bin" / f"{name}.bin")   # this boot's
+        shutil.copy(sitl.tlog, folder / "tlog" / f"{name}.tlog")
+        flights.append({"index": k, "file": f"{name}.bin", "tlog": f"{name}.tlog",
+                        "unix_s": when.timestamp(), "writes": writes, "read_back": read_back})
+    return {"sysid": plan.sysid, "event": plan.event, "flights": flights}
+
+
+def record_fleet(folder, plans: list[VehiclePlan], speedup: float = 200.0,
+                 parallel: int = 2) -> dict:
+    """Fly every plan into ``folder``: ``bin/`` (the dataflash logs, flat, named log_NNN.bin,
+    the vehicles' flights interleaved in date order), ``tlog/`` and ``truth.json``; up to
+    ``parallel`` vehicles at once (each a firmware process of its own).
+
+    Returns the truth: per vehicle its sysid, event, and per flight the log's name, date, the
+    parameters written and the values read back from the firmware after them.
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    folder = Path(folder)
+    (folder / "bin").mkdir(parents=True, exist_ok=True)
+    (folder / "tlog").mkdir(parents=True, exist_ok=True)
+    with ThreadPoolExecutor(max(1, parallel)) as pool:
+        done = [pool.submit(_fly_vehicle, folder, plan, i, len(plans), speedup)
+                for i, plan in enumerate(plans)]
+        truth = {"vehicles": {str(p.sysid): f.result() for p, f in zip(plans, done)}}
+    (folder / "truth.json").write_text(json.dumps(truth, indent=1))
+    return truth
