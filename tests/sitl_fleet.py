@@ -14,6 +14,10 @@ is the one of ``../shared/ardupilot-sitl/README.md`` (COMPASS_OFS = SIM_MAG1_OFS
 The dataflash logs are copied into one flat folder under names that say nothing of the vehicle
 (the fleet must tell the vehicles apart from the logs' contents), and each flight's .tlog
 (RAW_IMU streamed at 10 Hz beside the driver's own messages) into another.
+
+:data:`EVENT_FLEET` is the fleet of tests/test_fleet_firmware.py; to record it yourself:
+
+    python tests/sitl_fleet.py DIR          # then: apmcal fleet DIR/bin --out REPORT
 """
 from __future__ import annotations
 
@@ -22,8 +26,6 @@ import json
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
-
-from ardupilot_sitl import ArduPilotSitl
 
 FIRST_FLIGHT = datetime.datetime(2026, 3, 1, 9, 0, tzinfo=datetime.timezone.utc)
 DAYS_BETWEEN_FLIGHTS = 3.0
@@ -39,6 +41,20 @@ TURNS_DEG = 720.0
 GROUND_AFTER_S = 5.0
 
 
+EXACT_OFS = (5.0, 13.0, -18.0)      # SIM_MAG1_OFS and COMPASS_OFS of copter.parm: exact
+HARD_IRON_SHIFT = (90.0, -60.0, 40.0)     # mGauss
+ACC_BIAS = 0.35                           # m/s², on the sensor's z axis
+WRONG_OFS = (70.0, -50.0, 30.0)           # mGauss
+
+
+def _ofs(prefix: str, v) -> dict:
+    return {f"{prefix}_{a}": float(x) for a, x in zip("XYZ", v)}
+
+
+def _plus(a, b) -> tuple:
+    return tuple(x + y for x, y in zip(a, b))
+
+
 @dataclass
 class VehiclePlan:
     """One vehicle: its MAV_SYSID, its number of flights and the parameters written before
@@ -50,8 +66,22 @@ class VehiclePlan:
     event: str = "none"
 
 
-def fly_one(sitl: ArduPilotSitl) -> None:
-    """Takeoff, a square with the autopilot's yaw, two slow full turns, land, ground."""
+# four vehicles, three flights each: one untouched, one whose compass's hard iron moves before
+# flight 2 and is never recalibrated, one whose accelerometer gets a z bias from flight 2, one
+# flown with a wrong COMPASS_OFS on flight 1 and recalibrated before flight 2
+EVENT_FLEET = [
+    VehiclePlan(11, 3),
+    VehiclePlan(12, 3, {1: _ofs("SIM_MAG1_OFS", _plus(EXACT_OFS, HARD_IRON_SHIFT))},
+                "hard iron shifted, never recalibrated"),
+    VehiclePlan(13, 3, {1: {"SIM_ACC1_BIAS_Z": ACC_BIAS}}, "accelerometer bias"),
+    VehiclePlan(14, 3, {0: _ofs("COMPASS_OFS", _plus(EXACT_OFS, WRONG_OFS)),
+                        1: _ofs("COMPASS_OFS", EXACT_OFS)},
+                "wrong compass calibration, recalibrated")]
+
+
+def fly_one(sitl) -> None:
+    """Takeoff, a square with the autopilot's yaw, two slow full turns, land, ground (``sitl``
+    an :class:`ardupilot_sitl.ArduPilotSitl` of a copter)."""
     sitl.request_message(RAW_IMU, 10.0)
     sitl.takeoff(10.0)
     for north, east in ((SQUARE_M, 0), (SQUARE_M, SQUARE_M), (0, SQUARE_M), (0, 0)):
@@ -62,8 +92,10 @@ def fly_one(sitl: ArduPilotSitl) -> None:
 
 
 def _fly_vehicle(folder: Path, plan: VehiclePlan, position: int, n_plans: int,
-                 speedup: float) -> dict:
+                 speedup: float, fly) -> dict:
     """Every flight of one vehicle, in order; its truth entry."""
+    from ardupilot_sitl import ArduPilotSitl
+
     flights = []
     for k in range(plan.flights):
         when = FIRST_FLIGHT + datetime.timedelta(days=k * DAYS_BETWEEN_FLIGHTS,
@@ -78,7 +110,7 @@ def _fly_vehicle(folder: Path, plan: VehiclePlan, position: int, n_plans: int,
                 sitl.set_params(writes)
                 read_back = {name: sitl.get_param(name) for name in writes}
         with ArduPilotSitl(work, keep_eeprom=k > 0 or bool(writes), **boot) as sitl:
-            fly_one(sitl)
+            fly(sitl)
         name = f"log_{k * n_plans + position + 1:03d}"       # vehicles interleaved
         shutil.copy(sitl.dataflash_logs()[-1], folder / "bin" / f"{name}.bin")   # this boot's
         shutil.copy(sitl.tlog, folder / "tlog" / f"{name}.tlog")
@@ -88,10 +120,11 @@ def _fly_vehicle(folder: Path, plan: VehiclePlan, position: int, n_plans: int,
 
 
 def record_fleet(folder, plans: list[VehiclePlan], speedup: float = 200.0,
-                 parallel: int = 2) -> dict:
+                 parallel: int = 2, fly=fly_one) -> dict:
     """Fly every plan into ``folder``: ``bin/`` (the dataflash logs, flat, named log_NNN.bin,
     the vehicles' flights interleaved in date order), ``tlog/`` and ``truth.json``; up to
-    ``parallel`` vehicles at once (each a firmware process of its own).
+    ``parallel`` vehicles at once (each a firmware process of its own); ``fly(sitl)`` flies
+    each flight (default :func:`fly_one`).
 
     Returns the truth: per vehicle its sysid, event, and per flight the log's name, date, the
     parameters written and the values read back from the firmware after them.
@@ -102,8 +135,21 @@ def record_fleet(folder, plans: list[VehiclePlan], speedup: float = 200.0,
     (folder / "bin").mkdir(parents=True, exist_ok=True)
     (folder / "tlog").mkdir(parents=True, exist_ok=True)
     with ThreadPoolExecutor(max(1, parallel)) as pool:
-        done = [pool.submit(_fly_vehicle, folder, plan, i, len(plans), speedup)
+        done = [pool.submit(_fly_vehicle, folder, plan, i, len(plans), speedup, fly)
                 for i, plan in enumerate(plans)]
         truth = {"vehicles": {str(p.sysid): f.result() for p, f in zip(plans, done)}}
     (folder / "truth.json").write_text(json.dumps(truth, indent=1))
     return truth
+
+
+if __name__ == "__main__":
+    import sys
+    import time
+
+    if len(sys.argv) != 2:
+        sys.exit("usage: python tests/sitl_fleet.py DIR   (records EVENT_FLEET into DIR)")
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "sitl"))
+    t0 = time.perf_counter()
+    record_fleet(sys.argv[1], EVENT_FLEET)
+    print(f"recorded into {sys.argv[1]} in {time.perf_counter() - t0:.0f} s: bin/, tlog/, "
+          "truth.json")

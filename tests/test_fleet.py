@@ -2,6 +2,7 @@
 (a real LocalCluster, and a real `dask scheduler` with two `dask worker` processes on loopback),
 and the real logs of ../shared/data."""
 import json
+import re
 import shutil
 import socket
 import subprocess
@@ -201,10 +202,14 @@ def test_exit_codes_and_bad_input(fleet, tmp_path, capsys, monkeypatch):
     assert "pip install 'apmcal[fleet]'" in err and len(err.splitlines()) == 1
 
 
-def test_real_logs(tmp_path):
+@pytest.fixture(scope="module")
+def real_run(tmp_path_factory):
+    """The real logs of ../shared/data in nested folders, with a damaged copy and a text file,
+    through `apmcal fleet` once: (exit status, output folder, number of real logs)."""
     if not REAL.is_dir():
         pytest.skip(f"real logs absent: {REAL} (the shared data folder is not in this checkout)")
-    logs = tmp_path / "logs"
+    tmp = tmp_path_factory.mktemp("real")
+    logs = tmp / "logs"
     real = sorted(p for p in REAL.iterdir() if p.suffix.lower() in (".bin", ".log", ".tlog"))
     for i, p in enumerate(real):
         dest = logs / ("a" if i % 2 else "b/c") / p.name
@@ -214,19 +219,100 @@ def test_real_logs(tmp_path):
     data = src.read_bytes()
     (logs / "b" / "damaged_copy.bin").write_bytes(data[:200] + np.random.default_rng(2).bytes(5000))
     (logs / "a" / "readme.log").write_text("not a log, just some text\n")
-    out = tmp_path / "out"
+    out = tmp / "out"
     code = main(["fleet", str(logs), "--out", str(out), "--workers", "1", "--quiet"])
-    assert code in (0, 1)
+    return code, out, len(real)
+
+
+def test_real_logs(real_run):
+    code, out, n_real = real_run
+    assert code == 1            # log171's compasses are past usable (test_fleet_and_log_agree...)
     flights = pd.read_parquet(out / "flights.parquet")
-    assert len(flights) == len(real) + 2
+    assert len(flights) == n_real + 2
     by_name = flights.set_index(flights["path"].map(lambda p: Path(p).name))
     assert by_name.loc["damaged_copy.bin", "status"] == "error"
     assert by_name.loc["readme.log", "status"] == "error"
     assert (by_name.drop(["damaged_copy.bin", "readme.log"])["status"] == "ok").all()
-    # boards told apart by their logged UID
+    # boards told apart by their logged UID, and each vehicle says how it was identified
     assert "Pixhawk1 00310019 3138510E 35363631" in set(flights["vehicle_id"])
+    vehicles = pd.read_parquet(out / "vehicles.parquet").set_index("vehicle_id")
+    assert vehicles.loc["Pixhawk1 00310019 3138510E 35363631", "identified_by"] == \
+        "board UID (boot message)"
+    assert vehicles["identified_by"].str.len().gt(0).all()
     assert (out / "index.html").exists()
     json.loads(by_name.loc["pixhawk1_copter368.bin", "dev_ids_json"])
+
+
+def test_fleet_and_log_agree_on_log171(real_run, tmp_path):
+    """The compass figures of a flight are the ones `apmcal log FLIGHT` prints, to the bit, and
+    a compass in use past usable there is a flag here (the fleet used to say "compass not
+    measured (need 0.15)" and raise nothing, where `apmcal log` graded all three REDO)."""
+    _, out, _ = real_run
+    log171 = REAL / "pixhawk_3imu_log171.bin"
+    assert main(["log", str(log171), "--json", str(tmp_path / "log.json")]) == 0
+    compasses = json.loads((tmp_path / "log.json").read_text())["compasses"]
+    flights = pd.read_parquet(out / "flights.parquet")
+    row = flights[flights["path"].str.endswith(log171.name)].iloc[0]
+    for c in compasses:
+        i = c["instance"]
+        assert row[f"compass{i}_heading_p95_deg"] == c["in_force_health"]["heading_error_p95_deg"]
+        assert row[f"compass{i}_verdict"] == c["in_force_health"]["verdict"] == "redo"
+    flags = pd.read_csv(out / "flags.csv")
+    compass = flags[(flags["vehicle_id"] == row["vehicle_id"])
+                    & (flags["kind"] == "compass_recalibrate")]
+    assert len(compass) == 1 and compass["level"].iloc[0] == "action"
+    in_use = [c for c in compasses if row[f"compass{c['instance']}_in_use"]]
+    for c in in_use:       # COMPASS_USE3 is 0 on log171: its third compass is not judged
+        p95 = c["in_force_health"]["heading_error_p95_deg"]
+        assert f"compass {c['instance']} {p95:.1f}°" in compass["reason"].iloc[0]
+    assert len(in_use) == 2
+
+
+def _points(g: pd.DataFrame, panel: str) -> int:
+    """What one vehicle's flights give a trend panel to draw: finite values (for the gyro bias
+    against temperature, distinct board temperatures a degree apart or more)."""
+    cols = {"heading": ["heading_error_deg"], "acc": ["acc_norm_err_ms2"],
+            "hard_iron": [c for c in g if c.endswith("_hard_iron_x_mgauss")]}
+    if panel == "gyro_temp":
+        temps = pd.concat([g.get("temp_start_c", pd.Series(dtype=float)),
+                           g.get("temp_end_c", pd.Series(dtype=float))]).dropna()
+        return 2 if len(temps) and temps.max() - temps.min() >= 1.0 else 0
+    return max([int(g[c].notna().sum()) for c in cols[panel] if c in g] or [0])
+
+
+def test_page_shows_only_plots_with_data_and_words(real_run):
+    """index.html of the real logs: a trend image only for a vehicle with something to draw,
+    each of its panels with two points or more (no empty axes, no single dots) and every
+    figure with two points or more drawn; no "NaT", no raw column names."""
+    _, out, _ = real_run
+    page = (out / "index.html").read_text()
+    flights = pd.read_parquet(out / "flights.parquet")
+    ok = flights[flights["status"] == "ok"]
+    panels = ("heading", "hard_iron", "gyro_temp", "acc")
+    drawn = sum(any(_points(g, p) >= 2 for p in panels) for _, g in ok.groupby("vehicle_id"))
+    assert page.count("data:image/png;base64,") == drawn
+    assert 0 < drawn < ok["vehicle_id"].nunique()
+    from apmcal.fleet.page import trend_panels
+
+    for vid, g in ok.groupby("vehicle_id"):
+        assert set(trend_panels(g)) == {p for p in panels if _points(g, p) >= 2}, vid
+    text = re.sub(r"data:image/png;base64,[A-Za-z0-9+/=]+", "", page).replace("_nan.log", "")
+    assert "NaT" not in text and "nan" not in text.lower()
+    headers = re.findall(r"<th>(.*?)</th>", page)
+    assert headers and not [h for h in headers if "_" in h]       # labels, not column names
+    assert "undated" in page                      # the undated logs say so
+
+
+def test_exit_2_when_no_log_could_be_read(tmp_path, capsys):
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    (logs / "notes.log").write_text("flight notes: props changed, nothing else\n")
+    (logs / "broken.bin").write_bytes(np.random.default_rng(1).bytes(3000))
+    code = main(["fleet", str(logs), "--out", str(tmp_path / "out"), "--workers", "0"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1
+    assert "none of the 2 log(s) could be read" in err and "broken.bin" in err
+    assert (tmp_path / "out" / "flights.parquet").exists()     # every reason kept
 
 
 def test_heading_error_hand_worked():

@@ -3,7 +3,7 @@ test run: vehicles told apart by what their logs carry (MAV_SYSID, the MAVLink h
 .tlog, the user's own mapping), every injected event flagged on its vehicle and flight and
 nothing else, and the compass judged on ordinary flights with the figures `apmcal log` prints.
 
-The fleet (tests/sitl_fleet.py): four vehicles, each its own parameter store kept between
+The fleet (tests/sitl_fleet.py, EVENT_FLEET): four vehicles, each its own parameter store kept between
 flights, three flights three days apart:
 
 - MAV_SYSID 11: nothing happens; the fleet must say nothing;
@@ -26,30 +26,13 @@ import numpy as np
 import pandas as pd
 import pytest
 from ardupilot_sitl import unavailable_reason
-from sitl_fleet import VehiclePlan, record_fleet
+from sitl_fleet import ACC_BIAS, EVENT_FLEET, HARD_IRON_SHIFT, record_fleet
 
 from apmcal.cli import main
 from apmcal.fleet.run import run_fleet
 
 pytestmark = pytest.mark.ardupilot_sitl
 
-EXACT_OFS = np.array([5.0, 13.0, -18.0])      # SIM_MAG1_OFS and COMPASS_OFS of copter.parm
-HARD_IRON_SHIFT = np.array([90.0, -60.0, 40.0])
-ACC_BIAS = 0.35                                # m/s², on the sensor's z axis
-WRONG_OFS = np.array([70.0, -50.0, 30.0])
-
-
-def _ofs(prefix: str, v) -> dict:
-    return {f"{prefix}_{a}": float(x) for a, x in zip("XYZ", v)}
-
-
-PLANS = [VehiclePlan(11, 3),
-         VehiclePlan(12, 3, {1: _ofs("SIM_MAG1_OFS", EXACT_OFS + HARD_IRON_SHIFT)},
-                     "hard iron shifted, never recalibrated"),
-         VehiclePlan(13, 3, {1: {"SIM_ACC1_BIAS_Z": ACC_BIAS}}, "accelerometer bias"),
-         VehiclePlan(14, 3, {0: _ofs("COMPASS_OFS", EXACT_OFS + WRONG_OFS),
-                             1: _ofs("COMPASS_OFS", EXACT_OFS)},
-                     "wrong compass calibration, recalibrated")]
 # (MAV_SYSID, kind, flight, level) of every flag the fleet must raise, and no other
 EXPECTED = {(12, "compass_surroundings", 2, "action"), (12, "compass_recalibrate", 2, "action"),
             (13, "acc_recalibrate", 2, "action"), (14, "calibration_changed", 2, "info")}
@@ -61,7 +44,7 @@ def recorded(tmp_path_factory):
     if reason:
         pytest.skip(reason)
     folder = tmp_path_factory.mktemp("sitl_fleet")
-    return folder, record_fleet(folder, PLANS)
+    return folder, record_fleet(folder, EVENT_FLEET)
 
 
 @pytest.fixture(scope="module")
@@ -118,7 +101,7 @@ def test_the_figures_behind_the_flags_against_the_injected_values(recorded, flee
     sig = [f"compass0_hard_iron_sigma_{a}_mgauss" for a in "xyz"]
     move = v12[cols].iloc[1].to_numpy(float) - v12[cols].iloc[0].to_numpy(float)
     sigma = np.hypot(v12[sig].iloc[1].to_numpy(float), v12[sig].iloc[0].to_numpy(float))
-    assert np.all(np.abs(move - HARD_IRON_SHIFT) <= 3 * sigma + 1.0), (move, sigma)
+    assert np.all(np.abs(move - np.array(HARD_IRON_SHIFT)) <= 3 * sigma + 1.0), (move, sigma)
     assert (v12["heading_error_deg"].iloc[1:] > 5).all()
     # 13: |a| − g moved by the bias (scaled by INS_ACCSCAL_Z 1.001 in force) from flight 2 on
     v13 = _rows(fleet, truth, 13)["acc_norm_err_ms2"].to_numpy(float)
