@@ -45,6 +45,13 @@ EXACT_OFS = (5.0, 13.0, -18.0)      # SIM_MAG1_OFS and COMPASS_OFS of copter.par
 HARD_IRON_SHIFT = (90.0, -60.0, 40.0)     # mGauss
 ACC_BIAS = 0.35                           # m/s², on the sensor's z axis
 WRONG_OFS = (70.0, -50.0, 30.0)           # mGauss
+# a compass replaced by another (SIM_MAG1_DEVID: SIM_MAG4_DEVID's default, off in BOOT_PARAMS)
+# and made the first by priority, as a ground station does after the swap (without it arming is
+# refused, "Compass not healthy"); not recalibrated. The firmware files the new compass in slot 2
+# (COMPASS_DEV_ID 97539 → 0, COMPASS_DEV_ID2 0 → 97283) and moves the external flag with it
+# (COMPASS_EXTERNAL 1 → 0, COMPASS_EXTERN2 0 → 1); from the boot after, in slot 1
+COMPASS_DEVID, NEW_COMPASS_DEVID = 97539, 97283
+COMPASS_SWAP = {"SIM_MAG1_DEVID": NEW_COMPASS_DEVID, "COMPASS_PRIO1_ID": NEW_COMPASS_DEVID}
 
 
 def _ofs(prefix: str, v) -> dict:
@@ -67,13 +74,15 @@ class VehiclePlan:
 
 
 # four vehicles, three flights each: one untouched, one whose compass's hard iron moves before
-# flight 2 and is never recalibrated, one whose accelerometer gets a z bias from flight 2, one
-# flown with a wrong COMPASS_OFS on flight 1 and recalibrated before flight 2
+# flight 2 and is never recalibrated, one whose accelerometer gets a z bias from flight 2 and
+# whose compass is replaced before flight 3, one flown with a wrong COMPASS_OFS on flight 1 and
+# recalibrated before flight 2
 EVENT_FLEET = [
     VehiclePlan(11, 3),
     VehiclePlan(12, 3, {1: _ofs("SIM_MAG1_OFS", _plus(EXACT_OFS, HARD_IRON_SHIFT))},
                 "hard iron shifted, never recalibrated"),
-    VehiclePlan(13, 3, {1: {"SIM_ACC1_BIAS_Z": ACC_BIAS}}, "accelerometer bias"),
+    VehiclePlan(13, 3, {1: {"SIM_ACC1_BIAS_Z": ACC_BIAS}, 2: COMPASS_SWAP},
+                "accelerometer bias; compass replaced"),
     VehiclePlan(14, 3, {0: _ofs("COMPASS_OFS", _plus(EXACT_OFS, WRONG_OFS)),
                         1: _ofs("COMPASS_OFS", EXACT_OFS)},
                 "wrong compass calibration, recalibrated")]

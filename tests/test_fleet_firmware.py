@@ -10,7 +10,9 @@ flights, three flights three days apart:
 - 12: the compass's hard iron moves by HARD_IRON_SHIFT before flight 2 (SIM_MAG1_OFS), never
   recalibrated: its surroundings changed on flight 2, heading error past usable since flight 2;
 - 13: an accelerometer z bias ACC_BIAS from flight 2 (SIM_ACC1_BIAS_Z): recalibrate the
-  accelerometers, since flight 2;
+  accelerometers, since flight 2; and its compass replaced by another before flight 3
+  (SIM_MAG1_DEVID, COMPASS_PRIO1_ID): the compass hardware changed on flight 3, and the
+  settings the firmware moved with it between slots (COMPASS_EXTERNAL, an info);
 - 14: COMPASS_OFS in force wrong by WRONG_OFS on flight 1, recalibrated before flight 2: the
   recalibration on flight 2, with the heading error before (past usable) and after.
 
@@ -26,7 +28,14 @@ import numpy as np
 import pandas as pd
 import pytest
 from ardupilot_sitl import unavailable_reason
-from sitl_fleet import ACC_BIAS, EVENT_FLEET, HARD_IRON_SHIFT, record_fleet
+from sitl_fleet import (
+    ACC_BIAS,
+    COMPASS_DEVID,
+    EVENT_FLEET,
+    HARD_IRON_SHIFT,
+    NEW_COMPASS_DEVID,
+    record_fleet,
+)
 
 from apmcal.cli import main
 from apmcal.fleet.run import run_fleet
@@ -35,7 +44,8 @@ pytestmark = pytest.mark.ardupilot_sitl
 
 # (MAV_SYSID, kind, flight, level) of every flag the fleet must raise, and no other
 EXPECTED = {(12, "compass_surroundings", 2, "action"), (12, "compass_recalibrate", 2, "action"),
-            (13, "acc_recalibrate", 2, "action"), (14, "calibration_changed", 2, "info")}
+            (13, "acc_recalibrate", 2, "action"), (13, "hardware_changed", 3, "action"),
+            (13, "calibration_changed", 3, "info"), (14, "calibration_changed", 2, "info")}
 
 
 @pytest.fixture(scope="module")
@@ -89,7 +99,12 @@ def test_every_event_flagged_on_its_vehicle_and_flight_and_nothing_else(recorded
     for r in flags.itertuples():        # the flag names the log of that flight
         flown = truth["vehicles"][str(_sysid_of(r.vehicle_id))]["flights"][int(r.flight) - 1]
         assert Path(r.path).name == flown["file"]
-    assert fleet.action_flags == 3
+    assert fleet.action_flags == 4
+    swap = flags[flags["kind"] == "hardware_changed"]
+    assert swap["reason"].iloc[0].startswith("compass hardware changed") and \
+        f"COMPASS_DEV_ID {COMPASS_DEVID} → 0" in swap["reason"].iloc[0] and \
+        f"COMPASS_DEV_ID2 0 → {NEW_COMPASS_DEVID}" in swap["reason"].iloc[0]
+    assert swap["next_step"].iloc[0].startswith("recalibrate the compass")   # not recalibrated
 
 
 def test_the_figures_behind_the_flags_against_the_injected_values(recorded, fleet):
@@ -109,7 +124,8 @@ def test_the_figures_behind_the_flags_against_the_injected_values(recorded, flee
     # 14: past usable with the wrong calibration, good or usable after the recalibration
     v14 = _rows(fleet, truth, 14)["heading_error_deg"].to_numpy(float)
     assert v14[0] > 5 and (v14[1:] <= 5).all()
-    info = fleet.flags[fleet.flags["kind"] == "calibration_changed"]["reason"].iloc[0]
+    info = fleet.flags[(fleet.flags["kind"] == "calibration_changed")
+                       & (fleet.flags["vehicle_id"] == "ArduCopter sysid 14")]["reason"].iloc[0]
     assert f"{v14[0]:.1f}° → {v14[1]:.1f}°" in info
     # 11: untouched, every flight within usable
     assert (_rows(fleet, truth, 11)["heading_error_deg"] <= 5).all()

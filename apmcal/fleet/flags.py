@@ -135,9 +135,7 @@ def hard_iron_flags(flights: pd.DataFrame, changes: list[dict]) -> list[dict]:
     out = []
     for c in (c for c in changes if c["kind"] == "hard_iron_moved"):
         at, before = flights.iloc[c["index"]], flights.iloc[c["from_index"]]
-        recal = any(d["kind"] in ("calibration_changed", "hardware_changed")
-                    and d["index"] == c["index"] and d["vehicle_id"] == c["vehicle_id"]
-                    and any(n.startswith("COMPASS") for n in d["changes"]) for d in changes)
+        recal = _recalibrated(changes, c["index"], "compass")
         reason = (f"compass {c['compass']}'s surroundings changed: its hard iron moved by "
                   f"{_vector(c['move'])} mGauss from {flight_name(before)} to {flight_name(at)} "
                   f"(σ {_vector(c['sigma'], '.1f')}), worth {c['heading_deg']:.0f}° of heading")
@@ -195,11 +193,25 @@ def _health_change(flights: pd.DataFrame, index: int, names) -> str:
     return "; health before → after: " + ", ".join(parts) if parts else ""
 
 
+# the parameters a calibration of each sensor writes (the flags on the slot, orientation and
+# boot offsets are not a calibration by the user)
+CALIBRATION_OF = {"compass": ("COMPASS_OFS", "COMPASS_DIA", "COMPASS_ODI", "COMPASS_MOT"),
+                  "accelerometer": ("INS_ACCOFFS", "INS_ACCSCAL", "INS_ACC2OFFS",
+                                    "INS_ACC2SCAL", "INS_ACC3OFFS", "INS_ACC3SCAL"),
+                  "gyro": ("INS_TCAL",)}
+
+
+def _recalibrated(changes: list[dict], index: int, sensor: str) -> bool:
+    """True when a calibration of ``sensor`` changed on the flight at ``index``."""
+    return any(c["kind"] == "calibration_changed" and c["index"] == index
+               and any(n.startswith(CALIBRATION_OF[sensor]) for n in c["changes"])
+               for c in changes)
+
+
 def change_flags(flights: pd.DataFrame, changes: list[dict]) -> list[dict]:
     """Hardware changes (action) and calibration changes (info, with the health before and
     after) of one vehicle, on the flight where they happened."""
     out = []
-    recal = {c["index"] for c in changes if c["kind"] == "calibration_changed"}
     for c in changes:
         if c["kind"] not in ("hardware_changed", "calibration_changed"):
             continue
@@ -208,9 +220,10 @@ def change_flags(flights: pd.DataFrame, changes: list[dict]) -> list[dict]:
         more = len(c["changes"]) - 6
         what += f" and {more} more" if more > 0 else ""
         if c["kind"] == "hardware_changed":
-            step = ("recalibrated on the same flight: check the heading error of the next "
-                    "flights" if c["index"] in recal else f"recalibrate the {c['sensor']}: the "
-                    "calibration in force was made for the old one")
+            step = ("recalibrated on the same flight: check the health of the next flights"
+                    if _recalibrated(changes, c["index"], c["sensor"]) else
+                    f"recalibrate the {c['sensor']}: the calibration in force was made for the "
+                    "old one")
             out.append(_flag(vid, "action", "hardware_changed",
                              f"{c['sensor']} hardware changed on {flight_name(at)} ({what})",
                              step, at))
