@@ -74,6 +74,9 @@ def _compass(contents, mag, site, user_site, year, notes) -> dict:
             checked = health.flight_compass(contents.path, user_site and user_site[:2])
         except ApmcalError as err:
             notes.append(f"compass in flight not checked: {err.why}")
+        except Exception as exc:    # a bug of ours costs this figure, not the log's others
+            notes.append(f"compass in flight not checked: internal error: "
+                         f"{type(exc).__name__}: {exc}")
         else:
             if checked.result is not None:
                 return checked.figures(health.compasses_in_use(contents.params))
