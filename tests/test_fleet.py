@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from once_per_run import once_per_run
 
 from apmcal.cli import main
 from apmcal.fleet.run import run_fleet
@@ -24,16 +25,22 @@ REAL = ROOT.parent / "shared" / "data" / "ardupilot"
 
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory):
-    """5 vehicles × 4 flights (one of each scenario), seed 3 (the flags were tuned on seed 0)."""
-    folder = tmp_path_factory.mktemp("fleet")
-    truth = write_fleet(5, 4, folder, seed=3)
-    return folder, truth
+    """5 vehicles × 4 flights (one of each scenario), seed 3 (the flags were tuned on seed 0);
+    simulated once per test run (tests/once_per_run.py)."""
+    folder = once_per_run(tmp_path_factory, "sim_fleet",
+                          lambda f: write_fleet(5, 4, f / "logs", seed=3)) / "logs"
+    return folder, json.loads((folder / "truth.json").read_text())
 
 
 @pytest.fixture(scope="module")
 def serial_run(fleet, tmp_path_factory):
+    """The serial run, measured once per test run; each worker's run reads its cache."""
     folder, _ = fleet
-    return run_fleet([str(folder)], tmp_path_factory.mktemp("out_serial"), serial=True)
+    first = once_per_run(tmp_path_factory, "sim_fleet_out",
+                         lambda out: run_fleet([str(folder)], out, serial=True))
+    out = tmp_path_factory.mktemp("out_serial")
+    shutil.copytree(first / "cache", out / "cache")
+    return run_fleet([str(folder)], out, serial=True)
 
 
 def comparable(flights: pd.DataFrame) -> pd.DataFrame:
@@ -205,10 +212,15 @@ def test_exit_codes_and_bad_input(fleet, tmp_path, capsys, monkeypatch):
 @pytest.fixture(scope="module")
 def real_run(tmp_path_factory):
     """The real logs of ../shared/data in nested folders, with a damaged copy and a text file,
-    through `apmcal fleet` once: (exit status, output folder, number of real logs)."""
+    through `apmcal fleet` once per test run (tests/once_per_run.py): (exit status, output
+    folder, number of real logs)."""
     if not REAL.is_dir():
         pytest.skip(f"real logs absent: {REAL} (the shared data folder is not in this checkout)")
-    tmp = tmp_path_factory.mktemp("real")
+    tmp = once_per_run(tmp_path_factory, "fleet_real_logs", _real_run)
+    return int((tmp / "exit_status").read_text()), tmp / "out", int((tmp / "n_real").read_text())
+
+
+def _real_run(tmp: Path) -> None:
     logs = tmp / "logs"
     real = sorted(p for p in REAL.iterdir() if p.suffix.lower() in (".bin", ".log", ".tlog"))
     for i, p in enumerate(real):
@@ -221,7 +233,8 @@ def real_run(tmp_path_factory):
     (logs / "a" / "readme.log").write_text("not a log, just some text\n")
     out = tmp / "out"
     code = main(["fleet", str(logs), "--out", str(out), "--workers", "1", "--quiet"])
-    return code, out, len(real)
+    (tmp / "exit_status").write_text(str(code))
+    (tmp / "n_real").write_text(str(len(real)))
 
 
 def test_real_logs(real_run):

@@ -16,18 +16,21 @@ flights, three flights three days apart:
 - 14: COMPASS_OFS in force wrong by WRONG_OFS on flight 1, recalibrated before flight 2: the
   recalibration on flight 2, with the heading error before (past usable) and after.
 
-Recorded once per module (about 40 s wall on two free cores at speedup 200) and measured once
-(one serial fleet run, cache kept for the reruns).
+Recorded once per test run (about 40 s wall on two free cores at speedup 200, whatever the
+xdist workers: tests/once_per_run.py) and measured once (one serial fleet run, whose cache the
+other runs read).
 """
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 from ardupilot_sitl import unavailable_reason
+from once_per_run import once_per_run
 from sitl_fleet import (
     ACC_BIAS,
     COMPASS_DEVID,
@@ -50,17 +53,25 @@ EXPECTED = {(12, "compass_surroundings", 2, "action"), (12, "compass_recalibrate
 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
+    """The fleet's logs and truth, recorded once per test run (whatever the xdist workers)."""
     reason = unavailable_reason()
     if reason:
         pytest.skip(reason)
-    folder = tmp_path_factory.mktemp("sitl_fleet")
-    return folder, record_fleet(folder, EVENT_FLEET)
+    folder = once_per_run(tmp_path_factory, "sitl_fleet",
+                          lambda f: record_fleet(f, EVENT_FLEET))
+    return folder, json.loads((folder / "truth.json").read_text())
 
 
 @pytest.fixture(scope="module")
 def fleet(recorded, tmp_path_factory):
+    """`apmcal fleet` on the dataflash logs: measured once per test run, into a cache each
+    worker's run then reads (the records are the same, value for value)."""
     folder, _ = recorded
-    return run_fleet([str(folder / "bin")], tmp_path_factory.mktemp("out"), serial=True)
+    first = once_per_run(tmp_path_factory, "sitl_fleet_out",
+                         lambda out: run_fleet([str(folder / "bin")], out, serial=True))
+    out = tmp_path_factory.mktemp("out")
+    shutil.copytree(first / "cache", out / "cache")
+    return run_fleet([str(folder / "bin")], out, serial=True)
 
 
 def _sysid_of(vehicle_id: str) -> int:
@@ -160,7 +171,7 @@ def test_telemetry_logs_told_apart_by_the_mavlink_header(recorded, tmp_path):
 
 def test_the_users_own_mapping_wins(recorded, fleet, tmp_path, capsys):
     """--vehicles: globs and files name vehicles over what the logs say (the records come from
-    the first run's cache: the mapping is applied after them); a bad line stops before work."""
+    the fleet's cache: the mapping is applied after them); a bad line stops before work."""
     folder, truth = recorded
     files = {s: [f["file"] for f in v["flights"]] for s, v in truth["vehicles"].items()}
     mapping = folder / "vehicles.txt"
@@ -168,7 +179,8 @@ def test_the_users_own_mapping_wins(recorded, fleet, tmp_path, capsys):
     mapping.write_text("# our names\n" + "".join(f"bin/{f} = Alpha\n" for f in files["11"])
                        + f"bin/{first[:-5]}[{first[-5]}].bin = Charlie\n"
                        + "".join(f"bin/{f} = Bravo\n" for f in files["12"]))
-    result = run_fleet([str(folder / "bin")], fleet.out, serial=True, vehicles=mapping)
+    shutil.copytree(fleet.out / "cache", tmp_path / "mapped" / "cache")
+    result = run_fleet([str(folder / "bin")], tmp_path / "mapped", serial=True, vehicles=mapping)
     assert result.flights["cached"].all()
     by_name = result.flights.set_index(result.flights["path"].map(lambda p: Path(p).name))
     assert set(by_name.loc[files["11"], "vehicle_id"]) == {"Alpha"}
