@@ -262,7 +262,8 @@ def test_fleet_and_log_agree_on_log171(real_run, tmp_path):
     measured (need 0.15)" and raise nothing, where `apmcal log` graded all three REDO)."""
     _, out, _ = real_run
     log171 = REAL / "pixhawk_3imu_log171.bin"
-    assert main(["log", str(log171), "--json", str(tmp_path / "log.json")]) == 0
+    # exit 1: log171's proposals grade REDO and are withheld from a parameter file
+    assert main(["log", str(log171), "--json", str(tmp_path / "log.json")]) in (0, 1)
     compasses = json.loads((tmp_path / "log.json").read_text())["compasses"]
     flights = pd.read_parquet(out / "flights.parquet")
     row = flights[flights["path"].str.endswith(log171.name)].iloc[0]
