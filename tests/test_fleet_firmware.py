@@ -16,9 +16,9 @@ flights, three flights three days apart:
 - 14: COMPASS_OFS in force wrong by WRONG_OFS on flight 1, recalibrated before flight 2: the
   recalibration on flight 2, with the heading error before (past usable) and after.
 
-Recorded once per test run (about 40 s wall on two free cores at speedup 200, whatever the
-xdist workers: tests/once_per_run.py) and measured once (one serial fleet run, whose cache the
-other runs read).
+Recorded once per test run at speedup 200, whatever the xdist workers (tests/once_per_run.py;
+about 55 s of CPU in all, the firmware's included) and measured once (one serial fleet run,
+whose cache the other runs read).
 """
 from __future__ import annotations
 
