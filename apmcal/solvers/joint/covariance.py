@@ -370,6 +370,24 @@ class Whitener:
             k += w[f].size
         return out
 
+    def unit(self, f: str) -> np.ndarray:
+        """M_i⁻¹ of each condition of family ``f``: the inverse Cholesky factor of its own
+        white-noise covariance M_i·M_iᵀ (weight and noise scale 1), (n_c, dim, dim).
+
+        Parameters
+        ----------
+        f : str
+            The family.
+
+        Returns
+        -------
+        (n_c, dim, dim) array
+            In the inverse of the family's units.
+        """
+        if f not in self._unit:
+            self._unit[f] = inverse_cholesky(self.marginal[f])
+        return self._unit[f]
+
     def standardised(self, w: dict, f: str) -> np.ndarray:
         """Each condition's residual over its own (marginal) σ, RMS over its components.
 
@@ -385,7 +403,5 @@ class Whitener:
         (n_c,) array
             Dimensionless.
         """
-        if f not in self._unit:
-            self._unit[f] = inverse_cholesky(self.marginal[f])
-        z = (self._unit[f] @ w[f][..., None])[..., 0]
+        z = (self.unit(f) @ w[f][..., None])[..., 0]
         return np.sqrt(np.mean(z ** 2, axis=1))

@@ -264,9 +264,9 @@ def jacobian(x: np.ndarray, d, families, free: np.ndarray,
                 row, k = divmod(col - jm.SLICES["D_m"].start, 3)
                 da_m[:, row, c] += w_cal[:, k]
         out["mag"] = da_m
-        if "mag_datum" in families:
-            u = mc / np.linalg.norm(mc, axis=1, keepdims=True)
-            # Σ_n u_n·∂m_n / n = Σ_{i,f} (Σ_n u_n[i]·z_m[n, f])·C_m[f, i] / n
-            out["mag_datum"] = _widen(np.einsum("if,fip->p", u.T @ zm, c_m)[None, None, :]
-                                      / len(mc), pw, p)
+    if mc is not None and "mag_datum" in families:
+        u = mc / np.linalg.norm(mc, axis=1, keepdims=True)
+        # Σ_n u_n·∂m_n / n = Σ_{i,f} (Σ_n u_n[i]·z_m[n, f])·C_m[f, i] / n
+        out["mag_datum"] = _widen(np.einsum("if,fip->p", u.T @ features(mc), c_m)[None, None, :]
+                                  / len(mc), pw, p)
     return out

@@ -306,8 +306,8 @@ def misclosures(x: np.ndarray, d: JointData, families,
         s, e = window_ends(d)
         dr = tr.rotation(s, e)
         out["mag"] = (mc[e] - np.einsum("wji,wj->wi", dr, mc[s])) @ tr.mats["D_m"].T
-        if "mag_datum" in families:
-            out["mag_datum"] = np.array([[np.linalg.norm(mc, axis=1).mean() - d.field]])
+    if d.mag is not None and "mag_datum" in families:
+        out["mag_datum"] = np.array([[np.linalg.norm(tr.mc, axis=1).mean() - d.field]])
     return out
 
 
