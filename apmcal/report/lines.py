@@ -248,6 +248,9 @@ def _joint_fit_lines(j: JointFit) -> list[str]:
         return []
     lines = [f"joint: {j.passes} passes, "
              + ("converged" if j.converged else "stopped at the pass limit before settling")]
+    if j.clipped_turns:
+        lines.append(f"joint: {j.clipped_turns} turn(s) left out: the gyro or accelerometer was "
+                     f"at its range limit in them (turn more slowly)")
     if j.explained:
         lines.append("joint: median misclosure in units of the still periods' noise, start → "
                      "fit: " + ", ".join(f"{k} {a:.3g} → {b:.3g}"

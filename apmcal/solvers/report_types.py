@@ -331,6 +331,8 @@ class JointFit:
     fallback : str
         Empty when the fit is the result; else why the start was returned instead (the fit
         explains the session worse than the start).
+    clipped_turns : int
+        Turns left out because the gyro or accelerometer was at its range limit in them.
     """
 
     conditions: dict[str, int]
@@ -350,6 +352,7 @@ class JointFit:
     converged: bool = True
     explained: dict[str, list[float]] = field(default_factory=dict)
     fallback: str = ""
+    clipped_turns: int = 0
 
 
 @dataclass

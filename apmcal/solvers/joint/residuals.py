@@ -99,6 +99,9 @@ class JointData:
         Per window length, an (W, K+1) index array of the samples each window spans.
     noise : dict
         Per-sample white-noise σ of "acc", "gyr", "mag" (sensor units).
+    clipped : int
+        Turns between consecutive still poses left out because the gyro or accelerometer was
+        at its range limit in them (:func:`at_range_limit`).
     """
 
     t: np.ndarray
@@ -116,6 +119,32 @@ class JointData:
     steps: np.ndarray = None            # (I, K): their steps, padded with n
     windows: list = field(default_factory=list)
     noise: dict = field(default_factory=dict)
+    clipped: int = 0
+
+
+MIN_CLIPPED = 3                # samples at one ceiling that make it a range limit
+
+
+def at_range_limit(y: np.ndarray) -> np.ndarray:
+    """Samples (n,) where a sensor sat at its range limit: within 1e-4 of the largest |value|
+    of any axis (a two's complement range is one count wider below zero than above), reached
+    by ``MIN_CLIPPED`` samples or more (a flat top: a real MPU-6050 turned faster than its
+    ±250 °/s read 250.1 °/s for up to 10 samples in a row; a turn's own peak is reached once,
+    or twice when quantised).
+
+    Parameters
+    ----------
+    y : (n, 3) array
+        Samples, any units.
+
+    Returns
+    -------
+    (n,) bool array
+    """
+    a = np.abs(np.asarray(y, float))
+    top = np.nanmax(a) if a.size else 0.0
+    hit = np.any(a >= top * (1 - 1e-4), axis=1) if top > 0 else np.zeros(len(a), bool)
+    return hit if hit.sum() >= MIN_CLIPPED else np.zeros(len(a), bool)
 
 
 def layout(t, acc, gyr, mag, holds, gravity: float, field_mgauss: float | None) -> JointData:
@@ -158,6 +187,8 @@ def layout(t, acc, gyr, mag, holds, gravity: float, field_mgauss: float | None) 
                                                       [b.size for b in d.blocks]), (rows, cols)),
                                      shape=(len(d.blocks), d.t.size))
     index = {id(b): k for k, b in enumerate(d.blocks)}
+    # a turn read through a sensor at its range limit is not the turn made: left out
+    clipped = np.cumsum(np.append(0, at_range_limit(d.gyr) | at_range_limit(d.acc)))
     for _h0, _h1, b0, b1 in zip(holds, holds[1:], hold_blocks, hold_blocks[1:]):
         if not b0 or not b1:
             continue
@@ -165,7 +196,9 @@ def layout(t, acc, gyr, mag, holds, gravity: float, field_mgauss: float | None) 
         # mean is the specific force at its centre, while a hold's edge sample may already
         # be turning (the still detector's edges are soft)
         k0, k1 = int(b0[-1][b0[-1].size // 2]), int(b1[0][b1[0].size // 2])
-        if k1 > k0 and dt[k0:k1].max() <= gap:
+        if k1 > k0 and clipped[k1 + 1] > clipped[k0]:
+            d.clipped += 1
+        elif k1 > k0 and dt[k0:k1].max() <= gap:
             d.intervals.append((index[id(b0[-1])], index[id(b1[0])], k0, k1))
     d.interval_index = np.array(d.intervals, dtype=int).reshape(-1, 4)
     d.steps = interval_rows(d)[:, :-1]
@@ -177,7 +210,8 @@ def layout(t, acc, gyr, mag, holds, gravity: float, field_mgauss: float | None) 
             # windows never share a sample: a shared end point would count its noise twice
             starts = np.arange(0, d.t.size - k, k + 1)
             idx = starts[:, None] + np.arange(k + 1)[None]
-            ok = dt[idx[:, :-1]].max(axis=1) <= gap
+            ok = (dt[idx[:, :-1]].max(axis=1) <= gap) & (clipped[idx[:, -1] + 1]
+                                                          == clipped[idx[:, 0]])
             d.windows.append(idx[ok])
     d.noise = white_noise(d)
     return d

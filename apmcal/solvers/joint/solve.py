@@ -283,6 +283,9 @@ def check_motion(d, n_holds: int) -> None:
         Without a moving interval between two holds, or with less than ``MIN_TURN_DEG`` [deg]
         of turning in all of them.
     """
+    if not d.intervals and d.clipped:
+        raise ApmcalError(f"joint calibration: the gyro or accelerometer was at its range limit "
+                          f"in every turn between still poses ({d.clipped}); turn more slowly")
     if not d.intervals:
         raise ApmcalError(f"joint calibration needs still poses with turns between them; found "
                           f"{n_holds} still period(s) and no motion between two of them")
@@ -600,5 +603,5 @@ def _calibration(fit: dict, d, dropped: list[str]) -> Calibration:
         gyr_matrix_cost_deg_per_turn=float(np.degrees(gyr_cost * 2 * np.pi)),
         gyr_g_sensitivity_at_1g=float(np.linalg.norm(extra["gyr_g_sensitivity"], 2) * d.gravity),
         passes=int(fit.get("passes", 0)), converged=bool(fit.get("converged", True)),
-        explained=dict(fit.get("explained", {})))
+        explained=dict(fit.get("explained", {})), clipped_turns=int(d.clipped))
     return Calibration(method="joint", sensors=cals, report=CalibrationReport(joint=joint))
