@@ -22,7 +22,8 @@ turns that also move the board (a segment's ``shift``: its NED displacement, on 
 profile as the turn, so the velocity is zero at both ends), the tremor of a hand (the script's
 own :attr:`Motion.tremor`, in place of the truth's ``motion_contamination`` figures) and the
 slowly changing field of a laptop beside it (:class:`LaptopField`, :attr:`Motion.disturbance`,
-added to the Earth's field in NED).
+added to the Earth's field in NED). ``handheld_laptop`` is the same right beside the laptop
+(five times the field): the compass's ellipsoid, the joint fit's start, is then far off.
 """
 from __future__ import annotations
 
@@ -44,7 +45,7 @@ POSES = {
 # ArduPilot accelcal ACCELCAL_VEHICLE_POS values (param1 of MAV_CMD_ACCELCAL_VEHICLE_POS)
 ACCELCAL_POSES = {1: "level", 2: "left", 3: "right", 4: "nosedown", 5: "noseup", 6: "back"}
 SCRIPTS = ("ferraris", "ardupilot6", "onepos", "tumble", "warmup", "operator", "motors",
-           "diagnosis", "handheld", "handheld_real")
+           "diagnosis", "handheld", "handheld_real", "handheld_laptop")
 
 
 def pose_matrix(name: str, yaw_deg: float = 0.0) -> np.ndarray:
@@ -358,6 +359,7 @@ def handheld(seconds: float = 60.0, seed: int = 0, hold_s: float = 3.0,
 # axis), and its slow sway
 HAND_TREMOR = {"tremor_deg": 0.02, "tremor_hz": [5.0, 12.0], "sway_deg": 0.3, "sway_hz": [0.1, 0.5]}
 LAPTOP_MGAUSS = 30.0     # RMS per axis of the laptop's field (3 µT, a laptop some 30 cm away)
+NEAR_LAPTOP_MGAUSS = 150.0   # ... held right beside it (handheld_laptop)
 
 
 def handheld_real(seconds: float = 120.0, seed: int = 0, hold_s=(2.0, 10.0),
@@ -446,8 +448,8 @@ def operator() -> Motion:
 
 def build(name: str, seed: int = 0, duration: float | None = None) -> Motion:
     """The named script (``SCRIPTS``); ``duration`` stretches onepos, warmup, tumble, motors,
-    handheld and handheld_real (ignored by the fixed sessions ferraris, ardupilot6, operator
-    and diagnosis)."""
+    handheld, handheld_real and handheld_laptop (ignored by the fixed sessions ferraris,
+    ardupilot6, operator and diagnosis)."""
     if name == "ferraris":
         return ferraris()
     if name == "ardupilot6":
@@ -466,6 +468,8 @@ def build(name: str, seed: int = 0, duration: float | None = None) -> Motion:
         return handheld(duration or 60.0, seed)
     if name == "handheld_real":
         return handheld_real(duration or 120.0, seed)
+    if name == "handheld_laptop":
+        return handheld_real(duration or 120.0, seed, laptop_mgauss=NEAR_LAPTOP_MGAUSS)
     if name == "diagnosis":              # its own length, or longer with a final still hold
         return diagnosis(duration=duration)
     raise ValueError(f"unknown script {name!r}; known: {', '.join(SCRIPTS)}")
