@@ -141,21 +141,21 @@ def test_a_drifted_result_is_told_from_its_start(laptop):
     from apmcal.preprocessing.static import find_static_segments
     from apmcal.solvers.joint import model as jm
     from apmcal.solvers.joint.residuals import layout
-    from apmcal.solvers.joint.solve import explained, start_point, worse_than_start
+    from apmcal.solvers.joint.solve import explained, start_point, worse_than_start, yardstick
 
     _, _, raw, mag, _ = session(laptop["log"])
     t, acc, gyr, m, _ = at_joint_rate(raw.t, raw.xyz("acc"), raw.xyz("gyr"), mag)
     holds = find_static_segments(t, acc, gyr, min_duration=2.0)
     d = layout(t, acc, gyr, m, holds, normal_gravity(5.6037),
                laptop["est"]["report"]["magnetic_field"]["mgauss"])
-    x0, _ = start_point(d, holds)
+    stick = yardstick(d, start_point(d, holds)[0])
     x = jm.NOMINAL.copy()
     for name, (value, _) in laptop["est"]["report"]["joint"]["parameters"].items():
         x[jm.NAMES.index(name)] = value
-    assert worse_than_start(explained(d, x0, x)) == ""
+    assert worse_than_start(explained(d, stick, x)) == ""
     drifted = x.copy()
     drifted[jm.NAMES.index("gyr_scale_z")] = 2.0          # K_ω z ×3: the rate read a third
-    reason = worse_than_start(explained(d, x0, drifted))
+    reason = worse_than_start(explained(d, stick, drifted))
     assert "gravity carried by the gyro from pose to pose" in reason
 
 

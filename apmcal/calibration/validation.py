@@ -21,7 +21,7 @@ from apmcal.calibration.orientation_check import orientation_errors
 from apmcal.core.options import Options
 from apmcal.preprocessing.prepare import pick_recording, prepare
 from apmcal.preprocessing.static import find_static_segments
-from apmcal.solvers.joint.residuals import at_range_limit
+from apmcal.solvers.joint.residuals import ACC_RANGES_M_S2, at_range_limit
 from apmcal.solvers.joint.solve import joint_calibration
 from apmcal.solvers.result import Calibration
 
@@ -301,7 +301,7 @@ def out_of_sample(rec: RealRecording, data: Path, methods=METHODS) -> dict[str, 
         pairs = _pairs(val[2], val[4])
     # a turn read through a sensor at its range limit is no test of any calibration
     limit = np.cumsum(np.append(0, at_range_limit(val[2].xyz("gyr"))
-                                | at_range_limit(val[2].xyz("acc"))))
+                                | at_range_limit(val[2].xyz("acc"), ACC_RANGES_M_S2)))
     kept = [p for p in pairs if limit[p.k1 + 1] == limit[p.k0]]
     clipped, pairs = len(pairs) - len(kept), kept
     noise = check_noise_deg(val[2], val[4], pairs)

@@ -37,6 +37,7 @@ from apmcal.solvers.strapdown import hat
 INERTIAL = ("acc_norm", "zaru", "level", "zupt")
 CORRELATED = ("acc_norm", "level", "zupt")    # the inertial families that share noise
 WEIGHT_FLOOR = 1e-8        # a rejected condition (weight 0) gets this weight: its variance ×1e8
+DATUM_SIGMA = 1e-3         # the compass datum's σ, in units of the compass's white noise
 
 
 def _projector(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -299,7 +300,7 @@ class Whitener:
                                  * (np.sqrt(weights["mag"]) / factor["mag"])[:, None, None])
         if "mag_datum" in families:
             # a datum, not an observation: far tighter than the data, so it acts as a constraint
-            self.other["mag_datum"] = np.array([[[1.0 / (1e-3 * d.noise["mag"])]]])
+            self.other["mag_datum"] = np.array([[[1.0 / (DATUM_SIGMA * d.noise["mag"])]]])
 
     def _inertial(self, parts: dict) -> list:
         """The inertial families' whitened rows (family → (rows, ...)), in :data:`INERTIAL`

@@ -122,29 +122,40 @@ class JointData:
     clipped: int = 0
 
 
-MIN_CLIPPED = 3                # samples at one ceiling that make it a range limit
+MIN_CLIPPED = 3                # samples at a full scale that make it a range limit
+# the full scales MEMS gyros and accelerometers are set to (MPU-6000/6050, ICM-20xxx, BMI):
+# ±125..4000 °/s and ±2..32 g; a sensor at its limit reads one of them (to a count)
+GYRO_RANGES_RAD_S = tuple(np.radians([125.0, 250.0, 500.0, 1000.0, 2000.0, 4000.0]))
+ACC_RANGES_M_S2 = tuple(9.80665 * np.array([2.0, 4.0, 8.0, 16.0, 32.0]))
+RANGE_MATCH = 2e-3             # relative: within a count or two of 16 bits
 
 
-def at_range_limit(y: np.ndarray) -> np.ndarray:
-    """Samples (n,) where a sensor sat at its range limit: within 1e-4 of the largest |value|
-    of any axis (a two's complement range is one count wider below zero than above), reached
-    by ``MIN_CLIPPED`` samples or more (a flat top: a real MPU-6050 turned faster than its
-    ±250 °/s read 250.1 °/s for up to 10 samples in a row; a turn's own peak is reached once,
-    or twice when quantised).
+def at_range_limit(y: np.ndarray, full_scales=GYRO_RANGES_RAD_S) -> np.ndarray:
+    """Samples (n,) where a sensor sat at its range limit: the largest |value| of any axis is
+    within ``RANGE_MATCH`` of one of the standard ``full_scales`` (in the samples' units) and
+    is reached (to 1e-4, a two's complement range being one count wider below zero) by
+    ``MIN_CLIPPED`` samples or more — a real MPU-6050 turned faster than its ±250 °/s read
+    250.1 °/s for up to 10 samples in a row. A steady turn's plateau below a full scale
+    (ArduPilot's SITL turns its model at a constant rate) is no limit.
 
     Parameters
     ----------
     y : (n, 3) array
-        Samples, any units.
+        Samples: gyro [rad/s] or accelerometer [m/s²] (``full_scales`` in the same units).
+    full_scales : tuple of float
+        The candidate range limits.
 
     Returns
     -------
     (n,) bool array
     """
     a = np.abs(np.asarray(y, float))
-    top = np.nanmax(a) if a.size else 0.0
-    hit = np.any(a >= top * (1 - 1e-4), axis=1) if top > 0 else np.zeros(len(a), bool)
-    return hit if hit.sum() >= MIN_CLIPPED else np.zeros(len(a), bool)
+    none = np.zeros(len(a), bool)
+    top = float(np.nanmax(a)) if a.size else 0.0
+    if top <= 0 or not any(abs(top / fs - 1) <= RANGE_MATCH for fs in full_scales):
+        return none
+    hit = np.any(a >= top * (1 - 1e-4), axis=1)
+    return hit if hit.sum() >= MIN_CLIPPED else none
 
 
 def layout(t, acc, gyr, mag, holds, gravity: float, field_mgauss: float | None) -> JointData:
@@ -188,7 +199,8 @@ def layout(t, acc, gyr, mag, holds, gravity: float, field_mgauss: float | None) 
                                      shape=(len(d.blocks), d.t.size))
     index = {id(b): k for k, b in enumerate(d.blocks)}
     # a turn read through a sensor at its range limit is not the turn made: left out
-    clipped = np.cumsum(np.append(0, at_range_limit(d.gyr) | at_range_limit(d.acc)))
+    clipped = np.cumsum(np.append(0, at_range_limit(d.gyr)
+                                  | at_range_limit(d.acc, ACC_RANGES_M_S2)))
     for _h0, _h1, b0, b1 in zip(holds, holds[1:], hold_blocks, hold_blocks[1:]):
         if not b0 or not b1:
             continue
@@ -238,9 +250,17 @@ def perpendicular_basis(v: np.ndarray) -> np.ndarray:
     return q[..., 1:]
 
 
+NOISE_FLOOR = {"acc": 1e-4, "mag": 1e-4}     # of the still samples' median magnitude
+GYRO_NOISE_FLOOR = 1e-6                       # rad/s
+
+
 def white_noise(d: JointData) -> dict[str, float]:
     """Per-sample white-noise σ of each sensor from the still blocks (median over blocks of the
-    per-axis std, first-differenced so that a slow sway does not count).
+    per-axis std, first-differenced so that a slow sway does not count), never below a floor:
+    1e-4 of the accelerometer's or compass's median magnitude at rest (what a 14-16 bit
+    converter resolves), 1e-6 rad/s for the gyro. A simulated sensor can be noise-free and a
+    compass logged in whole mGauss at 10 Hz, brought onto the IMU's times, reads constant
+    through a hold (ArduPilot's SITL): a σ of zero would make its conditions infinitely tight.
 
     Parameters
     ----------
@@ -269,7 +289,9 @@ def white_noise(d: JointData) -> dict[str, float]:
         mean = np.add.reduceat(dy, starts, axis=0) / counts[:, None]
         dev = dy - np.repeat(mean, counts, axis=0)
         std = np.sqrt(np.add.reduceat(dev * dev, starts, axis=0) / counts[:, None])
-        out[name] = max(float(np.median(std.mean(axis=1) / np.sqrt(2))), 1e-9)
+        floor = (GYRO_NOISE_FLOOR if name == "gyr"
+                 else NOISE_FLOOR[name] * float(np.median(np.linalg.norm(y[idx], axis=1))))
+        out[name] = max(float(np.median(std.mean(axis=1) / np.sqrt(2))), floor, 1e-9)
     return out
 
 

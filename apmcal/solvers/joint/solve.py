@@ -52,7 +52,7 @@ from scipy.optimize import least_squares
 from apmcal.core.errors import ApmcalError
 from apmcal.solvers.holds import MIN_ELLIPSOID_HOLDS, MIN_ORIENTATIONS, distinct_orientations
 from apmcal.solvers.joint import model as jm
-from apmcal.solvers.joint.covariance import Whitener
+from apmcal.solvers.joint.covariance import DATUM_SIGMA, Whitener
 from apmcal.solvers.joint.jacobian import jacobian
 from apmcal.solvers.joint.residuals import DIM, layout, misclosures
 from apmcal.solvers.joint.trajectory import Trajectory
@@ -66,8 +66,9 @@ MAG_FAMILIES = ("mag",)                            # Tukey
 MAX_OUTER = 10           # outer passes (weights and noise scales re-estimated) per fit
 MAX_INNER = 10           # misclosure evaluations per Levenberg-Marquardt run
 MAX_LINEARISATIONS = 6   # design matrices per pass
-RELINEARISE_SIGMA = 1.0  # a run that moved further than this [σ] is re-linearised and re-run
-OBJECTIVE_TOL = 1e-2     # a pass lowering its whitened objective less than this has converged
+RELINEARISE_SIGMA = 10.0  # a run that moved further than this [σ] is re-linearised and re-run
+OBJECTIVE_TOL = 0.1      # a pass lowering its whitened objective less than this has converged
+#                          (a tenth of what a one-σ step of one parameter lowers it by)
 SETTLED = 0.05           # ... when no noise scale changed by more than this (relative)
 WORSE_FACTOR = 2.0       # a family explained this many times worse than at the start: fallback
 FAMILY_WORDS = {"acc_norm": "static norm", "zaru": "still gyro",
@@ -148,8 +149,10 @@ def joint_calibration(t, acc, gyr, mag, holds, *, gravity: float,
             spread = (fit["x"][idx] - jm.NOMINAL[idx]) ** 2 + fit["sigma"][idx] ** 2
             fit = _solve(d, x1, free & ~insignificant, consider=(insignificant, spread),
                          start=fit)
-            passes, converged = passes + fit["passes"], converged and fit["converged"]
-    fit.update(passes=passes, converged=converged, explained=explained(d, x0, fit["x"]))
+            # the refit is the result: its convergence is the one that counts
+            passes, converged = passes + fit["passes"], fit["converged"]
+    fit.update(passes=passes, converged=converged,
+               explained=explained(d, fit["yardstick"], fit["x"]))
     cal = _calibration(fit, d, dropped)
     worse = worse_than_start(fit["explained"])
     if worse:
@@ -205,30 +208,54 @@ def start_point(d, holds) -> tuple[np.ndarray, Calibration]:
     return x0, replace(start, method="joint")
 
 
-def explained(d, x_start: np.ndarray, x: np.ndarray) -> dict[str, list[float]]:
-    """How well the start and the fit explain the session: per condition family, the median
-    standardised misclosure (each condition's residual over its white-noise σ, the covariance
-    evaluated at the start with unit weights and noise scales, one yardstick for both).
+def yardstick(d, x_start: np.ndarray, traj: Trajectory | None = None) -> tuple:
+    """What :func:`explained` measures by: the whitening at the start with unit weights and
+    noise scales (each condition's residual over its white noise), and the start's
+    misclosures.
 
     Parameters
     ----------
     d : JointData
-    x_start, x : (42,) arrays
-        The start's parameters and the fit's.
+    x_start : (42,) array
+        The start's parameters.
+    traj : Trajectory, optional
+        Of ``x_start``, when the caller has it.
+
+    Returns
+    -------
+    (Whitener, dict)
+    """
+    families = tuple(f for f in _families(d) if f != "mag_datum")
+    tr = Trajectory(x_start, d) if traj is None else traj
+    w = misclosures(x_start, d, families, tr)
+    ones = {k: np.ones(len(v)) for k, v in w.items()}
+    return Whitener(x_start, d, families, ones, dict.fromkeys(w, 1.0), tr), w
+
+
+def explained(d, stick: tuple, x: np.ndarray) -> dict[str, list[float]]:
+    """How well the start and the fit explain the session: per condition family, the median
+    standardised misclosure (each condition's residual over its white-noise σ, the covariance
+    evaluated at the start with unit weights and noise scales: one yardstick for both,
+    :func:`yardstick`).
+
+    Parameters
+    ----------
+    d : JointData
+    stick : tuple
+        :func:`yardstick` of the start.
+    x : (42,) array
+        The fit's parameters.
 
     Returns
     -------
     dict
         family → [start, fit] (dimensionless; 1 = the still periods' white noise).
     """
-    families = _families(d)
-    w0 = misclosures(x_start, d, families)
-    w1 = misclosures(x, d, families)
-    ones = {k: np.ones(len(v)) for k, v in w0.items()}
-    white = Whitener(x_start, d, families, ones, dict.fromkeys(w0, 1.0))
+    white, w0 = stick
+    w1 = misclosures(x, d, tuple(w0))
     return {f: [float(np.median(white.standardised(w0, f))),
                 float(np.median(white.standardised(w1, f)))]
-            for f in families if f in FAMILY_WORDS}
+            for f in w0 if f in FAMILY_WORDS}
 
 
 def worse_than_start(table: dict[str, list[float]]) -> str:
@@ -347,6 +374,10 @@ def _solve(d, x0: np.ndarray, free: np.ndarray, consider=None, start=None) -> di
     factor = dict.fromkeys(families, 1.0)
     if start is not None:
         weights, factor = dict(start["weights"]), dict(start["factor"])
+        stick = start["yardstick"]
+    else:
+        # unit weights and scales at the start: the yardstick of :func:`explained` too
+        stick = yardstick(d, x, at(x))
 
     def full(xf):
         xx = x.copy()
@@ -384,18 +415,31 @@ def _solve(d, x0: np.ndarray, free: np.ndarray, consider=None, start=None) -> di
             old = dict(factor)
             _variance_components(white, raw_jacobian(x, free), wmis(x), weights, factor)
             # once the noise scales have settled they (and the robust weights) are held, and
-            # the passes go on until the objective they define stops falling
-            adapting = outer == 0 or any(abs(factor[k] / old[k] - 1) >= SETTLED for k in factor)
-    white = Whitener(x, d, families, weights, factor, at(x))
-    a = dict(raw_jacobian(x, free), **jacobian(x, d, families[len(passing):], free, at(x)))
-    fit = _statistics(x, free, white.jacobian(a),
-                      white(dict(wmis(x), **misclosures(x, d, families[len(passing):], at(x)))),
-                      weights, factor, families)
-    fit.update(passes=outer + 1, converged=converged)
+            # the passes go on until the objective they define stops falling (a refit starts
+            # from settled scales: its first pass may already find them unchanged)
+            adapting = ((outer == 0 and start is None)
+                        or any(abs(factor[k] / old[k] - 1) >= SETTLED for k in factor))
+    if not converged:                  # else the last pass's weights hold: its whitening
+        white = Whitener(x, d, passing, weights, factor, at(x))
+    datum = families[len(passing):]    # the compass datum: a constraint in the statistics
+    scale = 1.0 / (DATUM_SIGMA * d.noise["mag"]) if datum else 0.0
+
+    def whitened_design(cols, a):
+        j = white.jacobian(a)
+        if datum:
+            j = np.vstack([j, scale * jacobian(x, d, datum, cols, at(x))["mag_datum"][0]])
+        return j
+
+    r = white(wmis(x))
+    if datum:
+        r = np.append(r, scale * misclosures(x, d, datum, at(x))["mag_datum"][0])
+    fit = _statistics(x, free, whitened_design(free, raw_jacobian(x, free)), r, weights, factor,
+                      families)
+    fit.update(passes=outer + 1, converged=converged, yardstick=stick)
     if consider is not None:
         mask, variances = consider
         both = free | mask
-        j = white.jacobian(jacobian(x, d, families, both, at(x)))
+        j = whitened_design(both, jacobian(x, d, passing, both, at(x)))
         jf, jc = j[:, free[both]], j[:, mask[both]]
         sens = -np.linalg.pinv(jf.T @ jf, hermitian=True) @ (jf.T @ jc)   # ∂x̂/∂c
         cc = np.diag(variances)
@@ -493,9 +537,11 @@ def _variance_components(white, a: dict, w: dict, weights: dict, factor: dict) -
         if k == "mag_datum":
             continue
         dim = w[k].shape[1]
-        u2 = dim * white.standardised(w, k) ** 2                  # Σ over components of u²
+        u = white.standardised(w, k)
+        u2 = dim * u ** 2                                         # Σ over components of u²
         p = white.unit(k) @ a[k]                                  # P_i, (n_c, dim, p)
-        lev = np.einsum("cdp,pq,cdq->c", p, cov_x, p) * weights[k] / factor[k] ** 2
+        lev = (np.sum((p.reshape(-1, p.shape[2]) @ cov_x).reshape(p.shape) * p, axis=(1, 2))
+               * weights[k] / factor[k] ** 2)                     # tr(P_i·Σ_x·P_iᵀ)·ω/f²
         used = weights[k] > 1e-3
         redundancy = float(np.sum(dim - lev[used]))
         if redundancy > 1:
@@ -504,7 +550,7 @@ def _variance_components(white, a: dict, w: dict, weights: dict, factor: dict) -
             # by them) would only make the reported σ too small
             factor[k] = max(1.0, float(np.sqrt(np.sum(weights[k][used] * u2[used])
                                                / redundancy)))
-        weights[k] = _robust_weights(white.standardised(w, k) / factor[k], k)
+        weights[k] = _robust_weights(u / factor[k], k)
 
 
 class _Compressed:
