@@ -454,8 +454,10 @@ def _solve(d, x0: np.ndarray, free: np.ndarray, consider=None, start=None) -> di
 
 def _on_datum(x: np.ndarray, d) -> np.ndarray:
     """``x`` with D_m scaled so that the calibrated field's mean magnitude is the datum F
-    (``mag_datum`` met exactly); the compass conditions, the only others D_m enters, are
-    unchanged by a scale of D_m. Unchanged without a compass.
+    (``mag_datum`` met exactly) and its determinant positive; the compass conditions, the only
+    others D_m enters, are unchanged by any scale of D_m, a negative one included — which would
+    turn the calibrated field round (a sitl session beside a laptop ended at D_m ≈ −0.65·I
+    before the sign was held). Unchanged without a compass.
 
     Fitted as a condition ~1000 times tighter than the data, the datum made the objective a
     narrow curved valley (its second-order change under a few per cent of soft iron alone
@@ -463,9 +465,10 @@ def _on_datum(x: np.ndarray, d) -> np.ndarray:
     """
     if d.mag is None:
         return x
-    scale = float(np.mean(np.linalg.norm(jm.correct_mag(d.mag, jm.matrices(x)), axis=1)))
+    mats = jm.matrices(x)
+    scale = float(np.mean(np.linalg.norm(jm.correct_mag(d.mag, mats), axis=1)))
     out = x.copy()
-    out[jm.SLICES["D_m"]] *= scale / d.field
+    out[jm.SLICES["D_m"]] *= np.sign(np.linalg.det(mats["D_m"])) * scale / d.field
     return out
 
 
