@@ -40,7 +40,7 @@ FIRMWARE_FIELD_MGAUSS = 579.3            # the firmware's table field at HOME (i
 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
-    """The session (about 110 simulated seconds) and apmcal's JSON result and proposal."""
+    """The session (about 140 simulated seconds) and apmcal's JSON result and proposal."""
     from ardupilot_sitl import ArduPilotSitl, unavailable_reason
 
     if unavailable_reason():
@@ -55,7 +55,7 @@ def recorded(tmp_path_factory):
             sitl.spin(rate, axis)
             sitl.run_for(math.radians(rng.uniform(90, 180)) / rate)
             sitl.halt()                                        # a damped stop, then held
-            sitl.run_for(rng.uniform(3.0, 6.0))
+            sitl.run_for(rng.uniform(5.0, 8.0))
         log = sitl.dataflash_logs()[-1]
     out, params = tmp / "joint.json", tmp / "joint.param"
     status = main(["log", str(log), "--method", "joint", "--lat", str(HOME[0]), "--lon",
