@@ -294,9 +294,11 @@ def _fallback(cal: Calibration, start: Calibration, reason: str) -> Calibration:
     joint = replace(cal.report.joint, fallback=reason)
     given = "the ellipsoid and static results are given instead"
     if "acc" not in start.sensors:
-        given = (f"the gyro offset of the still poses and the compass's ellipsoid fit are given "
-                 f"instead; the accelerometer is not calibrated (its ellipsoid needs "
-                 f"{MIN_ELLIPSOID_HOLDS} still poses in {MIN_ORIENTATIONS} orientations or more)")
+        parts = ["the gyro offset of the still poses"] + (
+            ["the compass's ellipsoid fit"] if "mag" in start.sensors else [])
+        given = (f"{' and '.join(parts)} {'are' if len(parts) > 1 else 'is'} given instead; the "
+                 f"accelerometer is not calibrated (its ellipsoid needs {MIN_ELLIPSOID_HOLDS} "
+                 f"still poses in {MIN_ORIENTATIONS} orientations or more)")
     report = replace(start.report, joint=joint, warnings=start.report.warnings + [
         f"joint fit not used: {reason}; {given}"])
     return Calibration(method="joint", sensors=dict(start.sensors), report=report)
