@@ -2,6 +2,7 @@
 results against the joint solver of an earlier revision.
 
     python benchmarks/joint_speed.py [--before REV] [--runs 3] [--command-runs 3] [--log FILE]
+                                     [--real-only]
 
 The session: a 250 s hand-held sitl session at 100 Hz with accelerometer, gyro and compass
 (``python -m apmcal_sim.makelog --script handheld --seed 11 --rate 100 --fs 100 --duration 250``,
@@ -19,6 +20,15 @@ the largest change in units of the earlier fit's σ is printed, with the range o
 ratios, and the check fails (exit status 1) when a parameter moved by more than
 ``MAX_CHANGE_SIGMA`` σ, a σ changed by more than ``MAX_SIGMA_CHANGE`` (relative), or the two
 fits estimate or drop different parameters.
+
+Then the same identity check on every real recording the out-of-sample checks use
+(``apmcal.calibration.validation.REAL_RECORDINGS``: imucal's session, imu_tk's Xsens sequence,
+the MPU-6050 run; absent without ../shared/data): each brought to SI units and to the joint
+fit's 50 Hz as the command line does, saved once, and fitted by the joint solver of this tree
+and of ``--before``, each in a fresh process (:func:`real_identity`): the same parameters
+estimated and dropped, none moved by more than ``MAX_CHANGE_SIGMA`` σ, no σ changed by more
+than ``MAX_SIGMA_CHANGE``. A speed change must pass it on the real recordings as on the
+simulated session (``--real-only`` runs it alone).
 
 Last, the whole commands, as a user runs them: ``apmcal log FILE --method joint`` and
 ``--method ellipsoid`` (``--lat/--lon`` of the site, ``--quiet``), each in a fresh process
@@ -70,6 +80,67 @@ for _ in range(int(sys.argv[3])):
 print(json.dumps({"wall": best[0], "cpu": best[1], "parameters": cal.report.joint.parameters,
                   "dropped": cal.report.joint.dropped_t_test}))
 """
+
+
+# the joint solver of whichever tree is first on the path, on a session saved by
+# real_sessions(): parameters, σ and the dropped set as JSON
+_CHILD_REAL = r"""
+import json, sys
+import numpy as np
+from threadpoolctl import threadpool_limits
+threadpool_limits(1, user_api="blas")
+from apmcal.preprocessing.static import find_static_segments
+from apmcal.solvers.joint.solve import joint_calibration
+z = np.load(sys.argv[1])
+mag = z["mag"] if z["mag"].size else None
+holds = find_static_segments(z["t"], z["acc"], z["gyr"], min_duration=1.0)
+cal = joint_calibration(z["t"], z["acc"], z["gyr"], mag, holds, gravity=float(z["gravity"]))
+print(json.dumps({"parameters": cal.report.joint.parameters,
+                  "dropped": cal.report.joint.dropped_t_test}))
+"""
+
+
+def real_sessions() -> list[tuple[str, Path]]:
+    """(name, .npz) of each real recording of the out-of-sample checks, whole, in SI units at
+    the joint fit's rate (apmcal.calibration.joint.at_joint_rate), saved once into
+    benchmarks/_data/; [] without ../shared/data."""
+    import numpy as np
+
+    from apmcal.calibration.joint import at_joint_rate
+    from apmcal.calibration.validation import REAL_RECORDINGS, session
+    from apmcal.core.constants import STANDARD_GRAVITY
+
+    shared = ROOT.parent / "shared" / "data"
+    out = []
+    for rec in {r.file: r for r in REAL_RECORDINGS}.values():
+        if not (shared / rec.file).exists():
+            continue
+        path = DATA / f"joint_real_{Path(rec.file).stem}.npz"
+        if not path.exists():
+            DATA.mkdir(parents=True, exist_ok=True)
+            _, _, raw, mag, _ = session(shared / rec.file, rec.layout, rec.counts)
+            t, acc, gyr, mag, _ = at_joint_rate(raw.t, raw.xyz("acc"), raw.xyz("gyr"), mag)
+            np.savez(path, t=t, acc=acc, gyr=gyr, mag=np.zeros(0) if mag is None else mag,
+                     gravity=STANDARD_GRAVITY)
+        out.append((rec.file, path))
+    return out
+
+
+def real_identity(before_tree: Path, before: str) -> bool:
+    """The joint solver of this tree against ``before_tree``'s on every real recording
+    (:func:`real_sessions`), fresh processes; True when every result is unchanged."""
+    same = True
+    for name, path in real_sessions():
+        fits = []
+        for tree in (ROOT, before_tree):
+            env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{tree}/sitl")
+            done = subprocess.run([sys.executable, "-c", _CHILD_REAL, str(path)], env=env,
+                                  cwd=DATA, capture_output=True, text=True, check=True)
+            fits.append(json.loads(done.stdout.strip().splitlines()[-1]))
+        print(f"real recording {name}:")
+        same &= compare(fits[0]["parameters"], fits[1]["parameters"], fits[0]["dropped"],
+                        fits[1]["dropped"], before)
+    return same
 
 
 def make_session() -> Path:
@@ -159,7 +230,11 @@ def main(argv=None) -> int:
     ap.add_argument("--log", type=Path, help="another session instead of the simulated one")
     ap.add_argument("--command-runs", type=int, default=3,
                     help="fresh-process runs of each whole command, best taken (default 3)")
+    ap.add_argument("--real-only", action="store_true",
+                    help="only the identity check on the real recordings")
     args = ap.parse_args(argv)
+    if args.real_only:
+        return 0 if real_identity(export_tree(args.before), args.before) else 1
     session = args.log.resolve() if args.log else make_session()
     contents = read_log(session)
     timed(contents, "ellipsoid", 1)                       # warm-up: imports
@@ -176,6 +251,7 @@ def main(argv=None) -> int:
           f"(now {before['cpu'] / j_cpu:.1f}x as fast, CPU)")
     same = compare(now, before["parameters"], cal.report.joint.dropped_t_test,
                    before.get("dropped", cal.report.joint.dropped_t_test), args.before)
+    same &= real_identity(tree, args.before)
     ratio = j_cpu / e_cpu
     print(f"ratio_joint_vs_ellipsoid_cpu={ratio:.2f} (wall {j_wall / e_wall:.2f}; target ≤ "
           f"{TARGET_RATIO:g}: {'met' if ratio <= TARGET_RATIO else 'NOT met'}; "

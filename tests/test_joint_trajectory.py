@@ -208,3 +208,21 @@ def test_compressed_problem_takes_the_same_steps():
     assert comp.nfev == full.nfev
     assert np.abs(comp.x - full.x).max() < 1e-9 * np.abs(full.x).max()
     assert abs(comp.cost - full.cost) < 1e-9 * full.cost
+
+
+def test_the_compass_datum_is_met_by_a_positive_scale_of_d_m(session):
+    """The compass conditions do not see D_m's scale, its sign included: the fit holds the
+    datum (the calibrated field's mean magnitude is F) and a positive determinant by scaling
+    D_m, which leaves every compass misclosure as it was. A D_m turned negative (the
+    calibrated field pointing the other way, equally consistent with the turns) comes back."""
+    from apmcal.solvers.joint.solve import _on_datum
+
+    d, x = session
+    flipped = x.copy()
+    flipped[jm.SLICES["D_m"]] *= -1.7
+    fixed = _on_datum(flipped, d)
+    mats = jm.matrices(fixed)
+    assert np.linalg.det(mats["D_m"]) > 0
+    assert np.linalg.norm(jm.correct_mag(d.mag, mats), axis=1).mean() == pytest.approx(d.field)
+    for w in (misclosures(flipped, d, ("mag",))["mag"], misclosures(x, d, ("mag",))["mag"]):
+        np.testing.assert_allclose(misclosures(fixed, d, ("mag",))["mag"], w, atol=1e-9)

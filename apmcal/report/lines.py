@@ -231,6 +231,8 @@ def joint_lines(j: JointFit) -> list[str]:
     cannot hold."""
     dropped = (f"; insignificant at 95 % (t-test, fixed to nominal and refitted): "
                f"{', '.join(j.dropped_t_test)}" if j.dropped_t_test else "")
+    if j.fallback:
+        return ["joint ([Chow]): fit not used, " + j.fallback] + _joint_fit_lines(j)
     return [
         "joint ([Chow]): " + ", ".join(f"{k} {n}" + (f" ({j.rejected[k]} rejected)"
                                                        if j.rejected.get(k) else "")
@@ -242,7 +244,24 @@ def joint_lines(j: JointFit) -> list[str]:
         f"left uncorrected it costs up to {j.gyr_matrix_cost_deg_per_turn:.2f}° per 360° turn",
         f"joint: gyro g-sensitivity cannot be held either: up to "
         f"{j.gyr_g_sensitivity_at_1g:.2g} rad/s at 1 g",
-    ] + _joint_input_lines(j)
+    ] + _joint_fit_lines(j) + _joint_input_lines(j)
+
+
+def _joint_fit_lines(j: JointFit) -> list[str]:
+    """How the joint fit went: passes, whether they settled, and how well its result and its
+    start (the ellipsoid and static results) explain the session's conditions."""
+    if not j.passes:
+        return []
+    lines = [f"joint: {j.passes} passes, "
+             + ("converged" if j.converged else "stopped at the pass limit before settling")]
+    if j.clipped_turns:
+        lines.append(f"joint: {j.clipped_turns} turn(s) left out: the gyro or accelerometer was "
+                     f"at its range limit in them (turn more slowly)")
+    if j.explained:
+        lines.append("joint: median misclosure in units of the still periods' noise, start → "
+                     "fit: " + ", ".join(f"{k} {a:.3g} → {b:.3g}"
+                                         for k, (a, b) in j.explained.items()))
+    return lines
 
 
 def _joint_input_lines(j: JointFit) -> list[str]:

@@ -334,6 +334,19 @@ class JointFit:
     recorded_rate_hz : float or None
         [Hz].
     compass_own_fit : bool
+    passes : int
+        Outer Gauss-Helmert passes run (full fit and t-test refit together).
+    converged : bool
+        False when a fit stopped at its pass limit before its objective settled.
+    explained : dict
+        family → [start, result]: median standardised misclosure of the session's conditions
+        (1 = the still periods' white noise) under the start (the ellipsoid and static results)
+        and under the fit, the yardstick of ``fallback``.
+    fallback : str
+        Empty when the fit is the result; else why the start was returned instead (the fit
+        explains the session worse than the start).
+    clipped_turns : int
+        Turns left out because the gyro or accelerometer was at its range limit in them.
     """
 
     conditions: dict[str, int]
@@ -349,6 +362,11 @@ class JointFit:
     block_samples: int = 1
     recorded_rate_hz: float | None = None
     compass_own_fit: bool = False
+    passes: int = 0
+    converged: bool = True
+    explained: dict[str, list[float]] = field(default_factory=dict)
+    fallback: str = ""
+    clipped_turns: int = 0
 
 
 @dataclass

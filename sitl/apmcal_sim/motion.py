@@ -16,6 +16,14 @@ throughout.
 ``diagnosis`` (the ``apmcal gap`` benchmark session) is the Ferraris session followed by the
 ``motors`` section, level and still: one session that exercises every effect, compass
 interference included.
+
+``handheld_real`` is a hand-held session as people record one at a desk: uneven holds, fast
+turns that also move the board (a segment's ``shift``: its NED displacement, on the same smooth
+profile as the turn, so the velocity is zero at both ends), the tremor of a hand (the script's
+own :attr:`Motion.tremor`, in place of the truth's ``motion_contamination`` figures) and the
+slowly changing field of a laptop beside it (:class:`LaptopField`, :attr:`Motion.disturbance`,
+added to the Earth's field in NED). ``handheld_laptop`` is the same right beside the laptop
+(five times the field): the compass's ellipsoid, the joint fit's start, is then far off.
 """
 from __future__ import annotations
 
@@ -37,7 +45,7 @@ POSES = {
 # ArduPilot accelcal ACCELCAL_VEHICLE_POS values (param1 of MAV_CMD_ACCELCAL_VEHICLE_POS)
 ACCELCAL_POSES = {1: "level", 2: "left", 3: "right", 4: "nosedown", 5: "noseup", 6: "back"}
 SCRIPTS = ("ferraris", "ardupilot6", "onepos", "tumble", "warmup", "operator", "motors",
-           "diagnosis", "handheld")
+           "diagnosis", "handheld", "handheld_real", "handheld_laptop")
 
 
 def pose_matrix(name: str, yaw_deg: float = 0.0) -> np.ndarray:
@@ -60,6 +68,7 @@ class Segment:
     label: str
     r1: np.ndarray | None = None     # exact end pose when known (avoids round-off build-up)
     throttle: tuple = (0.0, 0.0)     # throttle at the start and end (linear ramp in between)
+    shift: np.ndarray | None = None  # NED displacement over the segment [m] (None: none)
 
     @property
     def t1(self) -> float:
@@ -79,6 +88,11 @@ class Motion:
 
     segments: list = field(default_factory=list)
     start_pose: np.ndarray = field(default_factory=lambda: np.eye(3))
+    #: hand tremor figures (the keys of Truth.motion_contamination) used instead of the
+    #: truth's when that effect is on; None: the truth's
+    tremor: dict | None = None
+    #: field added to the Earth's [mGauss, NED] at times t (n,) → (n, 3); None: none
+    disturbance: object = None
 
     @property
     def duration(self) -> float:
@@ -96,13 +110,34 @@ class Motion:
         return self
 
     def rotate(self, axis, angle_deg: float, seconds: float, label: str,
-               throttle: float | tuple = 0.0) -> "Motion":
+               throttle: float | tuple = 0.0, shift=None) -> "Motion":
         """Turn by ``angle_deg`` [deg] about the body ``axis`` (3,) in ``seconds`` [s] (the module's
-        smooth rate profile); ``throttle`` a level or a (start, end) ramp."""
+        smooth rate profile); ``throttle`` a level or a (start, end) ramp; ``shift`` (3,) the
+        board's NED displacement [m] during the turn, on the same profile (None: none)."""
         axis = np.asarray(axis, float) / np.linalg.norm(axis)
         self.segments.append(Segment(self.duration, seconds, self.end_pose(), axis,
-                                     np.radians(angle_deg), label, throttle=_ramp(throttle)))
+                                     np.radians(angle_deg), label, throttle=_ramp(throttle),
+                                     shift=None if shift is None else np.asarray(shift, float)))
         return self
+
+    def acceleration(self, t) -> np.ndarray:
+        """Linear acceleration [m/s², NED] (n, 3) at times t (n,): the second derivative of each
+        segment's ``shift`` on the smooth profile, shift·2π/T²·sin 2πu; zeros where none."""
+        t = np.atleast_1d(np.asarray(t, float))
+        out = np.zeros((len(t), 3))
+        for s in self.segments:
+            if s.shift is None:
+                continue
+            m = (t >= s.t0) & (t < s.t1)
+            if m.any():
+                u = (t[m] - s.t0) / s.duration
+                out[m] = np.outer(2 * np.pi / s.duration ** 2 * np.sin(2 * np.pi * u), s.shift)
+        return out
+
+    def field_disturbance(self, t) -> np.ndarray:
+        """The :attr:`disturbance` [mGauss, NED] (n, 3) at times t (n,); zeros without one."""
+        t = np.atleast_1d(np.asarray(t, float))
+        return np.zeros((len(t), 3)) if self.disturbance is None else self.disturbance(t)
 
     def throttle(self, t) -> np.ndarray:
         """Throttle (0..1) at times t (n,); beyond the last segment its end value holds."""
@@ -201,6 +236,32 @@ class Tremor:
         return d, dd
 
 
+class LaptopField:
+    """The slowly changing field of a laptop beside the board [mGauss, NED]: a few sinusoids
+    per axis with periods of 20-200 s (its disk and fans, the screen's angle, the hand moving
+    nearer and farther), seeded phases, ``mgauss`` the RMS of each axis's sum.
+
+    Parameters
+    ----------
+    mgauss : float
+        RMS per NED axis [mGauss].
+    seed : int
+    """
+
+    def __init__(self, mgauss: float, seed: int):
+        rng = np.random.default_rng(np.random.SeedSequence([seed, 0x1A9]))
+        self.amp = mgauss * np.sqrt(2.0 / 3.0) * np.ones((3, 3))      # 3 components per axis
+        self.freq = 1.0 / rng.uniform(20.0, 200.0, (3, 3))
+        self.phase = rng.uniform(0, 2 * np.pi, (3, 3))
+        self.offset = rng.normal(0.0, mgauss, 3)       # its mean field where the board is held
+
+    def __call__(self, t) -> np.ndarray:
+        """Field [mGauss, NED] (n, 3) at times t [s] (n,)."""
+        t = np.atleast_1d(np.asarray(t, float))
+        arg = 2 * np.pi * self.freq[None] * t[:, None, None] + self.phase[None]
+        return self.offset + (self.amp[None] * np.sin(arg)).sum(axis=1)
+
+
 def _ramp(throttle) -> tuple[float, float]:
     """(start, end) throttle from a level or a pair, each checked to lie in 0..1."""
     a, b = (throttle, throttle) if np.isscalar(throttle) else throttle
@@ -294,6 +355,40 @@ def handheld(seconds: float = 60.0, seed: int = 0, hold_s: float = 3.0,
     return m.hold(max(seconds - m.duration, 0.5), "hold")
 
 
+# a hand's physiological tremor, 5-12 Hz at about 0.5-2 °/s (0.02° × 2π × 8.5 Hz ≈ 1 °/s per
+# axis), and its slow sway
+HAND_TREMOR = {"tremor_deg": 0.02, "tremor_hz": [5.0, 12.0], "sway_deg": 0.3, "sway_hz": [0.1, 0.5]}
+LAPTOP_MGAUSS = 30.0     # RMS per axis of the laptop's field (3 µT, a laptop some 30 cm away)
+NEAR_LAPTOP_MGAUSS = 150.0   # ... held right beside it (handheld_laptop)
+
+
+def handheld_real(seconds: float = 120.0, seed: int = 0, hold_s=(2.0, 10.0),
+                  turn_deg=(90.0, 180.0), rate_dps=(30.0, 200.0), shift_m=(0.05, 0.3),
+                  laptop_mgauss: float = LAPTOP_MGAUSS) -> Motion:
+    """A hand-held session as people record one at a desk: holds of ``hold_s`` [s] (uniform
+    in the range), turns of ``turn_deg`` [deg] about random body axes at a mean rate of
+    ``rate_dps`` [deg/s] (peak twice that), each moving the board by ``shift_m`` [m] in a
+    random direction (put down elsewhere); the hand's tremor (:data:`HAND_TREMOR`) and a
+    laptop's slowly changing field (:class:`LaptopField`, RMS ``laptop_mgauss`` per axis; 0:
+    none). Starts level; ``seconds`` in all."""
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x4A4E]))
+    m = Motion(tremor=dict(HAND_TREMOR),
+               disturbance=LaptopField(laptop_mgauss, seed) if laptop_mgauss > 0 else None)
+    m.hold(rng.uniform(*hold_s), "hold")
+    while True:
+        angle = rng.uniform(*turn_deg)
+        turn_s = angle / rng.uniform(*rate_dps)
+        hold = rng.uniform(*hold_s)
+        if m.duration + turn_s + hold > seconds:
+            break
+        direction = rng.standard_normal(3)
+        shift = direction / np.linalg.norm(direction) * rng.uniform(*shift_m)
+        m.rotate(rng.standard_normal(3), angle * rng.choice([-1, 1]), turn_s, "turn",
+                 shift=shift)
+        m.hold(hold, "hold")
+    return m.hold(max(seconds - m.duration, 0.5), "hold")
+
+
 def motors(seconds: float = 60.0, idle_s: float = 5.0, full_s: float = 5.0) -> Motion:
     """Motors run while the vehicle is held still and level (like ArduPilot's compassmot):
     idle at throttle 0, a linear ramp to full throttle, a hold at full throttle, a ramp back
@@ -352,9 +447,9 @@ def operator() -> Motion:
 
 
 def build(name: str, seed: int = 0, duration: float | None = None) -> Motion:
-    """The named script (``SCRIPTS``); ``duration`` stretches onepos, warmup, tumble, motors
-    and handheld
-    (ignored by the fixed sessions ferraris, ardupilot6, operator and diagnosis)."""
+    """The named script (``SCRIPTS``); ``duration`` stretches onepos, warmup, tumble, motors,
+    handheld, handheld_real and handheld_laptop (ignored by the fixed sessions ferraris,
+    ardupilot6, operator and diagnosis)."""
     if name == "ferraris":
         return ferraris()
     if name == "ardupilot6":
@@ -371,6 +466,10 @@ def build(name: str, seed: int = 0, duration: float | None = None) -> Motion:
         return motors(duration or 60.0)
     if name == "handheld":
         return handheld(duration or 60.0, seed)
+    if name == "handheld_real":
+        return handheld_real(duration or 120.0, seed)
+    if name == "handheld_laptop":
+        return handheld_real(duration or 120.0, seed, laptop_mgauss=NEAR_LAPTOP_MGAUSS)
     if name == "diagnosis":              # its own length, or longer with a final still hold
         return diagnosis(duration=duration)
     raise ValueError(f"unknown script {name!r}; known: {', '.join(SCRIPTS)}")

@@ -92,7 +92,8 @@ class SimVehicle:
         self.params = ParamStore(generation, param_file, full_params)
         self.motion = motion.build(script, seed, duration)
         self.model = ImuErrorModel(self.truth, fs, seed)
-        self.tremor = (motion.Tremor(self.truth.motion_contamination, seed)
+        # the script's hand tremor (handheld_real) in place of the truth's figures
+        self.tremor = (motion.Tremor(self.motion.tremor or self.truth.motion_contamination, seed)
                        if self.truth.on("motion_contamination") else None)
         site = self.truth.site
         self.gravity = self.truth.gravity()
@@ -189,15 +190,17 @@ class SimVehicle:
     def _sense(self, t: np.ndarray) -> dict:
         rot, rate, idx = self._attitude(t)
         g_ned = np.array([0.0, 0.0, self.gravity])
-        # specific force f = a − g (ardupilot-facts.md): still → R_nbᵀ·(0, 0, −g)
-        f_body = -np.einsum("nji,j->ni", rot, g_ned)
+        # specific force f = a − g (ardupilot-facts.md): still → R_nbᵀ·(0, 0, −g); a the
+        # script's linear acceleration (hand-held turns that move the board)
+        f_body = np.einsum("nji,nj->ni", rot, self.motion.acceleration(t) - g_ned)
         tau = self.truth.time_offset if self.truth.on("time_offset") else 0.0
         f_acc_body = f_body
         if tau:
             rot_a, _, _ = self._attitude(t - tau)   # the accelerometer samples the past
-            f_acc_body = -np.einsum("nji,j->ni", rot_a, g_ned)
+            f_acc_body = np.einsum("nji,nj->ni", rot_a, self.motion.acceleration(t - tau) - g_ned)
         w_body = rate + np.einsum("nji,j->ni", rot, self.earth_rate)
-        b_body = np.einsum("nji,j->ni", rot, self.field_ned)
+        # the Earth's field and, near a laptop, its slowly changing one (handheld_real)
+        b_body = np.einsum("nji,nj->ni", rot, self.field_ned + self.motion.field_disturbance(t))
         to_board = self.board_rot                   # v_board = Rᵀ v_body, as rows: v @ R
         thr = self.throttle_at(t)
         raw_acc = self.model.accel(t, f_acc_body @ to_board)

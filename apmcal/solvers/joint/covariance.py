@@ -37,6 +37,7 @@ from apmcal.solvers.strapdown import hat
 INERTIAL = ("acc_norm", "zaru", "level", "zupt")
 CORRELATED = ("acc_norm", "level", "zupt")    # the inertial families that share noise
 WEIGHT_FLOOR = 1e-8        # a rejected condition (weight 0) gets this weight: its variance ×1e8
+DATUM_SIGMA = 1e-3         # the compass datum's σ, in units of the compass's white noise
 
 
 def _projector(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -299,7 +300,7 @@ class Whitener:
                                  * (np.sqrt(weights["mag"]) / factor["mag"])[:, None, None])
         if "mag_datum" in families:
             # a datum, not an observation: far tighter than the data, so it acts as a constraint
-            self.other["mag_datum"] = np.array([[[1.0 / (1e-3 * d.noise["mag"])]]])
+            self.other["mag_datum"] = np.array([[[1.0 / (DATUM_SIGMA * d.noise["mag"])]]])
 
     def _inertial(self, parts: dict) -> list:
         """The inertial families' whitened rows (family → (rows, ...)), in :data:`INERTIAL`
@@ -370,6 +371,24 @@ class Whitener:
             k += w[f].size
         return out
 
+    def unit(self, f: str) -> np.ndarray:
+        """M_i⁻¹ of each condition of family ``f``: the inverse Cholesky factor of its own
+        white-noise covariance M_i·M_iᵀ (weight and noise scale 1), (n_c, dim, dim).
+
+        Parameters
+        ----------
+        f : str
+            The family.
+
+        Returns
+        -------
+        (n_c, dim, dim) array
+            In the inverse of the family's units.
+        """
+        if f not in self._unit:
+            self._unit[f] = inverse_cholesky(self.marginal[f])
+        return self._unit[f]
+
     def standardised(self, w: dict, f: str) -> np.ndarray:
         """Each condition's residual over its own (marginal) σ, RMS over its components.
 
@@ -385,7 +404,5 @@ class Whitener:
         (n_c,) array
             Dimensionless.
         """
-        if f not in self._unit:
-            self._unit[f] = inverse_cholesky(self.marginal[f])
-        z = (self._unit[f] @ w[f][..., None])[..., 0]
+        z = (self.unit(f) @ w[f][..., None])[..., 0]
         return np.sqrt(np.mean(z ** 2, axis=1))

@@ -203,11 +203,18 @@ def jacobian(x: np.ndarray, d, families, free: np.ndarray,
     cols = np.flatnonzero(free)
     p = len(cols)
     pa, pw = _counts(free)
+    out = {}
+    if mc is not None and "mag_datum" in families:
+        u = mc / np.linalg.norm(mc, axis=1, keepdims=True)
+        # Σ_n u_n·∂m_n / n = Σ_{i,f} (Σ_n u_n[i]·z_m[n, f])·C_m[f, i] / n
+        out["mag_datum"] = _widen(np.einsum("if,fip->p", u.T @ features(mc), c_m)[None, None, :]
+                                  / len(mc), pw, p)
+    if not set(families) - {"mag_datum"}:
+        return out
     za, zw = features(a), features(a, tr.w)
     # Ψ_k = Q_{k+1}·δω̄_k·Δt_k (session frame) as features, summed over each window's steps
     zmid = _pad(midpoint(zw) * d.dt[:, None])                         # (n+1, 7)
     q_next = _pad(q[1:])                                              # Q_{k+1}
-    out = {}
     bm = d.block_mean
     a_blk = bm @ a
     da_blk = _apply(bm @ za, c_a)                                     # (n_blocks, 3, p_a)
@@ -264,9 +271,4 @@ def jacobian(x: np.ndarray, d, families, free: np.ndarray,
                 row, k = divmod(col - jm.SLICES["D_m"].start, 3)
                 da_m[:, row, c] += w_cal[:, k]
         out["mag"] = da_m
-        if "mag_datum" in families:
-            u = mc / np.linalg.norm(mc, axis=1, keepdims=True)
-            # Σ_n u_n·∂m_n / n = Σ_{i,f} (Σ_n u_n[i]·z_m[n, f])·C_m[f, i] / n
-            out["mag_datum"] = _widen(np.einsum("if,fip->p", u.T @ zm, c_m)[None, None, :]
-                                      / len(mc), pw, p)
     return out

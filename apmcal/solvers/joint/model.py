@@ -115,6 +115,69 @@ def matrices_many(xs: np.ndarray) -> dict[str, np.ndarray]:
             "D_m": xs[:, SLICES["D_m"]].reshape(k, 3, 3), "o_m": xs[:, SLICES["o_m"]]}
 
 
+def accelerometer_frame(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(Q, L): a board-frame accelerometer matrix M (calibrated = M·(raw − offset)) split as
+    M = Q·L, Q a rotation (the accelerometer frame → the board's) and L lower triangular with a
+    positive diagonal (the model's K_a⁻¹, in the accelerometer frame).
+
+    From MᵀM = LᵀL: L is the Cholesky factor of MᵀM taken in reversed axis order (the "QL"
+    factorisation), so that it comes out lower rather than upper triangular.
+
+    Parameters
+    ----------
+    matrix : (3, 3) array
+        Invertible.
+
+    Returns
+    -------
+    q : (3, 3) array
+    low : (3, 3) array
+    """
+    m = np.asarray(matrix, float)
+    flip = np.fliplr(np.eye(3))
+    low = flip @ np.linalg.cholesky(flip @ m.T @ m @ flip).T @ flip
+    return m @ np.linalg.inv(low), low
+
+
+def from_board(acc_offset, acc_matrix, gyr_offset, mag_offset=None,
+               mag_matrix=None) -> np.ndarray:
+    """The parameter vector of calibrations given in the board frame (the project's
+    convention, calibrated = matrix·(raw − offset)): an accelerometer's offset and matrix, a
+    gyro offset alone (identity matrix on the board, no g-sensitivity) and, optionally, a
+    compass's offset and matrix — e.g. the ellipsoid and static results the joint fit starts
+    from. The joint model's frame is the accelerometer's (M = Q·L, :func:`accelerometer_frame`),
+    so the identity gyro becomes K_ω = Q (R_ω = Q) and the compass's D_m = E⁻¹·Q; every
+    condition of :mod:`apmcal.solvers.joint.residuals` then sees exactly the given
+    calibrations.
+
+    Parameters
+    ----------
+    acc_offset : (3,) array, m/s²
+    acc_matrix : (3, 3) array
+    gyr_offset : (3,) array, rad/s
+    mag_offset : (3,) array, mGauss, optional
+    mag_matrix : (3, 3) array, optional
+
+    Returns
+    -------
+    (42,) array
+        Laid out as :data:`NAMES` (the compass's entries nominal without one).
+    """
+    q, low = accelerometer_frame(acc_matrix)
+    k_a = np.linalg.inv(low)
+    scale = np.diag(k_a)
+    x = NOMINAL.copy()
+    x[SLICES["b_a"]] = acc_offset
+    x[SLICES["s_a"]] = scale - 1.0
+    x[SLICES["n_a"]] = (k_a / scale[:, None])[_LOWER]
+    x[SLICES["b_w"]] = gyr_offset
+    x[SLICES["r_w"]] = Rotation.from_matrix(q).as_rotvec()
+    if mag_matrix is not None:
+        x[SLICES["D_m"]] = (np.linalg.inv(mag_matrix) @ q).ravel()
+        x[SLICES["o_m"]] = mag_offset
+    return x
+
+
 def correct_acc(y_a: np.ndarray, mats: dict) -> np.ndarray:
     """True specific force a [m/s²] (n, 3) from measured y_a, eq. 1 inverted.
 

@@ -99,6 +99,9 @@ class JointData:
         Per window length, an (W, K+1) index array of the samples each window spans.
     noise : dict
         Per-sample white-noise σ of "acc", "gyr", "mag" (sensor units).
+    clipped : int
+        Turns between consecutive still poses left out because the gyro or accelerometer was
+        at its range limit in them (:func:`at_range_limit`).
     """
 
     t: np.ndarray
@@ -116,6 +119,43 @@ class JointData:
     steps: np.ndarray = None            # (I, K): their steps, padded with n
     windows: list = field(default_factory=list)
     noise: dict = field(default_factory=dict)
+    clipped: int = 0
+
+
+MIN_CLIPPED = 3                # samples at a full scale that make it a range limit
+# the full scales MEMS gyros and accelerometers are set to (MPU-6000/6050, ICM-20xxx, BMI):
+# ±125..4000 °/s and ±2..32 g; a sensor at its limit reads one of them (to a count)
+GYRO_RANGES_RAD_S = tuple(np.radians([125.0, 250.0, 500.0, 1000.0, 2000.0, 4000.0]))
+ACC_RANGES_M_S2 = tuple(9.80665 * np.array([2.0, 4.0, 8.0, 16.0, 32.0]))
+RANGE_MATCH = 2e-3             # relative: within a count or two of 16 bits
+
+
+def at_range_limit(y: np.ndarray, full_scales=GYRO_RANGES_RAD_S) -> np.ndarray:
+    """Samples (n,) where a sensor sat at its range limit: the largest |value| of any axis is
+    within ``RANGE_MATCH`` of one of the standard ``full_scales`` (in the samples' units) and
+    is reached (to 1e-4, a two's complement range being one count wider below zero) by
+    ``MIN_CLIPPED`` samples or more — a real MPU-6050 turned faster than its ±250 °/s read
+    250.1 °/s for up to 10 samples in a row. A steady turn's plateau below a full scale
+    (ArduPilot's SITL turns its model at a constant rate) is no limit.
+
+    Parameters
+    ----------
+    y : (n, 3) array
+        Samples: gyro [rad/s] or accelerometer [m/s²] (``full_scales`` in the same units).
+    full_scales : tuple of float
+        The candidate range limits.
+
+    Returns
+    -------
+    (n,) bool array
+    """
+    a = np.abs(np.asarray(y, float))
+    none = np.zeros(len(a), bool)
+    top = float(np.nanmax(a)) if a.size else 0.0
+    if top <= 0 or not any(abs(top / fs - 1) <= RANGE_MATCH for fs in full_scales):
+        return none
+    hit = np.any(a >= top * (1 - 1e-4), axis=1)
+    return hit if hit.sum() >= MIN_CLIPPED else none
 
 
 def layout(t, acc, gyr, mag, holds, gravity: float, field_mgauss: float | None) -> JointData:
@@ -158,6 +198,9 @@ def layout(t, acc, gyr, mag, holds, gravity: float, field_mgauss: float | None) 
                                                       [b.size for b in d.blocks]), (rows, cols)),
                                      shape=(len(d.blocks), d.t.size))
     index = {id(b): k for k, b in enumerate(d.blocks)}
+    # a turn read through a sensor at its range limit is not the turn made: left out
+    clipped = np.cumsum(np.append(0, at_range_limit(d.gyr)
+                                  | at_range_limit(d.acc, ACC_RANGES_M_S2)))
     for _h0, _h1, b0, b1 in zip(holds, holds[1:], hold_blocks, hold_blocks[1:]):
         if not b0 or not b1:
             continue
@@ -165,7 +208,9 @@ def layout(t, acc, gyr, mag, holds, gravity: float, field_mgauss: float | None) 
         # mean is the specific force at its centre, while a hold's edge sample may already
         # be turning (the still detector's edges are soft)
         k0, k1 = int(b0[-1][b0[-1].size // 2]), int(b1[0][b1[0].size // 2])
-        if k1 > k0 and dt[k0:k1].max() <= gap:
+        if k1 > k0 and clipped[k1 + 1] > clipped[k0]:
+            d.clipped += 1
+        elif k1 > k0 and dt[k0:k1].max() <= gap:
             d.intervals.append((index[id(b0[-1])], index[id(b1[0])], k0, k1))
     d.interval_index = np.array(d.intervals, dtype=int).reshape(-1, 4)
     d.steps = interval_rows(d)[:, :-1]
@@ -177,7 +222,8 @@ def layout(t, acc, gyr, mag, holds, gravity: float, field_mgauss: float | None) 
             # windows never share a sample: a shared end point would count its noise twice
             starts = np.arange(0, d.t.size - k, k + 1)
             idx = starts[:, None] + np.arange(k + 1)[None]
-            ok = dt[idx[:, :-1]].max(axis=1) <= gap
+            ok = (dt[idx[:, :-1]].max(axis=1) <= gap) & (clipped[idx[:, -1] + 1]
+                                                          == clipped[idx[:, 0]])
             d.windows.append(idx[ok])
     d.noise = white_noise(d)
     return d
@@ -204,9 +250,17 @@ def perpendicular_basis(v: np.ndarray) -> np.ndarray:
     return q[..., 1:]
 
 
+NOISE_FLOOR = {"acc": 1e-4, "mag": 1e-4}     # of the still samples' median magnitude
+GYRO_NOISE_FLOOR = 1e-6                       # rad/s
+
+
 def white_noise(d: JointData) -> dict[str, float]:
     """Per-sample white-noise σ of each sensor from the still blocks (median over blocks of the
-    per-axis std, first-differenced so that a slow sway does not count).
+    per-axis std, first-differenced so that a slow sway does not count), never below a floor:
+    1e-4 of the accelerometer's or compass's median magnitude at rest (what a 14-16 bit
+    converter resolves), 1e-6 rad/s for the gyro. A simulated sensor can be noise-free and a
+    compass logged in whole mGauss at 10 Hz, brought onto the IMU's times, reads constant
+    through a hold (ArduPilot's SITL): a σ of zero would make its conditions infinitely tight.
 
     Parameters
     ----------
@@ -235,7 +289,9 @@ def white_noise(d: JointData) -> dict[str, float]:
         mean = np.add.reduceat(dy, starts, axis=0) / counts[:, None]
         dev = dy - np.repeat(mean, counts, axis=0)
         std = np.sqrt(np.add.reduceat(dev * dev, starts, axis=0) / counts[:, None])
-        out[name] = max(float(np.median(std.mean(axis=1) / np.sqrt(2))), 1e-9)
+        floor = (GYRO_NOISE_FLOOR if name == "gyr"
+                 else NOISE_FLOOR[name] * float(np.median(np.linalg.norm(y[idx], axis=1))))
+        out[name] = max(float(np.median(std.mean(axis=1) / np.sqrt(2))), floor, 1e-9)
     return out
 
 
@@ -306,8 +362,8 @@ def misclosures(x: np.ndarray, d: JointData, families,
         s, e = window_ends(d)
         dr = tr.rotation(s, e)
         out["mag"] = (mc[e] - np.einsum("wji,wj->wi", dr, mc[s])) @ tr.mats["D_m"].T
-        if "mag_datum" in families:
-            out["mag_datum"] = np.array([[np.linalg.norm(mc, axis=1).mean() - d.field]])
+    if d.mag is not None and "mag_datum" in families:
+        out["mag_datum"] = np.array([[np.linalg.norm(tr.mc, axis=1).mean() - d.field]])
     return out
 
 
