@@ -62,6 +62,9 @@ FIELD = slice(12, 14)
 _LOWER = np.array([-2000.0] * 3 + [0.5] * 3 + [-0.5] * 3 + [-1000.0] * 3 + [1.0, -np.pi / 2])
 _UPPER = np.array([2000.0] * 3 + [2.0] * 3 + [0.5] * 3 + [1000.0] * 3 + [2000.0, np.pi / 2])
 OUTLIER_SIGMAS = 5.0
+# the cost is in units of the residuals' variance: a step that lowers it less than this moves
+# the parameters by a thousandth of their σ or less, along the weakest direction included
+CONVERGED_CHI2 = 1e-6
 
 
 @dataclass(frozen=True)
@@ -460,7 +463,7 @@ def _solve(x, free, args, prior: FieldPrior, s_eff: float, max_iter: int = 200) 
             c_new = cost_of(trial, r_new)
             if c_new <= cost:
                 improved = True
-                done = cost - c_new <= 1e-12 * cost + 1e-18
+                done = cost - c_new <= CONVERGED_CHI2
                 full, r, cost = trial, r_new, c_new
                 lam = max(lam / 5, 1e-12)
                 break

@@ -38,7 +38,7 @@ inconsistencies between compasses).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -53,6 +53,7 @@ DELAYS_S = np.arange(-0.1, 0.3001, 0.02)   # sample delays tried [s], then refin
 HUBER_K = 1.345
 MIN_GAP_S = 0.15                      # a rate record missing this long ...
 GAP_FACTOR = 4.0                      # ... and this many typical steps: the heading may jump
+GAP_BRIDGE_RAD = np.radians(0.25)     # ... unless a straight line bridges it within this
 
 
 def verdict(p95_deg: float) -> str:
@@ -69,27 +70,25 @@ def compass_heading(field_body: np.ndarray, roll: np.ndarray, pitch: np.ndarray,
     return np.arctan2(-v[:, 1], v[:, 0]) + declination
 
 
-def _cumtrapz(t: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Cumulative trapezoid integral of y over t, 0 at the first sample; steps across a gap
-    (:func:`gaps`) or backwards add nothing."""
+def _cumtrapz(t: np.ndarray, y: np.ndarray, skip: np.ndarray | None = None) -> np.ndarray:
+    """Cumulative trapezoid integral of y over t, 0 at the first sample; steps marked in
+    ``skip`` (gaps, :func:`gap_steps`) or backwards add nothing."""
     dt = np.diff(t)
-    dt = np.where((dt > 0) & ~_gap_steps(t), dt, 0.0)
+    ok = dt > 0 if skip is None else (dt > 0) & ~skip
+    dt = np.where(ok, dt, 0.0)
     return np.concatenate([[0.0], np.cumsum(0.5 * (y[1:] + y[:-1]) * dt)])
 
 
-def _gap_steps(t: np.ndarray) -> np.ndarray:
-    """Which steps between consecutive samples are gaps: longer than ``GAP_FACTOR`` typical
-    steps and than ``MIN_GAP_S`` (a log that dropped records while the vehicle turned: the
-    heading change across it is unknown)."""
+def gap_steps(t: np.ndarray, rate: np.ndarray) -> np.ndarray:
+    """Which steps between consecutive rate samples are gaps the heading may jump across:
+    longer than ``MIN_GAP_S`` and ``GAP_FACTOR`` typical steps (a log that dropped records),
+    with a rate [rad/s] that changed so much across it that a straight line between its ends
+    could be ``GAP_BRIDGE_RAD`` off (a steady turn is bridged)."""
     dt = np.diff(t)
     if len(dt) == 0:
         return np.zeros(0, bool)
-    return dt > max(MIN_GAP_S, GAP_FACTOR * float(np.median(dt)))
-
-
-def gaps(t: np.ndarray) -> np.ndarray:
-    """Times [s] at which a gap in ``t`` ends (see :func:`_gap_steps`)."""
-    return t[1:][_gap_steps(t)]
+    long = dt > max(MIN_GAP_S, GAP_FACTOR * float(np.median(dt)))
+    return long & (np.abs(np.diff(rate)) * dt / 2.0 > GAP_BRIDGE_RAD)
 
 
 @dataclass
@@ -98,24 +97,23 @@ class RateSource:
     [rad, 0 at the first sample], and the cumulative integrals of the factors that carry a body
     y / z gyro bias into the heading rate (sinφ/cosθ, cosφ/cosθ), plain and times (t − t[0])
     (for the piecewise-linear bias). ``gyro`` False: G is a logged heading (no bias factors
-    beyond a heading-rate bias). Across a gap in the record (:func:`gaps`) G is held and the
-    reference gets a free jump there."""
+    beyond a heading-rate bias). Across a gap in the gyro record (:func:`gap_steps`) G is held
+    and the reference gets a free jump there; a logged heading needs none (it is absolute on
+    both sides)."""
 
     t: np.ndarray
     g: np.ndarray
     c0: np.ndarray            # (n, k) ∫ c ds per bias axis
     c1: np.ndarray            # (n, k) ∫ (s − t0)·c ds
     gyro: bool
-
-    @property
-    def gap_ends(self) -> np.ndarray:
-        """Times [s] at which a gap in the record ends: the heading may jump there."""
-        return gaps(self.t)
+    gap_ends: np.ndarray = field(default_factory=lambda: np.zeros(0))   # [s]
 
     def step_basis(self, t: np.ndarray) -> np.ndarray:
-        """(len(t), gaps): 1 after each gap's end, 0 before (an unknown jump of G there)."""
-        ends = self.gap_ends
-        return (t[:, None] >= ends[None, :]).astype(float)
+        """(len(t), k): 1 after a gap's end, 0 before (an unknown jump of G there), one column
+        per interval of ``t`` that holds gap ends."""
+        first = np.unique(np.searchsorted(t, self.gap_ends))
+        first = first[(first > 0) & (first < len(t))]
+        return (np.arange(len(t))[:, None] >= first[None, :]).astype(float)
 
     @classmethod
     def from_gyro(cls, gyr_t: np.ndarray, gyr: np.ndarray, att_t: np.ndarray,
@@ -126,7 +124,10 @@ class RateSource:
         cth = np.cos(np.interp(gyr_t, att_t, pitch))
         c = np.stack([np.sin(phi) / cth, np.cos(phi) / cth], axis=1)
         rate = gyr[:, 1] * c[:, 0] + gyr[:, 2] * c[:, 1]
-        return cls._build(gyr_t, rate, c, True)
+        skip = gap_steps(gyr_t, rate)
+        s = (gyr_t - gyr_t[0])[:, None]
+        return cls(gyr_t, _cumtrapz(gyr_t, rate, skip), _cumtrapz_cols(gyr_t, c, skip),
+                   _cumtrapz_cols(gyr_t, c * s, skip), True, gyr_t[1:][skip])
 
     @classmethod
     def from_heading(cls, t: np.ndarray, heading: np.ndarray) -> "RateSource":
@@ -137,10 +138,6 @@ class RateSource:
         return cls(t, psi - psi[0], _cumtrapz_cols(t, one), _cumtrapz_cols(t, one * s[:, None]),
                    False)
 
-    @classmethod
-    def _build(cls, t, rate, c, gyro):
-        s = (t - t[0])[:, None]
-        return cls(t, _cumtrapz(t, rate), _cumtrapz_cols(t, c), _cumtrapz_cols(t, c * s), gyro)
 
     def heading(self, t: np.ndarray) -> np.ndarray:
         """G at ``t`` [rad]."""
@@ -168,8 +165,8 @@ class RateSource:
         return np.concatenate(cols, axis=1)
 
 
-def _cumtrapz_cols(t: np.ndarray, y: np.ndarray) -> np.ndarray:
-    return np.stack([_cumtrapz(t, y[:, k]) for k in range(y.shape[1])], axis=1)
+def _cumtrapz_cols(t: np.ndarray, y: np.ndarray, skip: np.ndarray | None = None) -> np.ndarray:
+    return np.stack([_cumtrapz(t, y[:, k], skip) for k in range(y.shape[1])], axis=1)
 
 
 def wrap_deg(a: np.ndarray) -> np.ndarray:
@@ -254,7 +251,6 @@ def _fit_at_delay(t, head, source: RateSource, knots, delay):
     y = np.unwrap(_wrap(head - g))
     basis = source.bias_basis(u, knots)
     steps = source.step_basis(u)
-    steps = steps[:, steps.any(axis=0) & ~steps.all(axis=0)]    # jumps inside the samples
     n, m = len(t), basis.shape[1]
     a = np.concatenate([np.ones((n, 1)), -basis, steps], axis=1)
     # priors: every bias small, its knot-to-knot steps small (a random walk), per axis
