@@ -85,6 +85,8 @@ DIA_SIGMA = 0.04
 MOTOR_SIGMA_MGAUSS = 5.0
 SIGMA_LIMITS = np.array([OFS_SIGMA_MGAUSS] * 3 + [DIA_SIGMA] * 6 + [np.inf] * 5)
 SOFT_IRON, OFFSETS, MOTOR = list(range(3, 9)), list(range(0, 3)), list(range(9, 12))
+MAX_REFITS = 4                # refits with more parameters held, at most
+RULE_OUT_SIGMAS = 3.0         # a value in force this many σ from the fit is not kept
 MIN_DELAY_REFIT_S = 0.005     # a sample delay at least this large: the fit is repeated with it
 MAX_TILT = math.radians(45.0)   # samples steeper than this are left out (heading ill-defined)
 ORIENT_RATIO = 1.5            # configured rms / best rms above which another rotation is named
@@ -567,6 +569,13 @@ class _Identified:
     motor: bool
     drive: np.ndarray
     motor_sigma: np.ndarray | None
+    limits: np.ndarray
+
+    def weak(self) -> list[int]:
+        """Fitted parameters whose σ is over its limit: kept fitted because the flight rules
+        the value in force out, but determined no better than that σ."""
+        sig = self.fit.sigma
+        return [k for k in range(12) if k not in self.fit.fixed and sig[k] > self.limits[k]]
 
 
 def _identified_fit(raw, roll, pitch, drives: _Drives, prior: FieldPrior, x_force: np.ndarray,
@@ -576,27 +585,45 @@ def _identified_fit(raw, roll, pitch, drives: _Drives, prior: FieldPrior, x_forc
     motor_fixed = {k: float(v) for k, v in zip(MOTOR, drives.in_force_mot)}
     limits = SIGMA_LIMITS.copy()
     motor_sigma = None
+    force = x_force.copy()
+    force[MOTOR] = drives.in_force_mot
     if drives.possible:
         limits[MOTOR] = MOTOR_SIGMA_MGAUSS / max(drives.span, 1e-9)
         fit = fit_flight(raw, roll, pitch, drives.fit, prior, x0=x0, t=t)
         motor_sigma = fit.sigma[MOTOR]
-        held = select_free(fit, limits, [SOFT_IRON, MOTOR, OFFSETS])
-        if any(k in MOTOR for k in held):       # one compensation: held as a whole
-            held = MOTOR + select_free(_conditioned(fit, MOTOR), limits, [SOFT_IRON, OFFSETS])
+        held = select_free(fit, limits, [SOFT_IRON, MOTOR, OFFSETS], force)
+        if any(k in MOTOR for k in held):
+            # one compensation: held as a whole where the flight cannot rule the value in
+            # force out, else fitted as a whole
+            sig = fit.conditional_sigma([k for k in held if k not in MOTOR])
+            if np.all(np.abs(fit.x[MOTOR] - force[MOTOR]) <= RULE_OUT_SIGMAS * sig[MOTOR]):
+                held = MOTOR + select_free(_conditioned(fit, MOTOR), limits,
+                                           [SOFT_IRON, OFFSETS], force)
+            else:
+                held = select_free(fit, limits, [SOFT_IRON, OFFSETS], force)
     else:
         fit = fit_flight(raw, roll, pitch, drives.in_force, prior, fixed=motor_fixed, x0=x0,
                          t=t)
-        held = select_free(fit, limits, [SOFT_IRON, OFFSETS])
+        held = select_free(fit, limits, [SOFT_IRON, OFFSETS], force)
     motor = drives.possible and MOTOR[0] not in held
     iron = [k for k in held if k not in MOTOR]
     would = {k: float(fit.conditional_sigma([j for j in held if j != k])[k]) for k in iron}
     drive = drives.fit if motor else drives.in_force
-    if held:
+    for _ in range(MAX_REFITS):
+        if not held:
+            break
         fixed = {k: float(x_force[k]) for k in iron}
         if not motor:
             fixed.update(motor_fixed)
         fit = fit_flight(raw, roll, pitch, drive, prior, fixed=fixed, x0=fit.x, t=t)
-    return _Identified(fit, iron, would, motor, drive, motor_sigma)
+        # held values in force that fit worse widen the others' σ: hold any now over its limit
+        more = select_free(fit, limits, [SOFT_IRON, OFFSETS], force)
+        if not more:
+            break
+        would.update({k: float(fit.conditional_sigma([j for j in more if j != k])[k])
+                      for k in more})
+        iron += more
+    return _Identified(fit, iron, would, motor, drive, motor_sigma, limits)
 
 
 def _conditioned(fit: FlightFit, held: list[int]) -> FlightFit:
@@ -609,6 +636,7 @@ def _unidentified(ident: _Identified, names: dict[str, str], in_force: dict[str,
     """(what, manoeuvre) for every parameter held at its value in force, grouped by the
     manoeuvre that would determine it, each with its value and the σ it would have had."""
     out = []
+    weak = ident.weak()
     for how in ("iron", "vertical"):
         items = [k for k in ident.held if DETERMINED_BY[k] == how]
         if items:
@@ -616,6 +644,16 @@ def _unidentified(ident: _Identified, names: dict[str, str], in_force: dict[str,
                                f"{_fmt_sigma(ident.would_be_sigma[k], k)})" for k in items)
             out.append((f"kept at the value in force, not identified by this flight: {listed}",
                         MANOEUVRE[how]))
+        items = [k for k in weak if DETERMINED_BY.get(k) == how]
+        if items:
+            listed = ", ".join(f"{names[PARAMS[k]]} ± {_fmt_sigma(ident.fit.sigma[k], k)}"
+                               for k in items)
+            out.append((f"proposed but weakly determined (the flight rules the value in force "
+                        f"out, no more): {listed}", MANOEUVRE[how]))
+    if ident.motor and any(k in MOTOR for k in weak):
+        out.append((f"COMPASS_MOT proposed but weakly determined (σ of MOT × span "
+                    f"{float(np.max(ident.fit.sigma[MOTOR])) * drives.span:.2g} mGauss; the "
+                    f"flight rules the value in force out, no more)", MANOEUVRE["motor"]))
     if not ident.motor:
         kind, span = drives.kind, drives.span
         unit = " A" if kind == "current" else ""

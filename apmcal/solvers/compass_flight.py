@@ -473,20 +473,27 @@ def _solve(x, free, args, prior: FieldPrior, s_eff: float, max_iter: int = 200) 
     return full
 
 
-def select_free(fit: FlightFit, limits: np.ndarray, order: list[list[int]]) -> list[int]:
+def select_free(fit: FlightFit, limits: np.ndarray, order: list[list[int]],
+                reference: np.ndarray | None = None, rule_out: float = 3.0) -> list[int]:
     """The parameters to hold so that every other one is identified: σ within ``limits``
     (one per ``ALL_PARAMS`` entry; inf for no limit).
 
     ``order`` lists groups of indices, held first to last: within the first group that still
     has a parameter over its limit, the one furthest over (σ / limit) is held, the σ of the
     rest re-evaluated with it held (:meth:`FlightFit.conditional_sigma`), and so on until none
-    is over. Returns the indices to hold, in the order chosen.
+    is over. With ``reference`` (the values a held parameter would keep), a parameter whose
+    reference value lies more than ``rule_out`` σ from the fitted one is never held: the flight
+    rules that value out, so it stays fitted, weakly determined. Returns the indices to hold,
+    in the order chosen.
     """
     held: list[int] = []
     while True:
         sig = fit.conditional_sigma(held)
         over = sig / limits
         over[list(fit.fixed) + held] = 0.0
+        if reference is not None:
+            ruled_out = np.abs(fit.x - reference) > rule_out * np.maximum(sig, 1e-300)
+            over[ruled_out] = 0.0
         if not np.any(over > 1.0):
             return held
         for group in order:
