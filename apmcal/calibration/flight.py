@@ -89,6 +89,9 @@ MAX_REFITS = 4                # refits with more parameters held, at most
 RULE_OUT_SIGMAS = 3.0         # a value in force this many σ from the fit is not kept
 MIN_DELAY_REFIT_S = 0.005     # a sample delay at least this large: the fit is repeated with it
 MAX_TILT = math.radians(45.0)   # samples steeper than this are left out (heading ill-defined)
+# samples this soon after boot are left out: the gyro is calibrated and the attitude aligned
+# then (a log that starts at boot, LOG_DISARMED 1; one that starts at arming is not touched)
+BOOT_SETTLE_S = 15.0
 ORIENT_RATIO = 1.5            # configured rms / best rms above which another rotation is named
 ORIENT_MARGIN_MGAUSS = 3.0
 MANOEUVRE = {"iron": "two full turns of heading (720°), in the hover or driven in circles",
@@ -800,7 +803,7 @@ def calibrate_flight(source, site: tuple[float, float] | None = None, *,
     compasses = []
     for mag in fd.mags:
         mag = _decimate(mag)
-        inside = ((mag.t >= fd.att_t[0]) & (mag.t <= fd.att_t[-1])
+        inside = ((mag.t >= max(fd.att_t[0], BOOT_SETTLE_S)) & (mag.t <= fd.att_t[-1])
                   & np.all(np.isfinite(mag.field), axis=1) & np.all(np.isfinite(mag.motor), axis=1)
                   & np.all(np.isfinite(mag.offsets), axis=1))
         if np.count_nonzero(inside) < 50 or not np.any(mag.field[inside]):
