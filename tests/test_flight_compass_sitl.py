@@ -135,25 +135,32 @@ class Recording:
              "injected": self.injected.to_dict()}, indent=1))
 
 
-def _vehicle(workdir, vehicle: str, model: str, inj: Injected, drift: bool):
+def _vehicle(workdir, vehicle: str, model: str, inj: Injected, drift: bool,
+             single: bool = False):
     """An ArduPilotSitl (not started: the caller's ``with`` starts and always stops it) with
     the injection and the gyro drift (SIM_DRIFT_SPEED, ArduPilot's default 0.05 °/s per
-    minute, or 0) from its first sample."""
+    minute, or 0) from its first sample; ``single``: the first compass only (SIM_MAG2-8_DEVID
+    0), for tools that cannot tell a 4.x log's compasses apart."""
     from ardupilot_sitl import ArduPilotSitl
 
     boot = {"SIM_DRIFT_SPEED": 0.05 if drift else 0.0}
     boot.update(inj.sim_params())
+    if single:
+        boot.update({f"SIM_MAG{k}_DEVID": 0 for k in range(2, 9)})
     return ArduPilotSitl(workdir, vehicle=vehicle, model=model, speedup=SPEEDUP,
                          boot_params=boot)
 
 
 def record_copter(workdir, seed: int, pattern: str = "friendly", drift: bool = True,
-                  orient: int = 0) -> Recording:
+                  orient: int = 0, single: bool = False) -> Recording:
     """A quad flown in GUIDED. ``pattern`` "friendly" (built for the compass: a yaw turn each
     way at 45 °/s, four legs at up to 10 m/s, a climb and a descent turning at 30 °/s) or
-    "mission" (an ordinary square of four 80 m legs, the autopilot's own yaw); about 2 min."""
+    "mission" (an ordinary square of four 80 m legs, the autopilot's own yaw); about 2 min.
+    ``single``: one compass (stale calibration in force, the one the EKF uses)."""
     inj = injected(seed, orient)
-    with _vehicle(workdir, "copter", "quad", inj, drift) as sitl:
+    if single:
+        inj.in_force["COMPASS_USE"] = 1
+    with _vehicle(workdir, "copter", "quad", inj, drift, single) as sitl:
         sitl.set_params(inj.in_force)
         sitl.set_params({"WPNAV_SPEED": 1000, "WPNAV_SPEED_UP": 600, "WPNAV_SPEED_DN": 300,
                          "WPNAV_ACCEL": 500})
