@@ -1,7 +1,7 @@
 """Is the flight compass check honest over many flights? σ coverage, bounds and heading truth.
 
     python benchmarks/flight_compass_coverage.py [--sitl-seeds 1-12] [--sim-seeds 1-20]
-        [--keep DIR]
+        [--keep DIR [--reuse]]
 
 ArduPilot's own firmware (SITL, ``--sitl-seeds``): per seed one recording made by
 tests/test_flight_compass_sitl.py's functions, the kind cycling through a calibration-friendly
@@ -12,7 +12,9 @@ compasses each (stale, exact, stale calibration in force). Printed per compass: 
 held), which ones exceed the issue's bounds (3 mGauss, 0.01, 0.005, 0.1 mGauss/A), the
 parameters held in force, the CPU time of the check, and the heading: the reported 95 %
 error of the calibration in force and of the proposal beside the true one (the SITL's SIM
-record), and the 95th percentile of |reported − true| per sample.
+record), the 95th percentile of |reported − true| per sample, and the compass's sample
+delay found beside the true one. ``--true-attitude`` levels with the SITL's true roll and
+pitch instead of the EKF's (what the attitude costs).
 
 The simulator (``--sim-seeds``): apmcal_sim.flight's two-compass flights (white noise, the WMM
 field exactly, a stale calibration in force), every parameter against its injected truth.
@@ -35,6 +37,7 @@ sys.path[:0] = [str(ROOT), str(ROOT / "sitl"), str(ROOT / "tests")]
 
 from test_flight_compass_sitl import (  # noqa: E402
     TOLERANCE,
+    Recording,
     errors_against_exact,
     record_copter,
     record_rover,
@@ -42,6 +45,7 @@ from test_flight_compass_sitl import (  # noqa: E402
 )
 
 from apmcal.calibration.flight import calibrate_flight  # noqa: E402
+from apmcal.sources.flight import FlightData  # noqa: E402
 
 KINDS = ("friendly", "mission", "rover")
 
@@ -54,8 +58,12 @@ def seeds(text: str) -> list[int]:
     return [int(s) for s in text.split(",") if s]
 
 
-def record(seed: int, workdir: Path):
-    """The SITL recording of one seed (see the module docstring)."""
+def record(seed: int, workdir: Path, reuse: bool = False):
+    """The SITL recording of one seed (see the module docstring); with ``reuse`` the one a
+    previous run kept in ``workdir``, when there is one."""
+    kept = sorted(workdir.glob("logs/*.BIN"))
+    if reuse and kept and kept[-1].with_suffix(".json").exists():
+        return Recording.load(kept[-1])
     kind = KINDS[seed % 3]
     drift = seed % 2 == 0
     if kind == "rover":
@@ -76,14 +84,30 @@ def heading_agreement(tr, compass, params, health) -> tuple[float, float, float]
             float(np.percentile(apart, 95)))
 
 
-def sitl_rows(seed_list, keep: Path | None):
+def with_true_attitude(log) -> FlightData:
+    """The log's flight series with ATT's roll and pitch replaced by the SITL's true ones
+    (the SIM record): what the check gives when the attitude it levels with is exact."""
+    from apmcal.sources.dataflash import read_bin_messages
+    from apmcal.sources.flight import read_flight
+
+    fd = read_flight(log)
+    sim = read_bin_messages(log, lambda n: n == "SIM")[0]["SIM"]
+    ts = np.asarray(sim["TimeUS"], float) * 1e-6
+    for name in ("roll", "pitch"):
+        true = np.unwrap(np.radians(np.asarray(sim[name.capitalize()], float)))
+        setattr(fd, name, np.interp(fd.att_t, ts, true))
+    return fd
+
+
+def sitl_rows(seed_list, keep: Path | None, reuse: bool = False, true_attitude: bool = False):
     zs: dict[str, list] = {}
     beyond, agree, exact_grades = [], [], []
     for seed in seed_list:
         base = keep or Path(tempfile.mkdtemp(prefix="flight-compass-"))
-        rec = record(seed, base / f"seed{seed:02d}")
+        rec = record(seed, base / f"seed{seed:02d}", reuse)
+        source = with_true_attitude(rec.log) if true_attitude else rec.log
         t0 = time.process_time()
-        res = calibrate_flight(rec.log)
+        res = calibrate_flight(source)
         cpu = time.process_time() - t0
         for c in res.compasses:
             tr = truth_of(rec, c.instance)
@@ -105,7 +129,8 @@ def sitl_rows(seed_list, keep: Path | None):
                   f"({rec.injected.modes[c.instance]}) | {abs(z[worst]):.1f} ({worst[8:]}) | "
                   f"{', '.join(out) or '—'} | {', '.join(k[8:] for k in c.held) or '—'} | "
                   f"{h0[0]:.1f} / {h0[1]:.1f} | {h1[0]:.2f} / {h1[1]:.2f} | "
-                  f"{max(h0[2], h1[2]):.2f} | {cpu:.1f} |", flush=True)
+                  f"{max(h0[2], h1[2]):.2f} | {1000 * c.sample_delay_s:.0f} "
+                  f"({1000 * tr.delay_s:.0f}) | {cpu:.1f} |", flush=True)
     return zs, beyond, agree, exact_grades
 
 
@@ -145,13 +170,19 @@ def main(argv=None) -> int:
     ap.add_argument("--sitl-seeds", default="1-12", help='e.g. "1-12" or "3,5" ("" for none)')
     ap.add_argument("--sim-seeds", default="1-20", help='simulator seeds ("" for none)')
     ap.add_argument("--keep", type=Path, help="keep the SITL logs in this folder")
+    ap.add_argument("--reuse", action="store_true",
+                    help="check the recordings --keep holds again instead of recording anew")
+    ap.add_argument("--true-attitude", action="store_true",
+                    help="level with the SITL's true roll and pitch instead of the EKF's")
     args = ap.parse_args(argv)
     if args.sitl_seeds:
         print("| seed | kind | gyro drift | compass (in force) | largest \\|z\\| | beyond the "
               "bounds | held in force | in force 95 % reported / true [°] | proposed 95 % "
-              "reported / true [°] | \\|reported − true\\| 95 % [°] | CPU [s] |")
-        print("|---|---|---|---|---|---|---|---|---|---|---|")
-        zs, beyond, agree, grades = sitl_rows(seeds(args.sitl_seeds), args.keep)
+              "reported / true [°] | \\|reported − true\\| 95 % [°] | sample delay [ms] "
+              "(true) | CPU [s] |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+        zs, beyond, agree, grades = sitl_rows(seeds(args.sitl_seeds), args.keep, args.reuse,
+                                              args.true_attitude)
         summary("ArduPilot SITL", zs)
         print(f"  compasses with a parameter beyond the issue's bounds: {sum(beyond)} of "
               f"{len(beyond)}")

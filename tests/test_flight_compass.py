@@ -156,7 +156,7 @@ def test_real_flight_gets_a_heading_verdict():
             "good", "usable", "redo")
         assert c.orientation is not None and not c.orientation.wrong
     text = "\n".join(res.lines())
-    assert "heading error 95 %" in text and "fly " in text
+    assert "heading error 95 %" in text and "what determines it: " in text
 
 
 def test_a_flown_log_says_what_the_compass_check_lacked():

@@ -134,6 +134,14 @@ class Recording:
             {"kind": self.kind, "drift": self.drift, "seed": self.seed,
              "injected": self.injected.to_dict()}, indent=1))
 
+    @classmethod
+    def load(cls, log) -> "Recording":
+        """A recording :meth:`save` described."""
+        meta = json.loads(Path(log).with_suffix(".json").read_text())
+        inj = dict(meta["injected"])
+        inj["modes"] = tuple(inj["modes"])
+        return cls(Path(log), Injected(**inj), meta["kind"], meta["drift"], meta["seed"])
+
 
 def _vehicle(workdir, vehicle: str, model: str, inj: Injected, drift: bool,
              single: bool = False):

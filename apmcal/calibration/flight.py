@@ -394,7 +394,7 @@ class FlightResult:
             if c.orientation is not None:
                 out.append(f"  compass {c.instance}: {c.orientation.evidence()}")
             for what, how in c.unidentified:
-                out.append(f"  compass {c.instance}: {what} — fly {how}")
+                out.append(f"  compass {c.instance}: {what} — what determines it: {how}")
         out.append("Proposed parameters (in force → proposed ± σ; only what the flight "
                    "identified):")
         for c in (c for c in self.compasses if c.valid):

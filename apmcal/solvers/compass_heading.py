@@ -183,7 +183,8 @@ class HeadingReference:
     """A fitted heading reference (:func:`fit_reference`): at the compass sample times ``t``
     [s] the reference heading ``psi`` [rad] (for the instants the samples stand for), the
     sample delay [s], the gyro bias [rad/s] at ``knots_t`` per axis (y, z; or one axis for a
-    logged heading), and the anchor's residual against it [rad]."""
+    logged heading), the anchor's residual against it [rad], and the reference before the
+    bias was taken out (``anchor_free``, [rad])."""
 
     t: np.ndarray
     psi: np.ndarray
@@ -192,14 +193,21 @@ class HeadingReference:
     bias: np.ndarray
     residual: np.ndarray
     gyro: bool
+    anchor_free: np.ndarray = field(default_factory=lambda: np.zeros(0))   # ψ₀ + G + jumps
 
     def error_deg(self, psi_compass: np.ndarray) -> np.ndarray:
         """A compass heading's error [deg] against the reference, sample by sample."""
         return wrap_deg(np.degrees(psi_compass - self.psi))
 
+    @property
+    def bias_rate(self) -> np.ndarray:
+        """The heading-rate bias the fit took out of the gyro heading [rad/s], per sample."""
+        removed = self.psi - self.anchor_free
+        return np.gradient(removed, self.t) if len(self.t) > 1 else np.zeros(len(self.t))
+
     def describe(self) -> str:
         """One line: what the reference is and what was estimated."""
-        peak = float(np.degrees(np.max(np.abs(self.bias)))) if self.bias.size else 0.0
+        peak = float(np.degrees(np.max(np.abs(self.bias_rate)))) if len(self.t) else 0.0
         what = "gyro-integrated heading" if self.gyro else "logged heading change (it used this " \
                                                           "compass)"
         return (f"{what}, its bias fitted along the flight (up to {peak:.2f} °/s) with the "
@@ -239,13 +247,15 @@ def fit_reference(t: np.ndarray, anchor: np.ndarray, source: RateSource,
         if d not in tried:
             tried[d] = solve(d)
     best = min(tried, key=lambda d: tried[d][0])
-    _, psi, bias, resid = tried[best]
+    _, psi, bias, resid, unbiased = tried[best]
     n_axes = source.c0.shape[1]
-    return HeadingReference(t, psi, best, knots, bias.reshape(n_axes, -1), resid, source.gyro)
+    return HeadingReference(t, psi, best, knots, bias.reshape(n_axes, -1), resid, source.gyro,
+                            unbiased)
 
 
 def _fit_at_delay(t, head, source: RateSource, knots, delay):
-    """(robust cost, reference heading, bias coefficients, residuals) for one sample delay."""
+    """(robust cost, reference heading, bias coefficients, residuals, the reference without the
+    bias) for one sample delay."""
     u = t - delay
     g = source.heading(u)
     y = np.unwrap(_wrap(head - g))
@@ -281,7 +291,8 @@ def _fit_at_delay(t, head, source: RateSource, knots, delay):
     cost = float(np.sum(np.where(z <= HUBER_K, 0.5 * z ** 2, HUBER_K * z - 0.5 * HUBER_K ** 2)))
     cost *= sigma ** 2          # comparable between delays: in rad², not in units of each σ
     psi = head - resid
-    return cost, psi, coef[1:1 + m], resid
+    unbiased = psi + basis @ coef[1:1 + m]
+    return cost, psi, coef[1:1 + m], resid, unbiased
 
 
 @dataclass
