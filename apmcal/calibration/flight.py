@@ -380,7 +380,8 @@ class FlightResult:
             hi, hp = c.health_in_force, c.health_proposed
             new = (f"proposed {hp.verdict.upper()} — 95 % {hp.p95_deg:.1f}° (rms "
                    f"{hp.rms_deg:.1f}°)" if c.valid else
-                   "no proposal: the fit sits on ArduPilot's DIA/ODI limits")
+                   "no proposal: no correction within ArduPilot's DIA/ODI limits matches "
+                   "the field")
             out.append(f"  compass {c.instance}: calibration in force {hi.verdict.upper()} — "
                        f"heading error 95 % {hi.p95_deg:.1f}° (rms {hi.rms_deg:.1f}°, max "
                        f"{hi.max_deg:.1f}°); {new}")
@@ -708,17 +709,25 @@ def _fit_compass(fd, mag, params, generation, after, prior, field_ned, decl, sou
         if orient.wrong:
             r_use = rotation_matrix(orient.best)
     raw = raw_sensor @ r_use.T
+    # no rotation lets a matrix within limits fit (the orientation search says so), or the
+    # fit sits on them: the compass does not match the field, nothing is proposed, and the
+    # reference is anchored to the calibration in force instead
+    nowhere = orient is not None and not any(map(math.isfinite, orient.scores.values()))
+
+    def anchor(ident):
+        if nowhere or ident.fit.at_limits:
+            return mag.field
+        return corrected(ident.fit.x, raw, ident.drive)
+
     ident = _identified_fit(raw, roll, pitch, drives, prior, x_force, t)
     # the reference, then the fit again with the attitude at the instants the samples stand for
-    ref = heading.fit_reference(t, None, source, _heading_of(
-        fd, t, corrected(ident.fit.x, raw, ident.drive), decl))
+    ref = heading.fit_reference(t, None, source, _heading_of(fd, t, anchor(ident), decl))
     if abs(ref.delay_s) >= MIN_DELAY_REFIT_S:
         roll, pitch = attitude_at(fd, t - ref.delay_s)
         drives = _drives(fd, t - ref.delay_s, params, inst)
         ident = _identified_fit(raw, roll, pitch, drives, prior, x_force, t, x0=ident.fit.x)
-        ref = heading.fit_reference(t, None, source, _heading_of(
-            fd, t, corrected(ident.fit.x, raw, ident.drive), decl),
-            delays_s=np.array([ref.delay_s]))
+        ref = heading.fit_reference(t, None, source, _heading_of(fd, t, anchor(ident), decl),
+                                    delays_s=np.array([ref.delay_s]))
         roll, pitch = attitude_at(fd, t - ref.delay_s)
     fit = ident.fit
     names = param_names(inst)
@@ -759,12 +768,15 @@ def _fit_compass(fd, mag, params, generation, after, prior, field_ned, decl, sou
     if s_name in params:
         in_force[s_name] = float(params[s_name])
         proposed[s_name] = float(params[s_name])     # kept: M absorbs any scale (module doc)
-    if fit.at_limits:
-        unid.append(("a correction within ArduPilot's limits (the compass does not match the "
-                     "WMM field)", "a flight away from steel and power lines, with the site known"))
+    valid = not (fit.at_limits or nowhere)
+    if not valid:
+        unid = [("a correction within ArduPilot's limits (the compass does not match the field)",
+                 "a flight away from steel and power lines, with the site known")]
     return CompassFlight(inst, in_force, proposed, sigma, h_old, h_new, orient, drives.kind,
-                         drives.span, unid, fit.rms, not fit.at_limits, held_names, would, local,
-                         ref.describe(), ref.delay_s, fit.correlation_factor)
+                         drives.span, unid, fit.rms, valid, held_names, would, local,
+                         ref.describe("the proposed calibration" if valid else
+                                      "the calibration in force"),
+                         ref.delay_s, fit.correlation_factor)
 
 
 def _rate_source(fd: FlightData) -> heading.RateSource:

@@ -205,14 +205,14 @@ class HeadingReference:
         removed = self.psi - self.anchor_free
         return np.gradient(removed, self.t) if len(self.t) > 1 else np.zeros(len(self.t))
 
-    def describe(self) -> str:
-        """One line: what the reference is and what was estimated."""
+    def describe(self, anchor: str = "the proposed calibration") -> str:
+        """One line: what the reference is, what was estimated, and what it is anchored to."""
         peak = float(np.degrees(np.max(np.abs(self.bias_rate)))) if len(self.t) else 0.0
         what = "gyro-integrated heading" if self.gyro else "logged heading change (it used this " \
                                                           "compass)"
         return (f"{what}, its bias fitted along the flight (up to {peak:.2f} °/s) with the "
-                f"compass's sample delay ({1000 * self.delay_s:.0f} ms), anchored to the "
-                f"proposed calibration (a constant offset common to all calibrations is not seen)")
+                f"compass's sample delay ({1000 * self.delay_s:.0f} ms), anchored to {anchor} "
+                f"(a constant offset common to all calibrations is not seen)")
 
 
 def fit_reference(t: np.ndarray, anchor: np.ndarray, source: RateSource,
