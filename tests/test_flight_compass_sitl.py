@@ -360,22 +360,23 @@ def _skip_without_firmware():
 
 @pytest.fixture(scope="module")
 def friendly(tmp_path_factory):
-    """A calibration-friendly copter flight, gyro drift on, compass 3 mounted YAW_90, and the
+    """A calibration-friendly copter flight, gyro drift off, compass 3 mounted YAW_90, and the
     flight compass check of it."""
     from apmcal.calibration.flight import calibrate_flight
     _skip_without_firmware()
     rec = record_copter(tmp_path_factory.mktemp("friendly") / "sitl", seed=4,
-                        pattern="friendly", drift=True, orient=2)
+                        pattern="friendly", drift=False, orient=2)
     return rec, calibrate_flight(rec.log)
 
 
 @pytest.fixture(scope="module")
 def mission(tmp_path_factory):
-    """An ordinary square mission, gyro drift off, and its compass check."""
+    """An ordinary square mission, gyro drift on (ArduPilot's default), and its compass
+    check."""
     from apmcal.calibration.flight import calibrate_flight
     _skip_without_firmware()
     rec = record_copter(tmp_path_factory.mktemp("mission") / "sitl", seed=5, pattern="mission",
-                        drift=False)
+                        drift=True)
     return rec, calibrate_flight(rec.log)
 
 
@@ -402,7 +403,9 @@ def ground(tmp_path_factory):
 def test_copter_proposals_are_the_exact_calibration_within_3_sigma(scenario, request):
     """Every proposed OFS/DIA/ODI/MOT of every compass within 3σ of the exact answer; on the
     calibration-friendly flight also within the issue's absolute bounds (3 mGauss, 0.01,
-    0.005, 0.1 mGauss/A). The compass mounted YAW_90 is named and its orientation proposed."""
+    0.005, 0.1 mGauss/A; a mission's offsets can be further off, within their σ: the EKF's
+    level error, docs/flight-compass.md). The compass mounted YAW_90 is named and its
+    orientation proposed."""
     rec, res = request.getfixturevalue(scenario)
     assert [c.instance for c in res.compasses] == [0, 1, 2]
     for c in res.compasses:
