@@ -13,8 +13,9 @@ held), which ones exceed the issue's bounds (3 mGauss, 0.01, 0.005, 0.1 mGauss/A
 parameters held in force, the CPU time of the check, and the heading: the reported 95 %
 error of the calibration in force and of the proposal beside the true one (the SITL's SIM
 record), the 95th percentile of |reported − true| per sample, and the compass's sample
-delay found beside the true one. ``--true-attitude`` levels with the SITL's true roll and
-pitch instead of the EKF's (what the attitude costs).
+delay found beside the true one, and the EKF's level error (ATT's roll and pitch against SIM's:
+the flight means and the largest scatter of 10 s means about them). ``--true-attitude``
+levels with the SITL's true roll and pitch instead of the EKF's (what the attitude costs).
 
 The simulator (``--sim-seeds``): apmcal_sim.flight's two-compass flights (white noise, the WMM
 field exactly, a stale calibration in force), every parameter against its injected truth.
@@ -99,6 +100,27 @@ def with_true_attitude(log) -> FlightData:
     return fd
 
 
+def level_error_deg(log) -> tuple[float, float, float]:
+    """The EKF's roll and pitch (ATT) against the SITL's true ones (SIM) after the first 15 s:
+    the flight means [deg] and the largest scatter of their 10 s means about them [deg]."""
+    from apmcal.sources.dataflash import read_bin_messages
+    from apmcal.sources.flight import read_flight
+
+    fd = read_flight(log)
+    sim = read_bin_messages(log, lambda n: n == "SIM")[0]["SIM"]
+    ts = np.asarray(sim["TimeUS"], float) * 1e-6
+    keep = (fd.att_t > max(ts[0] + 1.0, 15.0)) & (fd.att_t < ts[-1] - 1.0)
+    t = fd.att_t[keep]
+    out = []
+    for name in ("roll", "pitch"):
+        true = np.unwrap(np.radians(np.asarray(sim[name.capitalize()], float)))
+        err = np.degrees(getattr(fd, name)[keep] - np.interp(t, ts, true))
+        block = ((t - t[0]) // 10.0).astype(int)
+        means = np.array([err[block == b].mean() for b in np.unique(block)])
+        out.append((float(err.mean()), float(np.std(means - err.mean()))))
+    return out[0][0], out[1][0], max(out[0][1], out[1][1])
+
+
 def sitl_rows(seed_list, keep: Path | None, reuse: bool = False, true_attitude: bool = False):
     zs: dict[str, list] = {}
     beyond, agree, exact_grades = [], [], []
@@ -109,6 +131,7 @@ def sitl_rows(seed_list, keep: Path | None, reuse: bool = False, true_attitude: 
         t0 = time.process_time()
         res = calibrate_flight(source)
         cpu = time.process_time() - t0
+        level = level_error_deg(rec.log)
         for c in res.compasses:
             tr = truth_of(rec, c.instance)
             errs = errors_against_exact(rec, c, tr.field_ned)
@@ -130,7 +153,8 @@ def sitl_rows(seed_list, keep: Path | None, reuse: bool = False, true_attitude: 
                   f"{', '.join(out) or '—'} | {', '.join(k[8:] for k in c.held) or '—'} | "
                   f"{h0[0]:.1f} / {h0[1]:.1f} | {h1[0]:.2f} / {h1[1]:.2f} | "
                   f"{max(h0[2], h1[2]):.2f} | {1000 * c.sample_delay_s:.0f} "
-                  f"({1000 * tr.delay_s:.0f}) | {cpu:.1f} |", flush=True)
+                  f"({1000 * tr.delay_s:.0f}) | {level[0]:+.2f} / {level[1]:+.2f} "
+                  f"({level[2]:.2f}) | {cpu:.1f} |", flush=True)
     return zs, beyond, agree, exact_grades
 
 
@@ -179,8 +203,8 @@ def main(argv=None) -> int:
         print("| seed | kind | gyro drift | compass (in force) | largest \\|z\\| | beyond the "
               "bounds | held in force | in force 95 % reported / true [°] | proposed 95 % "
               "reported / true [°] | \\|reported − true\\| 95 % [°] | sample delay [ms] "
-              "(true) | CPU [s] |")
-        print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+              "(true) | EKF level error: roll / pitch mean (10 s scatter) [°] | CPU [s] |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
         zs, beyond, agree, grades = sitl_rows(seeds(args.sitl_seeds), args.keep, args.reuse,
                                               args.true_attitude)
         summary("ArduPilot SITL", zs)

@@ -238,3 +238,18 @@ def test_sigma_covers_residuals_correlated_in_time():
     z = np.abs(np.concatenate([_correlated_noise_fit(seed) for seed in range(1, 21)]))
     assert np.mean(z < 3.0) >= 0.95
     assert 0.4 <= np.median(z) <= 1.0
+
+
+def test_the_logs_int16_truncation_is_undone():
+    """ArduPilot logs MAG as ``(int16_t)field``, truncating toward zero: read back, the mean
+    of what a logged value stands for is the value + ½·sign (0 for 0), so a field of either
+    sign comes back unbiased where the logged integers are half a mGauss short."""
+    from apmcal.calibration.flight import untruncated
+
+    true = np.random.default_rng(3).uniform(-600.0, 600.0, 200_000)
+    logged = np.trunc(true)                      # C's float → int16 conversion
+    assert np.mean((logged - true)[true > 1]) == pytest.approx(-0.5, abs=0.01)
+    assert np.mean((logged - true)[true < -1]) == pytest.approx(0.5, abs=0.01)
+    back = untruncated(logged)
+    for side in (true > 1, true < -1):
+        assert abs(np.mean((back - true)[side])) < 0.01

@@ -106,10 +106,10 @@ class AttitudeUncertainty:
     block_s: float
 
 
-# ArduPilot's EKF roll and pitch against the simulator's true attitude on 28 ArduPilot SITL
-# flights (copter and rover): a mean error over the flight of 0.055° rms, up to 0.16° (square
-# missions with the gyro drifting), 10 s means that scatter by 0.01-0.10° (median 0.045°)
-# about it (docs/flight-compass.md, "σ"); a real vehicle's attitude is known no better
+# ArduPilot's EKF roll and pitch against the simulator's true attitude on ArduPilot SITL
+# flights (benchmarks/flight_compass_coverage.py, docs/flight-compass.md): flight means of
+# 0.05-0.18° in roll on square missions, 0.04° or less on calibration flights and rovers, 10 s
+# means that scatter by 0.01-0.09° about them; a real vehicle's attitude is known no better
 ATTITUDE = AttitudeUncertainty(np.radians(0.1), np.radians(0.07), 10.0)
 
 
