@@ -613,15 +613,16 @@ def _identified_fit(raw, roll, pitch, drives: _Drives, prior: FieldPrior, x_forc
     iron = [k for k in held if k not in MOTOR]
     would = {k: float(fit.conditional_sigma([j for j in held if j != k])[k]) for k in iron}
     drive = drives.fit if motor else drives.in_force
-    for _ in range(MAX_REFITS):
-        if not held:
-            break
+    refits = 0
+    while held:
         fixed = {k: float(x_force[k]) for k in iron}
         if not motor:
             fixed.update(motor_fixed)
         fit = fit_flight(raw, roll, pitch, drive, prior, fixed=fixed, x0=fit.x, t=t)
+        refits += 1
         # held values in force that fit worse widen the others' σ: hold any now over its limit
-        more = select_free(fit, limits, [SOFT_IRON, OFFSETS], force)
+        more = (select_free(fit, limits, [SOFT_IRON, OFFSETS], force) if refits < MAX_REFITS
+                else [])
         if not more:
             break
         would.update({k: float(fit.conditional_sigma([j for j in more if j != k])[k])
