@@ -125,16 +125,17 @@ def motor_after_matrix(firmware: str | None) -> bool:
     return True
 
 
-def undo(mag: MagSeries, params: dict, instance: int, after: bool,
-         motor_in_force: np.ndarray | None = None) -> np.ndarray:
+def undo(mag: MagSeries, params: dict, instance: int, after: bool) -> np.ndarray:
     """Uncorrected body-frame field (n, 3) [mGauss] of one compass: SCALE and M(DIA, ODI) in
     force, the offsets and the motor compensation of each sample taken back out.
 
     The MAG record logs offsets and motor compensation cut to whole mGauss (ardupilot-facts.md,
-    "Flight records the flight compass check reads"); where they agree with the parameters in
-    force (COMPASS_OFS; ``motor_in_force`` = COMPASS_MOT·drive) within 1 mGauss the exact
-    values are used, else (offsets learnt in flight, another motor
-    model) the logged ones.
+    "Flight records the flight compass check reads"). The offsets: where the logged ones agree
+    with COMPASS_OFS within 1 mGauss the exact parameter values are used, else (offsets learnt
+    in flight) the logged ones. The motor compensation: the logged one, untruncated
+    (:func:`untruncated`), always — it is the firmware's own at the instant of the sample,
+    where COMPASS_MOT times a current logged apart (BAT, 10 Hz) would be off by COMPASS_MOT
+    times the current's change in between.
     """
     m = compass_matrix(params, instance) * compass_scale(params, instance)
     if abs(np.linalg.det(m)) < 1e-9:
@@ -146,9 +147,7 @@ def undo(mag: MagSeries, params: dict, instance: int, after: bool,
         ofs = np.array([float(params[n]) for n in names])
         if np.all(np.abs(mag.offsets - ofs) <= 1.0):
             offsets = np.broadcast_to(ofs, mag.offsets.shape)
-    motor = mag.motor
-    if motor_in_force is not None and np.percentile(np.abs(motor - motor_in_force), 95) <= 1.0:
-        motor = motor_in_force
+    motor = untruncated(mag.motor)
     inv = np.linalg.inv(m)
     logged = untruncated(mag.field)
     if after:
@@ -696,7 +695,7 @@ def _fit_compass(fd, mag, params, generation, after, prior, field_ned, decl, sou
     t = mag.t
     roll, pitch = attitude_at(fd, t)
     drives = _drives(fd, t, params, inst)
-    raw_body = undo(mag, params, inst, after, np.outer(drives.in_force, drives.in_force_mot))
+    raw_body = undo(mag, params, inst, after)
     r_cfg = compass_rotation(params, generation, inst)
     raw_sensor = raw_body @ r_cfg                       # v_sensor = R_cfgᵀ·v_body, as rows
     configured = _configured_orientation(params, inst)
