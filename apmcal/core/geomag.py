@@ -72,6 +72,26 @@ def earth_field_ned(lat_deg: float, lon_deg: float, alt_m: float,
     return np.array([res.x, res.y, res.z]) / NT_PER_MGAUSS, note
 
 
+def field_uncertainty(lat_deg: float, lon_deg: float, alt_m: float,
+                      year: float) -> tuple[float, float, float]:
+    """One-σ uncertainty of the WMM at a site and decimal year: total intensity [mGauss],
+    inclination and declination [deg].
+
+    The error model of the WMM technical reports ([WMM], "uncertainty estimates", as [pygeomag]'s
+    ``calculate_uncertainty`` carries it): global values that include the crustal field the
+    model leaves out, so they are also the size of the local anomaly to expect. Years before
+    2015 (no error model published with the older models) take the 2015 model's values; years
+    after 2030 the 2025 model's.
+    """
+    from pygeomag import GeoMag
+
+    used = float(np.clip(year, 2015.0, WMM_YEARS[1]))
+    res = GeoMag(base_year=min(int(used), LAST_EPOCH)).calculate(
+        glat=float(lat_deg), glon=float(lon_deg), alt=float(alt_m) / 1000.0, time=used)
+    unc = res.calculate_uncertainty()
+    return float(unc.f) / NT_PER_MGAUSS, float(unc.i), float(unc.d)
+
+
 def field_magnitude(lat_deg: float, lon_deg: float,
                     when: datetime.date | None = None) -> tuple[float, str | None]:
     """|WMM main field| [mGauss] at ground level at a site on a date (today when None), and
