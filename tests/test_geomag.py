@@ -69,10 +69,11 @@ def test_an_old_recording_is_calibrated_with_the_field_of_its_date(tmp_path):
 
 def test_the_fields_uncertainty_is_the_wmms_own_for_its_magnitude():
     """WMM2025's error model gives 138 nT (1σ) for the total intensity F: 1.38 mGauss."""
-    from apmcal.core.geomag import field_magnitude_sigma
+    from apmcal.core.geomag import field_uncertainty
 
-    sigma = field_magnitude_sigma(-35.363262, 149.165237, datetime.date(2026, 11, 29))
-    assert sigma == pytest.approx(1.38)
+    sigma_f, _, _ = field_uncertainty(-35.363262, 149.165237, 0.0,
+                                      decimal_year(datetime.date(2026, 11, 29)))
+    assert sigma_f == pytest.approx(1.38)
 
 
 def _sphere_samples(n: int, radius: float, seed: int = 0) -> np.ndarray:

@@ -115,15 +115,3 @@ def field_magnitude(lat_deg: float, lon_deg: float,
                                   decimal_year(when or datetime.date.today()))
     return float(np.linalg.norm(field)), note
 
-
-def field_magnitude_sigma(lat_deg: float, lon_deg: float,
-                          when: datetime.date | None = None) -> float:
-    """One sigma of the true field's magnitude about the WMM's [mGauss]: the model's own error
-    estimate for F (the NOAA/BGS WMM report's uncertainty model, as pygeomag gives it, 138 nT
-    for WMM2025: crustal fields and the model's omission error), at the site and date."""
-    from pygeomag import GeoMag
-
-    year = float(np.clip(decimal_year(when or datetime.date.today()), *WMM_YEARS))
-    res = GeoMag(base_year=min(int(year), LAST_EPOCH)).calculate(
-        glat=float(lat_deg), glon=float(lon_deg), alt=0.0, time=year)
-    return float(res.calculate_uncertainty().f) / NT_PER_MGAUSS

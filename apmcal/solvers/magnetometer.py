@@ -9,7 +9,7 @@ import numpy as np
 
 from apmcal.core.blas_threads import single_threaded_blas
 from apmcal.core.errors import ApmcalError
-from apmcal.core.geomag import field_magnitude, field_magnitude_sigma
+from apmcal.core.geomag import decimal_year, field_magnitude, field_uncertainty
 from apmcal.solvers.ellipsoid.debias import debiased, warm_refit
 from apmcal.solvers.ellipsoid.fit import fit_ellipsoid_robust, fit_report, relative_mse, sphere_fit
 from apmcal.solvers.report_types import EllipsoidFit, MagneticField, MseScore
@@ -172,7 +172,8 @@ def calibrate_magnetometer(mag: np.ndarray, lat_deg: float | None, lon_deg: floa
     if lat_deg is not None and lon_deg is not None:
         date = f"recording date {when}" if when else f"today's date {datetime.date.today()}"
         radius, note = field_magnitude(lat_deg, lon_deg, when)
-        radius_sigma = field_magnitude_sigma(lat_deg, lon_deg, when)
+        radius_sigma = field_uncertainty(lat_deg, lon_deg, 0.0,
+                                         decimal_year(when or datetime.date.today()))[0]
         origin = f"WMM at {date}"
         if note:
             warnings.append(f"mag: {note}")
