@@ -260,6 +260,11 @@ def _i16(v) -> int:
     return int(max(-32768, min(32767, round(float(v)))))
 
 
+def _i16_truncated(v) -> int:
+    """An int16 as ArduPilot's MAG record casts its float (toward zero: Compass::Write_Compass)."""
+    return int(max(-32768, min(32767, int(float(v)))))
+
+
 def write_flight(out, truth_out=None, *, seed: int = 1, rate_hz: float = 25.0,
                  orient_error: int = 0, yaw_bias_deg: float = 8.0, scale: float = 1.0,
                  compasses: list[CompassTruth] | None = None) -> dict:
@@ -295,7 +300,8 @@ def write_flight(out, truth_out=None, *, seed: int = 1, rate_hz: float = 25.0,
                       _i16(np.degrees(pitch_log[k]) * 100), 0,
                       int(round((np.degrees(yaw_log[k]) % 360.0) * 100)) % 36000)
             for i, (mag, ofs, mo) in enumerate(logs):
-                w._record("MAG", us, i, *(_i16(v) for v in (*mag[k], *ofs[k], *mo[k])), 1)
+                w._record("MAG", us, i, *(_i16_truncated(v) for v in (*mag[k], *ofs[k], *mo[k])),
+                          1)
             if k % slow_every == 0:
                 w._record("BAT", us, 0, 16.0, 16.0, float(tr.current[k]))
                 pwm = int(round(1000 + 1000 * tr.throttle[k]))
