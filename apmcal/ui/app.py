@@ -138,7 +138,7 @@ def create_app(backend: Backend) -> Starlette:
         if size is None:
             return error("the upload did not say its size", 411)
         if int(size) > logs.MAX_UPLOAD_BYTES:
-            return error(f"the files are too large together ({int(size) / 2**20:.0f} MB): at "
+            return error(f"the files are too large ({int(size) / 2**20:.0f} MB): at "
                          f"most {logs.MAX_UPLOAD_BYTES / 2**20:.0f} MB at a time", 413)
         form = await request.form(max_files=100, max_fields=20)
         try:

@@ -47,6 +47,7 @@ class Job:
     text: str = ""
     result: dict | None = None
     error: str | None = None
+    failed_stages: list[str] = field(default_factory=list)  # stages a file did not pass
     files: dict[str, Path] = field(default_factory=dict)    # download name → file
     pages: dict[str, Path] = field(default_factory=dict)    # report name → its folder
     version: int = 0
@@ -68,6 +69,12 @@ class Job:
             self.fraction = -1.0 if fraction is None else min(max(float(fraction), 0.0), 1.0)
             self.version += 1
 
+    def skip(self, names: list[str]) -> None:
+        """Stages not passed (a file that could not be read): shown as such, the job goes on."""
+        with self._lock:
+            self.failed_stages += [n for n in names if n not in self.failed_stages]
+            self.version += 1
+
     def finish(self, result: dict) -> None:
         """The job is done with ``result`` (JSON-ready)."""
         with self._lock:
@@ -85,6 +92,7 @@ class Job:
         with self._lock:
             return {"id": self.id, "kind": self.kind, "title": self.title, "state": self.state,
                     "stages": list(self.stages), "current": self.current,
+                    "failed_stages": list(self.failed_stages),
                     "fraction": self.fraction, "text": self.text, "result": self.result,
                     "error": self.error, "version": self.version}
 

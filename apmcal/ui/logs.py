@@ -89,6 +89,10 @@ def run_files(job, kind: str, files: list[tuple[str, Path]], lat, lon) -> dict:
             entry = {"name": name, "error": str(named(err, path, name))}
         except MemoryError:
             entry = {"name": name, "error": f"{name}: out of memory: too large for this computer"}
+        if "error" in entry:        # this file's stages from the one that failed on
+            ours = [s for s in stages_for(kind, [name]) if s in job.stages]
+            job.skip(ours[ours.index(job.stages[job.current]):]
+                     if job.current >= 0 and job.stages[job.current] in ours else ours)
         entries.append(entry)
     return {"kind": kind, "entries": entries}
 
@@ -110,6 +114,7 @@ def _downloads(job, index: int, stem: str, write) -> list[dict]:
     for suffix, (fmt, who) in PARAM_FORMATS.items():
         file_name = f"{stem}{suffix}"
         path = job.folder / f"file-{index}" / file_name
+        path.parent.mkdir(parents=True, exist_ok=True)
         write(path, fmt)
         job.files[f"{index}/{file_name}"] = path
         out.append({"label": f"{file_name} ({who})",

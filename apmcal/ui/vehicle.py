@@ -23,6 +23,7 @@ What keeps the vehicle whole:
 """
 from __future__ import annotations
 
+import contextlib
 import queue
 import threading
 import time
@@ -31,13 +32,18 @@ from pathlib import Path
 from apmcal.core.errors import ApmcalError
 
 RATE_HZ = 50                 # the IMU stream asked for [Hz], as apmcal live's default
+QUIET_HZ = 2                 # ... while parameters are read or written: every answer heard
+                             # at once, not behind a queue of IMU messages
 SILENT_S = 3.0               # no message for this long [s]: the vehicle stopped answering
 OWNER_GONE_S = 8.0           # a tab that has not looked for this long [s] no longer holds it
 FACE_TIMEOUT_S = 300.0       # per pose [s wall]: time to read the page and walk over
 COMPASS_TURN_MAX_S = 600.0   # the longest compass turn [s wall]
 ACC_SMOOTHING = 0.2          # weight of a new accelerometer sample in the pose drawn
 MESSAGES_KEPT = 40
-MIN_HOLD_S = 2.0             # shortest hold: the calibration's own shortest still period
+# shortest hold [s]: the calibration's own hold finder wants 2 s of stillness (Options'
+# min_still_s), and a hold of just that can come out too short for it when the turns between
+# poses are quick
+MIN_HOLD_S = 3.0
 
 
 class VehicleBusy(ApmcalError):
@@ -104,6 +110,15 @@ class VehicleSession:
                                                    "t": time.strftime("%H:%M:%S")}]
             self.state["messages"] = messages[-MESSAGES_KEPT:]
             self.version += 1
+
+    def note_silence(self) -> None:
+        """Let the page know, second by second, that the vehicle has gone quiet (no message
+        changes the state then)."""
+        silent = int(time.monotonic() - self._last_message)
+        if silent > SILENT_S and silent != getattr(self, "_silent_said", None):
+            self._silent_said = silent
+            with self._lock:
+                self.version += 1
 
     def looked(self, tab: str) -> None:
         """Tab ``tab`` follows the state (its event stream is open)."""
@@ -194,8 +209,8 @@ class VehicleSession:
         self.firmware_text = None
         self.link = VehicleLink(connection, baud=baud, on_message=self._seen)
         self.say("connected; reading its parameters")
-        params = self.link.fetch_params()
-        self.link.request_imu_stream(RATE_HZ)
+        with self._quiet():
+            params = self.link.fetch_params()
         in_force = {k: v for k, v in sorted(params.items()) if is_correction_param(k)}
         self.update(status="idle", vehicle={
             "system": self.link.target_system, "type": self._vehicle_type,
@@ -251,11 +266,22 @@ class VehicleSession:
                 continue
             try:
                 self.link.recv(None, 0.1)
+                self.note_silence()
             except Exception as exc:         # the port is gone (unplugged), the socket closed
                 self.update(error=f"{self.state['connection']}: the link failed ("
                                   f"{' '.join(str(exc).split()) or type(exc).__name__}): "
                                   "unplugged? Check the cable and connect again")
                 return
+
+    @contextlib.contextmanager
+    def _quiet(self):
+        """The IMU stream slowed to :data:`QUIET_HZ` while parameters are read or written,
+        then back to :data:`RATE_HZ`."""
+        self.link.request_imu_stream(QUIET_HZ)
+        try:
+            yield
+        finally:
+            self.link.request_imu_stream(RATE_HZ)
 
     def _do(self, name: str, work, status: str) -> None:
         """Run one of the page's requests on this thread; its failure becomes the page's
@@ -274,8 +300,8 @@ class VehicleSession:
             self.stop_worker.set()
         finally:
             self._mag_sink = None
-            with self._lock:
-                if self.state["status"] == status:
+            with self._lock:       # done, unless its recording is being calibrated now
+                if self.state["status"] != "calibrating":
                     self.state["status"] = "idle"
                 self.version += 1
 
@@ -328,14 +354,15 @@ class VehicleSession:
         self.link.record_to(tlog)
         try:
             self.say(f"recording to {tlog}")
-            before = self.link.fetch_params()       # in the recording: what corrected it
-            self.link.request_imu_stream(RATE_HZ)
+            with self._quiet():
+                before = self.link.fetch_params()       # in the recording: what corrected it
             if faces:
                 self._six_faces(hold_s)
             if compass:
                 self.update(status="compass")
                 self._compass_turn()
-            after = self.link.fetch_params()
+            with self._quiet():
+                after = self.link.fetch_params()
         finally:
             self.link.record_to(None)
         changed = changed_correction_params(before, after)
@@ -370,6 +397,7 @@ class VehicleSession:
                 raise ApmcalError(f"compass turn not finished within {COMPASS_TURN_MAX_S:g} s; "
                                   "nothing calibrated")
             self.link.recv(None, 0.1)
+            self.note_silence()
             if time.monotonic() - last_look > 0.5:
                 cover = turn.coverage()
                 if cover["samples"] == seen and time.monotonic() - last_look > NO_DATA_TIMEOUT_S:
@@ -394,17 +422,22 @@ class VehicleSession:
             from apmcal.core.options import Options
             from apmcal.ui.logs import calibrate_contents, read_checked, report_entry
 
-            contents = read_checked(job, name, tlog)
-            job.stage(f"calibrating {name}")
-            report = calibrate_contents(contents, name, Options(method, lat, lon))
-            job.stage(f"figures {name}")
-            entry = report_entry(job, 0, name, report, contents)
-            session.report = report
-            entry["uploadable"] = bool(report.proposal is not None and report.proposal.values)
-            return {"kind": "live", "entries": [entry]}
+            try:
+                contents = read_checked(job, name, tlog)
+                job.stage(f"calibrating {name}")
+                report = calibrate_contents(contents, name, Options(method, lat, lon))
+                job.stage(f"figures {name}")
+                entry = report_entry(job, 0, name, report, contents)
+                session.report = report
+                return {"kind": "live", "entries": [entry]}
+            finally:
+                with session._lock:
+                    if session.state["status"] == "calibrating":
+                        session.state["status"] = "idle"
+                    session.version += 1
 
         job = self.jobs.start("live", name, stages_for("log", [name]), work)
-        self.update(job=job.id)
+        self.update(job=job.id, status="calibrating")
         self.say(f"recorded {name}; calibrating it")
 
     # -- upload and undo ------------------------------------------------------------------------
@@ -423,7 +456,8 @@ class VehicleSession:
         self.files.mkdir(parents=True, exist_ok=True)
         self.say(f"backing up every parameter to {backup}, then writing {len(values)}")
         try:
-            result = upload_params(self.link, values, backup)
+            with self._quiet():
+                result = upload_params(self.link, values, backup)
         except BaseException:
             if backup.exists():       # whatever happened, the backup can be put back
                 self.restore = self._restore_point(backup, values)
@@ -454,7 +488,8 @@ class VehicleSession:
         from apmcal.link.upload import restore_params
 
         backup = self.restore["backup"]
-        result = restore_params(self.link, backup, names=self.restore["names"])
+        with self._quiet():
+            result = restore_params(self.link, backup, names=self.restore["names"])
         self.say(f"restored {len(result.written)} parameters from {backup} "
                  f"({len(self.restore['names']) - len(result.written)} already held it)", "good")
         upload = dict(self.state.get("upload") or {"backup": backup, "rows": []})
@@ -503,6 +538,7 @@ class PageOperator:
         (the session runs with ``auto``: it needs no key to go on)."""
         if self.session.stop_session.is_set() or self.session.stop_worker.is_set():
             return "q"
+        self.session.note_silence()
         if timeout_s > 0:
             time.sleep(min(timeout_s, 0.05))
         return None

@@ -99,17 +99,19 @@ function renderJob(snap, box) {
     box.append(head, el("div", { class: "job-body" }));
   }
   const stages = el("ol", { class: "stages" });
+  const failed = snap.failed_stages || [];
   snap.stages.forEach((name, i) => {
-    const cls = i < snap.current ? "done" : i === snap.current
-      ? (snap.state === "failed" ? "failed" : "now") : "";
-    stages.append(el("li", { class: cls }, (i < snap.current ? "✓ " : "") + name));
+    const bad = failed.includes(name) || (i === snap.current && snap.state === "failed");
+    const cls = bad ? "failed" : i < snap.current ? "done" : i === snap.current ? "now" : "";
+    stages.append(el("li", { class: cls }, (bad ? "✗ " : i < snap.current ? "✓ " : "") + name));
   });
   const total = snap.stages.length || 1;
   const within = snap.fraction >= 0 ? snap.fraction : 0.5;
   const done = snap.state === "done" ? 1 : Math.max(0, snap.current + (snap.current >= 0 ? within : 0)) / total;
   const bar = el("div", { class: "bar" + (snap.state === "running" && snap.fraction < 0 ? " unknown" : "") },
                  el("div", { style: `width:${Math.round(100 * done)}%` }));
-  const words = snap.state === "done" ? "done" : snap.state === "failed" ? "stopped"
+  const words = snap.state === "done" ? (failed.length ? "done, not all files could be used (below)" : "done")
+    : snap.state === "failed" ? "stopped"
     : snap.current >= 0 ? snap.stages[snap.current] + (snap.text ? ` — ${snap.text}` : "")
     : snap.text || "starting";
   head.replaceChildren(el("div", { class: "hint" }, snap.title),
@@ -194,7 +196,7 @@ async function sendLogs(files) {
   if (!files.length) return;
   const total = files.reduce((s, f) => s + f.size, 0);
   if (total > INFO.max_upload_bytes) {
-    showError("logs-error", `${files.map((f) => f.name).join(", ")}: too large together (${Math.round(total / 2 ** 20)} MB): at most ${Math.round(INFO.max_upload_bytes / 2 ** 20)} MB at a time`);
+    showError("logs-error", `${files.map((f) => f.name).join(", ")}: too large${files.length > 1 ? " together" : ""} (${Math.round(total / 2 ** 20)} MB): at most ${Math.round(INFO.max_upload_bytes / 2 ** 20)} MB at a time`);
     return;
   }
   const form = new FormData();
@@ -338,7 +340,7 @@ function renderVehicleInfo(v, s) {
     inForce.append(el("tr", {}, el("td", {}, key), ...["X", "Y", "Z"].map((a) =>
       el("td", { class: "num" }, a in g ? num(g[a], 5) : ""))));
   }
-  $("vehicle-info").replaceChildren(table, inForce);
+  $("vehicle-info").replaceChildren(el("div", { class: "side" }, table, inForce));
 }
 
 function renderGuide(g, acc) {
@@ -374,7 +376,7 @@ function renderCompass(c, acc) {
 function renderMessages(messages) {
   const list = $("messages");
   if (list.childElementCount === messages.length && list.dataset.last === (messages.at(-1) || {}).t + (messages.at(-1) || {}).text) return;
-  list.replaceChildren(...messages.map((m) => el("li", { class: m.level }, `${m.t}  ${m.text}`)));
+  list.replaceChildren(...messages.map((m) => el("li", { class: `m-${m.level}` }, `${m.t}  ${m.text}`)));
   list.dataset.last = (messages.at(-1) || {}).t + (messages.at(-1) || {}).text;
   list.scrollTop = list.scrollHeight;
 }
