@@ -145,6 +145,23 @@ def test_a_log_chosen_on_the_page_gives_the_verdict_and_the_files_of_apmcal_log(
     assert shown == pytest.approx(cli_params(tmp_path, "param"), rel=1e-5)
 
 
+def test_a_flight_log_gets_the_compass_check_of_apmcal_log(page, tmp_path):
+    from apmcal_sim import flight as simulated
+
+    flight = tmp_path / "flight.bin"
+    simulated.write_flight(flight, seed=1, orient_error=2)
+    page.find("#files").send_keys(str(flight))
+    page.wait(lambda: page.all("#logs-job .entry iframe.report"), "the flight's compass check")
+    text, images = report_frame_text(page, "#logs-job .entry")
+    assert "heading" in text and images >= 1
+    cli = tmp_path / "cli.param"
+    assert main(["log", str(flight), "--param-file", str(cli), "--quiet"]) == 0
+    page.find(".downloads a[href$='flight.param']").click()
+    assert read_param_file(downloaded(page, "flight.param")) == read_param_file(cli)
+    assert "COMPASS_ORIENT" in read_param_file(cli)        # the wrong orientation found
+    page.screenshot("flight")
+
+
 def test_bad_files_get_a_message_on_the_page(page, ui, tmp_path):
     not_a_log = tmp_path / "holiday.jpg"
     not_a_log.write_bytes(b"\xff\xd8\xff\xe0" + bytes(range(256)) * 40)
@@ -228,7 +245,7 @@ def page_proposal(page: Page) -> dict[str, float]:
             for r in page.all("#live-job table.params tr")[1:]}
 
 
-def test_guided_calibration_upload_and_undo_against_the_simulator(page, sim, tmp_path):
+def test_guided_calibration_upload_and_undo_against_the_simulator(page, sim, ui, tmp_path):
     from apmcal.report.session import calibrate
 
     connect(page, sim.connection)
@@ -251,18 +268,45 @@ def test_guided_calibration_upload_and_undo_against_the_simulator(page, sim, tmp
     assert np.all(np.abs(acc.offset - truth) < 4 * np.asarray(acc.sigma["offset"]))
     assert {"INS_ACCOFFS_X", "COMPASS_OFS_X"} <= set(proposed)
     assert report.verdict["mag"].measured
-    # upload: every proposed value now on the vehicle, and a backup of what was there
+    # upload, and the tab closed while it writes: the upload goes on to the end all the same
+    first = page.d.current_window_handle
+    page.d.switch_to.new_window("tab")
+    second = page.d.current_window_handle
+    page.d.get(ui.base + "/#live")
+    page.d.switch_to.window(first)
     page.click("#upload")
-    page.wait(lambda: page.all(".upload-done"), "the upload", 120)
+    page.wait(lambda: "writing" in page.text("#upload-result"), "the upload under way")
+    page.d.close()
+    page.d.switch_to.window(second)
+    page.wait(lambda: page.all(".upload-done"), "the upload, in the other tab", 120)
     page.screenshot("uploaded")
+    # every proposed value now on the vehicle, and a backup of what was there
     for name, value in proposed.items():
         assert float(np.float32(sim.vehicle.params[name])) == pytest.approx(value, rel=1e-5), name
     backup, = (tmp_path / "apmcal-files").glob("apmcal-backup-*.param")
     assert {n: read_param_file(backup)[n] for n in before} == pytest.approx(before)
-    # undo: the vehicle holds what it held before
+    # undo from this tab (the closed one drove the vehicle: this one takes over)
     page.click("#undo")
+    page.wait(lambda: page.visible("#live-busy") or "Undone" in page.text(".upload-done"),
+              "the undo or the other tab's message", 30)
+    if page.visible("#live-busy"):
+        page.click("#takeover")
     page.wait(lambda: "Undone" in page.text(".upload-done"), "the undo", 120)
     page.screenshot("undone")
+    for name, value in before.items():
+        assert sim.vehicle.params[name] == pytest.approx(value), name
+    # a write the vehicle never confirms: every change put back, and said on the page
+    handle = sim.vehicle.handle
+
+    def deaf_to_one(msg):
+        if msg.get_type() == "PARAM_SET" and msg.param_id == "COMPASS_OFS_Y":
+            return
+        handle(msg)
+    sim.act(lambda v: setattr(v, "handle", deaf_to_one))
+    page.click("#upload")
+    page.wait(lambda: "rolled back" in page.text("#live-error"), "the roll-back", 120)
+    assert "COMPASS_OFS_Y" in page.text("#live-error")
+    page.screenshot("rolled-back")
     for name, value in before.items():
         assert sim.vehicle.params[name] == pytest.approx(value), name
 
@@ -359,3 +403,106 @@ def test_guided_calibration_upload_and_undo_against_ardupilot_sitl(page, ardupil
     sitl.catch_up()
     for name, value in before.items():
         assert sitl.get_param(name) == pytest.approx(value, rel=1e-6, abs=1e-7), name
+
+
+def test_a_newcomer_starts_the_simulated_vehicle_from_the_page_and_turns_it(page, ui):
+    """No terminal: the page starts the bundled simulator, connects to it, and its buttons
+    turn it as the session asks (the first two poses here; the whole session is the test
+    above). Ctrl-C then stops the simulator and closes the link."""
+    page.click("#tab-live")
+    page.click("#sim-start")
+    page.wait(lambda: page.visible("#vehicle-card") and page.visible("#sim-card"), "connected", 60)
+    page.type("#hold", "3")
+    page.click("#start-session")
+    for face, button in (("level", "level"), ("left", "left")):
+        page.wait(lambda face=face: page_face(page) == face, f"the page asking for {face}", 60)
+        page.find(f"#sim-moves button[data-move='{button}']").click()
+        page.wait(lambda face=face: page_face(page) != face, f"{face} recorded", 60)
+    page.screenshot("simulated-vehicle")
+    assert "pose 2 of 6 (on its LEFT side) recorded" in page.text("#messages")
+    simulator, = [p for p in children(ui.process.pid) if "apmcal_sim" in p[1]]
+    assert ui.interrupt() == 0
+    assert "Traceback" not in ui.text()
+    assert not Path(f"/proc/{simulator[0]}").exists(), "the simulated vehicle outlived apmcal ui"
+
+
+def children(pid: int) -> list[tuple[int, str]]:
+    """(pid, command line) of the processes ``pid`` started."""
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            cmdline = (stat.parent / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except (OSError, IndexError):
+            continue
+        if int(fields[1]) == pid:
+            out.append((int(stat.parent.name), cmdline))
+    return out
+
+
+# -- tcal, gap and the fleet -------------------------------------------------------------------
+def report_frame_text(page: Page, entry_css: str) -> tuple[str, int]:
+    """The text of an entry's report page (its iframe) and how many figures it shows."""
+    frame = page.find(f"{entry_css} iframe.report")
+    page.d.switch_to.frame(frame)
+    try:
+        page.wait(lambda: page.all("body h1") or page.all("body h2"), "the report page")
+        return page.text("body"), len(page.all("img"))
+    finally:
+        page.d.switch_to.default_content()
+
+
+def test_tcal_and_gap_give_their_verdicts_figures_and_files(page, tmp_path):
+    page.find("input[name=kind][value=tcal]").click()
+    page.find("#files").send_keys(str(ROOT / "logs" / "warmup.bin"))
+    page.wait(lambda: page.all(".entry ul.tcal"), "the temperature calibration")
+    assert "proposed" in page.text(".entry ul.tcal")
+    text, images = report_frame_text(page, ".entry")
+    assert "temperature calibration" in text and images >= 1
+    page.screenshot("tcal")
+    page.find(".downloads a[href$='warmup-tcal.param']").click()
+    cli = tmp_path / "cli-tcal.param"
+    assert main(["tcal", str(ROOT / "logs" / "warmup.bin"), "--param-file", str(cli),
+                 "--quiet"]) == 0
+    assert read_param_file(downloaded(page, "warmup-tcal.param")) == read_param_file(cli)
+    page.find("input[name=kind][value=gap]").click()
+    page.find("#files").send_keys(str(ROOT / "logs" / "gap.bin"))
+    page.wait(lambda: page.all(".entry p.verdict"), "the gap diagnosis", 300)
+    verdict = page.text(".entry p.verdict")
+    assert verdict.startswith(("Modelling", "No candidate effect")), verdict
+    text, images = report_frame_text(page, ".entry")
+    assert "gap report" in text and images >= 2
+    page.find(".downloads a[href$='gap-twin.parm']").click()
+    assert read_param_file(downloaded(page, "gap-twin.parm"))
+    page.screenshot("gap")
+
+
+def test_a_fleet_folder_chosen_on_the_page_gives_the_flags_of_apmcal_fleet(page, tmp_path):
+    from apmcal.fleet.run import run_fleet
+    from apmcal_sim.fleet import write_fleet
+
+    folder = tmp_path / "fleet"
+    write_fleet(3, 3, folder, seed=3)
+    expected = run_fleet([str(folder)], tmp_path / "serial-out", serial=True).flags
+    page.click("#tab-fleet")
+    page.wait(lambda: page.find("#folder").get_attribute("value"), "the folder browser")
+    page.type("#folder", str(tmp_path))
+    page.click("#folder-go")
+    page.wait(lambda: page.all("#folder-list li[data-name='fleet']"), "the sub-folders")
+    page.click("#folder-list li[data-name='fleet']")
+    page.wait(lambda: page.find("#folder").get_attribute("value") == str(folder), "the fleet folder")
+    page.screenshot("folder")
+    page.click("#fleet-start")
+    page.wait(lambda: page.all(".fleet-result"), "the fleet's result", 300)
+    shown = [[td.text for td in row.find_elements("tag name", "td")]
+             for row in page.all("table.flags tr")[1:]]
+    assert shown == [[f.level, f.vehicle_id, f.reason, f.next_step]
+                     for f in expected.itertuples()]
+    assert any(row[0] == "action" for row in shown)
+    text, _ = report_frame_text(page, ".fleet-result")
+    assert "apmcal fleet" in text
+    page.screenshot("fleet")
+    # a folder that is not there: said on the page
+    page.type("#folder", str(tmp_path / "no-such-folder"))
+    page.click("#folder-go")
+    page.wait(lambda: "no such folder" in page.text("#fleet-error"), "the missing folder")

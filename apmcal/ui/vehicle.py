@@ -76,6 +76,7 @@ class VehicleSession:
         self.owner: str | None = None
         self.seen: dict[str, float] = {}           # tab → when it last looked [monotonic s]
         self.report = None                         # the session's SessionReport
+        self.report_of: tuple = (None, None)       # ... of this vehicle (connection, system)
         self.restore: dict | None = None           # {"backup", "names", "sysid", "connection"}
         self._last_message = 0.0
         self._acc = None
@@ -333,6 +334,7 @@ class VehicleSession:
         self.stop_session.clear()
         self.finish_turn.clear()
         self.report = None
+        self.report_of = self._this_vehicle()
         self.update(job=None, upload=None, guide=None, compass=None)
         self._queue("the session", lambda: self._session(faces, compass, hold_s, lat, lon),
                     "guide" if faces else "compass")
@@ -446,6 +448,11 @@ class VehicleSession:
         report = self.report
         if report is None or report.proposal is None:
             raise ApmcalError("nothing to upload: calibrate a session first")
+        if self.report_of != self._this_vehicle():
+            connection, system = self.report_of
+            raise ApmcalError(f"this calibration is of the vehicle at {connection} (system "
+                              f"{system}), not of the one connected now: connect to that one to "
+                              "upload it, or calibrate this one")
         values = report.proposal.uploadable(self.state.get("connection"))
         self._queue("the upload", lambda: self._upload(values), "uploading")
 
@@ -466,6 +473,10 @@ class VehicleSession:
         rows = [[n, result.previous.get(n), v] for n, v in result.written.items()]
         self.update(upload={"backup": str(backup), "rows": rows, "undone": False})
         self.say(f"wrote and read back {len(rows)} parameters; backup in {backup}", "good")
+
+    def _this_vehicle(self) -> tuple:
+        """(connection, system id) of the vehicle connected now."""
+        return self.state.get("connection"), (self.state.get("vehicle") or {}).get("system")
 
     def _restore_point(self, backup: Path, values: dict) -> dict:
         return {"backup": str(backup), "names": list(values),

@@ -149,7 +149,7 @@ function renderEntry(e) {
   for (const note of e.notes || []) box.append(el("p", { class: "hint" }, note));
   if (e.proposal) box.append(renderProposal(e.proposal));
   if (e.downloads && e.downloads.length) {
-    box.append(el("p", { class: "downloads" }, "Download the parameters: ",
+    box.append(el("p", { class: "downloads" }, e.kind === "gap" ? "Download: " : "Download the parameters: ",
       ...e.downloads.map((d) => el("a", { href: d.url, download: "" }, d.label))));
     if (e.kind !== "gap") {
       box.append(el("p", { class: "hint" }, "Load the file in Mission Planner (Config › Full Parameter List › Load from file) or QGroundControl (Vehicle Setup › Parameters › Tools › Load from file), or use the Live vehicle tab."));
@@ -417,8 +417,9 @@ async function openFolder(path) {
     $("folder-up").disabled = !data.parent;
     $("folder-up").onclick = () => openFolder(data.parent);
     $("folder-count").textContent = `${data.logs_here} log file(s) directly in this folder; its ${data.folders.length} sub-folder(s) are searched too.`;
-    $("folder-list").replaceChildren(...data.folders.map((name) => el("li", {
-      onclick: () => openFolder(`${data.path}/${name}`) }, `📁 ${name}`)));
+    $("folder-list").replaceChildren(...data.folders.map((name) => el("li", { "data-name": name,
+      onclick: () => openFolder(`${data.path}/${name}`) }, `${name}/`)));
+    if (data.more) $("folder-list").append(el("li", { class: "hint" }, `… and ${data.more} more: type the folder's name above`));
   } catch (e) { showError("fleet-error", e.message); }
 }
 
