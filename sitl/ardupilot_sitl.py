@@ -415,13 +415,6 @@ class ArduPilotSitl:
         if self.recv({"SYSTEM_TIME"}, timeout_s=timeout_s) is None:
             raise SitlError("no SYSTEM_TIME from the firmware")
 
-    def catch_up(self) -> None:
-        """Read every message the firmware sent before now: a backlog left unread while another
-        ground station worked (the firmware echoes every PARAM_SET on every link) would answer
-        :meth:`get_param` with old values. Done by an acknowledged command, which the firmware
-        sends after all of them."""
-        self.request_message(2, 10.0)          # SYSTEM_TIME at 10 Hz, as it is already
-
     def run_for(self, seconds: float, on_message=None) -> None:
         """Let ``seconds`` of simulated time pass, receiving (and recording) all the while.
 
