@@ -2,8 +2,9 @@
 a program of its own, and a real browser — Debian's headless Chromium driven by Selenium through
 its chromedriver — on its page.
 
-Screenshots of each screen go into one folder (APMCAL_UI_SCREENSHOTS, default
-<tmp>/apmcal-ui-screenshots), named after the test; the test run's summary names the folder.
+Screenshots of each screen go into one folder per test run (APMCAL_UI_SCREENSHOTS, which
+tests/conftest.py sets to <tmp>/apmcal-ui-screenshots-<time> unless given), named after the
+test; the test run's summary names the folder.
 """
 from __future__ import annotations
 
@@ -16,6 +17,8 @@ import subprocess
 import sys
 import tempfile
 import time
+import urllib.error
+import urllib.request
 from pathlib import Path
 
 import pytest
@@ -167,3 +170,26 @@ class Page:
         self.d.save_screenshot(str(path))
         self.d.set_window_size(1280, 1000)
         return path
+
+
+def get(ui, path: str, headers: dict | None = None, data: bytes | None = None,
+        method: str | None = None) -> tuple[int, str]:
+    """A request as another program (or page) would send it: status and body."""
+    req = urllib.request.Request(ui.base + path, data=data, headers=headers or {}, method=method)
+    try:
+        with urllib.request.urlopen(req, timeout=10) as r:
+            return r.status, r.read().decode()
+    except urllib.error.HTTPError as e:
+        return e.code, e.read().decode()
+
+
+def element_shot(page: Page, css: str, what: str) -> Path:
+    """One element of the page alone, into :data:`SHOTS` (docs/ui.png is one)."""
+    SHOTS.mkdir(parents=True, exist_ok=True)
+    page.shots += 1
+    path = SHOTS / f"{page.name}-{page.shots:02d}-{what}.png"
+    page.d.set_window_size(1280, 6000)          # all of it in view
+    page.d.execute_script("arguments[0].scrollIntoView()", page.find(css))
+    page.find(css).screenshot(str(path))
+    page.d.set_window_size(1280, 1000)
+    return path

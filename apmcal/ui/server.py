@@ -87,15 +87,13 @@ def serve(port: int | None = None, open_browser: bool = True, say=print,
     token = token or new_token()
     scratch = Path(tempfile.mkdtemp(prefix="apmcal-ui-"))
     backend = Backend(Path(files).resolve(), scratch, Path.cwd())
-    url = f"http://{HOST}:{port}/?token={token}"
-    config = uvicorn.Config(build(backend, token, port), log_level="warning", lifespan="off",
-                            timeout_graceful_shutdown=3)
-    server = make_server(config, backend)
-    say(f"apmcal ui: open {url} in your browser (Ctrl-C here stops it)")
-    say(f"apmcal ui: recordings and parameter backups go into {backend.files}")
-    threading.Thread(target=announce, args=(server, url, open_browser, say, ready),
-                     daemon=True).start()
     try:
+        url = f"http://{HOST}:{port}/?token={token}"
+        config = uvicorn.Config(build(backend, token, port), log_level="warning",
+                                lifespan="off", timeout_graceful_shutdown=3)
+        server = make_server(config, backend)
+        threading.Thread(target=announce, args=(server, url, open_browser, say, ready,
+                                                backend.files), daemon=True).start()
         server.run(sockets=[sock])
     except KeyboardInterrupt:     # uvicorn hands the Ctrl-C on once it has stopped
         pass
@@ -120,12 +118,15 @@ def make_server(config, backend):
     return StoppingServer(config)
 
 
-def announce(server, url: str, open_browser: bool, say, ready) -> None:
-    """Once the server listens: open the browser (or say how), tell ``ready``."""
+def announce(server, url: str, open_browser: bool, say, ready, files: Path) -> None:
+    """Once the server answers (and Ctrl-C stops it cleanly): the address, where files go,
+    the browser opened (or how to), ``ready`` told."""
     while not server.started:
         if server.should_exit:
             return
         time.sleep(0.05)
+    say(f"apmcal ui: open {url} in your browser (Ctrl-C here stops it)")
+    say(f"apmcal ui: recordings and parameter backups go into {files}")
     if ready is not None:
         ready(url, server)
     if open_browser and not webbrowser.open(url):

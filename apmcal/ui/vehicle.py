@@ -461,6 +461,7 @@ class VehicleSession:
 
         backup = self.files / f"apmcal-backup-{time.strftime('%Y%m%d-%H%M%S')}.param"
         self.files.mkdir(parents=True, exist_ok=True)
+        self.update(upload=None)        # the last upload's outcome is not this one's
         self.say(f"backing up every parameter to {backup}, then writing {len(values)}")
         try:
             with self._quiet():

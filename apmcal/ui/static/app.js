@@ -346,7 +346,7 @@ function renderVehicleInfo(v, s) {
 function renderGuide(g, acc) {
   $("guide-card").dataset.face = g.face;
   $("guide-card").dataset.attempt = g.attempt;
-  $("guide-title").textContent = `Pose ${g.index} of ${g.of}` + (g.attempt > 1 ? ` (again: try ${g.attempt})` : "");
+  $("guide-title").textContent = `Pose ${g.index} of ${g.of}`;
   $("guide-words").textContent = `Place the vehicle ${g.words}, and keep it still`;
   Draw.vehicle($("pose-wanted"), g.gravity.map((x) => 9.8 * x), "asked for");
   Draw.vehicle($("pose-now"), acc, "now");
