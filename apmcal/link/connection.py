@@ -43,6 +43,8 @@ class Connection:
         draws the vehicle's pose from them while a calibration reads the link).
     """
 
+    on_message = None       # (see above) a class default: links made without __init__ too
+
     def __init__(self, connection: str, timeout_s: float = 10.0,
                  record_to: str | Path | None = None, baud: int = DEFAULT_BAUD,
                  announce=None, on_message=None):

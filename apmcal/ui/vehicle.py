@@ -331,11 +331,6 @@ class VehicleSession:
             raise ApmcalError("choose the accelerometer (six faces), the compass (turn), or both")
         if not MIN_HOLD_S <= hold_s <= 120:
             raise ApmcalError(f"hold {hold_s:g} s: choose {MIN_HOLD_S:g} to 120 s")
-        self.stop_session.clear()
-        self.finish_turn.clear()
-        self.report = None
-        self.report_of = self._this_vehicle()
-        self.update(job=None, upload=None, guide=None, compass=None)
         self._queue("the session", lambda: self._session(faces, compass, hold_s, lat, lon),
                     "guide" if faces else "compass")
 
@@ -349,6 +344,11 @@ class VehicleSession:
 
     def _session(self, faces: bool, compass: bool, hold_s: float, lat, lon) -> None:
         from apmcal.ardupilot.names import changed_correction_params
+
+        self.stop_session.clear()
+        self.finish_turn.clear()
+        self.report, self.report_of = None, self._this_vehicle()
+        self.update(job=None, upload=None, guide=None, compass=None)
 
         stamp = time.strftime("%Y%m%d-%H%M%S")
         tlog = self.files / f"apmcal-live-{stamp}.tlog"
