@@ -170,3 +170,68 @@ def test_stopping_waits_for_an_upload_under_way_and_leaves_all_or_nothing(tmp_pa
     untouched = all(same_float32(after[n], v) for n, v in before.items())
     assert written or untouched, after
     assert written == (session.state.get("upload") is not None)
+
+
+def post_files(ui, kind: str, *paths) -> dict:
+    """The page's drop, as a multipart POST: the job started."""
+    boundary = "apmcal-test-boundary"
+    parts = [f'--{boundary}\r\nContent-Disposition: form-data; name="kind"\r\n\r\n{kind}\r\n'.encode()]
+    for path in paths:
+        parts.append(f'--{boundary}\r\nContent-Disposition: form-data; name="files"; '
+                     f'filename="{path.name}"\r\n\r\n'.encode() + path.read_bytes() + b"\r\n")
+    data = b"".join(parts) + f"--{boundary}--\r\n".encode()
+    status, text = get(ui, "/api/jobs", {"Cookie": f"apmcal_ui_{ui.port}={ui.token}",
+                                         "Content-Type": f"multipart/form-data; boundary={boundary}"},
+                       data=data, method="POST")
+    assert status == 200, text
+    return json.loads(text)
+
+
+def descendants(pid: int) -> set[int]:
+    from pathlib import Path
+
+    parent = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            parent[int(stat.parent.name)] = int(stat.read_text().rsplit(")", 1)[1].split()[1])
+        except (OSError, IndexError, ValueError):
+            continue
+    found, todo = set(), [pid]
+    while todo:
+        p = todo.pop()
+        kids = {c for c, pp in parent.items() if pp == p}
+        found |= kids
+        todo += kids
+    return found
+
+
+def test_ctrl_c_during_a_diagnosis_ends_every_process_it_started(ui):
+    import time
+    from pathlib import Path
+
+    job = post_files(ui, "gap", Path(__file__).resolve().parents[1] / "logs" / "gap.bin")
+    cookie = {"Cookie": f"apmcal_ui_{ui.port}={ui.token}"}
+    deadline = time.monotonic() + 120
+    while True:
+        state = json.loads(get(ui, f"/api/jobs/{job['id']}", cookie)[1])
+        assert state["state"] in ("waiting", "running"), state
+        if state["current"] >= 1:               # diagnosing
+            break
+        assert time.monotonic() < deadline
+        time.sleep(0.2)
+    started = descendants(ui.process.pid)
+    assert any(b"spawn_main" in Path(f"/proc/{p}/cmdline").read_bytes() for p in started)
+    tracker = {p for p in started if b"resource_tracker" in Path(f"/proc/{p}/cmdline").read_bytes()}
+    assert ui.interrupt() == 0
+    alive = lambda: {p: Path(f"/proc/{p}/cmdline").read_bytes()[:80] for p in started
+                     if Path(f"/proc/{p}").exists()}
+    # the job's process and the workers it forked are gone when apmcal ui is; multiprocessing's
+    # resource tracker, once it has read that they are
+    assert set(alive()) <= tracker, f"processes outlived it: {alive()}"
+    deadline = time.monotonic() + 10
+    while alive() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not alive(), f"processes outlived it: {alive()}"
+    out = ui.text()
+    assert out.rstrip().endswith("apmcal ui: stopped") and "Traceback" not in out, out
+    assert all(line.startswith("apmcal ui:") for line in out.splitlines()), out

@@ -85,11 +85,12 @@ def entry() -> None:
 
     After ``apmcal gap`` — whose files are all written and closed by then — the process ends
     without Python's own teardown, which would free the diagnosis's residuals object by object
-    (the operating system takes the memory back at once). The other commands (vehicle links,
-    parameter files) exit the ordinary way."""
+    (the operating system takes the memory back at once); so does ``apmcal ui``, which may have
+    run diagnoses, once it has closed the vehicle's link and its files. The other commands
+    (vehicle links, parameter files) exit the ordinary way."""
     code = main()
     command = next((a for a in sys.argv[1:] if not a.startswith("-")), None)
-    if command == "gap":
+    if command in ("gap", "ui"):
         logging.shutdown()
         for stream in (sys.stdout, sys.stderr):
             try:

@@ -57,6 +57,7 @@ class Backend:
         """Stop the vehicle's session (an upload under way ends first) and the simulated
         vehicle; True when the vehicle's link closed in time."""
         self.stopping = True
+        self.jobs.close()
         closed = self.vehicle.close()
         if self.simulator is not None:
             self.simulator.stop()
@@ -152,8 +153,8 @@ def create_app(backend: Backend) -> Starlette:
             await form.close()
         names = [name for name, _ in files]
         title = ", ".join(names)
-        job = backend.jobs.start(kind, title, logs.stages_for(kind, names),
-                                 lambda job: logs.run_files(job, kind, files, lat, lon))
+        job = backend.jobs.start(kind, title, logs.stages_for(kind, names), logs.run_files,
+                                 (kind, files, lat, lon))
         return JSONResponse(job.snapshot())
 
     async def job_state(request: Request):
@@ -263,8 +264,8 @@ def create_app(backend: Backend) -> Starlette:
         folder = str(data.get("folder") or "")
         if not folder:
             raise ApmcalError("choose a folder first")
-        job = backend.jobs.start("fleet", folder, fleet.stages(),
-                                 lambda job: fleet.run(job, folder, backend.files))
+        job = backend.jobs.start("fleet", folder, fleet.stages(), fleet.run,
+                                 (folder, backend.files))
         return JSONResponse(job.snapshot())
 
     def event_stream(snapshot, finished) -> StreamingResponse:

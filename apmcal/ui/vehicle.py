@@ -414,33 +414,23 @@ class VehicleSession:
                                             "verdict will say so)"))
 
     def _calibrate(self, tlog: Path, method: str, lat, lon) -> None:
-        """The recording calibrated as a job (progress, verdict, figures, downloads)."""
+        """The recording calibrated as a job (progress, verdict, figures, downloads); its
+        report kept for the upload once it is done."""
         from apmcal.ui.logs import stages_for
 
-        name = tlog.name
-        session = self
-
-        def work(job):
-            from apmcal.core.options import Options
-            from apmcal.ui.logs import calibrate_contents, read_checked, report_entry
-
-            try:
-                contents = read_checked(job, name, tlog)
-                job.stage(f"calibrating {name}")
-                report = calibrate_contents(contents, name, Options(method, lat, lon))
-                job.stage(f"figures {name}")
-                entry = report_entry(job, 0, name, report, contents)
-                session.report = report
-                return {"kind": "live", "entries": [entry]}
-            finally:
-                with session._lock:
-                    if session.state["status"] == "calibrating":
-                        session.state["status"] = "idle"
-                    session.version += 1
-
-        job = self.jobs.start("live", name, stages_for("log", [name]), work)
+        job = self.jobs.start("live", tlog.name, stages_for("log", [tlog.name]),
+                              calibrate_recording, (str(tlog), method, lat, lon),
+                              on_done=self._calibrated)
         self.update(job=job.id, status="calibrating")
-        self.say(f"recorded {name}; calibrating it")
+        self.say(f"recorded {tlog.name}; calibrating it")
+
+    def _calibrated(self, job) -> None:
+        with self._lock:
+            if job.state == "done":
+                self.report = job.extra
+            if self.state["status"] == "calibrating":
+                self.state["status"] = "idle"
+            self.version += 1
 
     # -- upload and undo ------------------------------------------------------------------------
     def upload(self) -> None:
@@ -508,6 +498,21 @@ class VehicleSession:
         upload["undone"] = True
         self.update(upload=upload)
         self.restore = None
+
+
+def calibrate_recording(job, tlog: str, method: str, lat, lon) -> dict:
+    """A live session's recording calibrated (a job's work, in its own process): the page's
+    entry, and the report for the upload (``"_extra"``)."""
+    from apmcal.core.options import Options
+    from apmcal.ui.logs import calibrate_contents, read_checked, report_entry
+
+    name = Path(tlog).name
+    contents = read_checked(job, name, Path(tlog))
+    job.stage(f"calibrating {name}")
+    report = calibrate_contents(contents, name, Options(method, lat, lon))
+    job.stage(f"figures {name}")
+    return {"kind": "live", "entries": [report_entry(job, 0, name, report, contents)],
+            "_extra": report}
 
 
 class PageOperator:
