@@ -137,7 +137,7 @@ def log_entry(job, index: int, name: str, path: Path, folder: Path, lat, lon) ->
     site = (lat, lon) if lat is not None and lon is not None else None
     flight, lacking = calibrate_flight_log(path, site)
     if flight is not None:
-        return flight_entry(job, index, name, flight, folder)
+        return flight_entry(job, index, name, path, flight, folder)
     entry = session_entry(job, index, name, path, lat, lon)
     if lacking:
         entry["notes"] = [f"compass in flight: not checked — {lacking}"]
@@ -172,16 +172,19 @@ def report_entry(job, index: int, name: str, report, contents) -> dict:
 
     verdicts = report.verdict
     overall = verdicts.get("overall")
+    writable = report.writable
     entry = {"name": name, "kind": "session", "grade": overall.grade if overall else None,
              "verdict_html": verdict_block(verdicts), "proposal": proposal_rows(report),
              "downloads": [], "figures": [], "notes": []}
     if report.proposal is None:
         entry["notes"].append("no parameter file: this file names no firmware (a CSV file); "
                               "`apmcal log FILE --firmware 3.2` or `3.3+` writes one")
-    elif report.proposal.values:
+    elif writable.values:
         stem = Path(name).stem or "cal"
         entry["downloads"] = _downloads(job, index, stem,
                                         lambda p, fmt: report.write_params(p, fmt))
+    elif writable.withheld:
+        entry["notes"].append("nothing to write: every value proposed is withheld (below)")
     for caption, png in session_figures(report, contents):
         entry["figures"].append({"caption": caption,
                                  "png": base64.b64encode(png).decode("ascii")})
@@ -191,32 +194,39 @@ def report_entry(job, index: int, name: str, report, contents) -> dict:
 
 
 def proposal_rows(report) -> dict | None:
-    """The proposal beside the values in force: generation, (name, in force, proposed) rows,
-    the values the firmware would refuse, the proposal's notes."""
+    """The proposal beside the values in force: generation, (name, in force, proposed, why
+    withheld or None) rows, and the proposal's notes. What may be written is the report's
+    :attr:`~apmcal.report.session.SessionReport.writable` (none of a sensor graded REDO, none
+    out of the firmware's limits): the others are shown with the reason."""
     proposal = report.proposal
     if proposal is None:
         return None
     in_force = report.summary.get("calibration_params_in_force", {})
+    withheld = report.writable.withheld
+    values = {**proposal.values, **{n: None for n in withheld if n not in proposal.values}}
     return {"generation": proposal.generation,
-            "rows": [[n, in_force.get(n), v] for n, v in proposal.values.items()],
-            "rejected": [[n, why] for n, why in proposal.rejected.items()],
+            "rows": [[n, in_force.get(n), v, withheld.get(n)] for n, v in values.items()],
             "notes": list(proposal.notes)}
 
 
-def flight_entry(job, index: int, name: str, flight, folder: Path) -> dict:
+def flight_entry(job, index: int, name: str, path: Path, flight, folder: Path) -> dict:
     """A flight log: each compass's heading error in force and proposed, its page, files."""
     from apmcal.ardupilot.paramfile import write_param_file
+    from apmcal.calibration.flight_proposal import flight_firmware, flight_writable
     from apmcal.report.html import write_flight_html
 
     job.stage(f"calibrating {name}", "the compass in flight")
     entry = {"name": name, "kind": "flight", "text": "\n".join(flight.lines()),
              "downloads": [], "notes": []}
-    params = flight.params()
-    if params:
+    log_params, generation = flight_firmware(path)
+    writable = flight_writable(flight, log_params, generation)
+    entry["notes"] += [f"not written: {n}: {why}" for n, why in writable.withheld.items()]
+    if writable.values:
         entry["downloads"] = _downloads(
             job, index, Path(name).stem or "compass",
-            lambda p, fmt: write_param_file(p, params, f"apmcal flight compass fit of {name}",
-                                            fmt=fmt))
+            lambda p, fmt: write_param_file(p, writable.values,
+                                            f"apmcal flight compass fit of {name}", fmt=fmt,
+                                            generation=generation))
     job.stage(f"figures {name}")
     write_flight_html(flight, folder / "report")
     entry["page"] = _page(job, index, folder / "report")

@@ -443,7 +443,11 @@ class VehicleSession:
             raise ApmcalError(f"this calibration is of the vehicle at {connection} (system "
                               f"{system}), not of the one connected now: connect to that one to "
                               "upload it, or calibrate this one")
-        values = report.proposal.uploadable(self.state.get("connection"))
+        writable = report.writable         # none graded REDO, none out of the firmware's limits
+        if not writable.values:
+            raise ApmcalError("nothing to upload: every value proposed is withheld (" + "; ".join(
+                f"{n}: {why}" for n, why in writable.withheld.items()) + ")")
+        values = dict(writable.values)
         self._queue("the upload", lambda: self._upload(values), "uploading")
 
     def _upload(self, values: dict) -> None:

@@ -169,12 +169,19 @@ function renderProposal(p) {
   wrap.append(el("p", {}, el("b", {}, `Parameters (ArduPilot ${p.generation}): in force → proposed`)));
   const table = el("table", { class: "params" }, el("tr", {}, el("th", {}, "parameter"),
                    el("th", {}, "in force"), el("th", {}, ""), el("th", {}, "proposed")));
-  for (const [name, old, value] of p.rows) {
-    table.append(el("tr", {}, el("td", {}, name), el("td", { class: "num" }, num(old)),
-                    el("td", {}, "→"), el("td", { class: "num" }, num(value))));
+  const withheld = [];
+  for (const [name, old, value, why] of p.rows) {
+    table.append(el("tr", { class: why ? "withheld" : "" }, el("td", {}, name),
+                    el("td", { class: "num" }, num(old)), el("td", {}, "→"),
+                    el("td", { class: "num" }, why ? `${value === null ? "—" : num(value)} (not written)` : num(value))));
+    if (why) withheld.push([name, why]);
   }
   wrap.append(table);
-  for (const [name, why] of p.rejected) wrap.append(el("p", { class: "redo" }, `not proposed ${name}: ${why}`));
+  const reasons = {};
+  for (const [name, why] of withheld) (reasons[why] = reasons[why] || []).push(name);
+  for (const [why, names] of Object.entries(reasons)) {
+    wrap.append(el("p", { class: "redo" }, `not written: ${names.join(", ")} — ${why}`));
+  }
   return wrap;
 }
 
