@@ -478,3 +478,20 @@ def test_a_fleet_folder_chosen_on_the_page_gives_the_flags_of_apmcal_fleet(page,
     page.type("#folder", str(tmp_path / "no-such-folder"))
     page.click("#folder-go")
     page.wait(lambda: "no such folder" in page.text("#fleet-error"), "the missing folder")
+
+
+def test_values_graded_redo_are_shown_and_not_written(page):
+    """A real static log whose gyro offset is 39 °/s (graded REDO): the page shows the values
+    and why they are withheld, and offers no file, as `apmcal log` writes none."""
+    from conftest import shared_data_path
+
+    data = shared_data_path()
+    if data is None:
+        pytest.skip("../shared/data absent: real recordings not available")
+    page.find("#files").send_keys(str(data / "ardupilot" / "pxf_copter_static_51.BIN"))
+    page.wait(lambda: page.all("#logs-job .entry .verdict-block"), "the verdict")
+    withheld = [r.find_elements("tag name", "td")[0].text for r in page.all("table.params tr.withheld")]
+    assert {"INS_GYROFFS_X", "INS_GYROFFS_Y", "INS_GYROFFS_Z"} <= set(withheld)
+    assert "the gyroscope is graded REDO" in page.text(".proposal")
+    assert not page.all(".downloads a")
+    page.screenshot("withheld")
