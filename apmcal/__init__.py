@@ -28,6 +28,7 @@ The package, in the order the data flows (each subpackage's docstring maps its m
     diagnosis/      the gap between a real board and its simulation (apmcal gap)
     fleet/          calibration health across many logs of many vehicles, on Dask (apmcal fleet)
     cli/            the command line, one module per command
+    ui/             apmcal ui: the whole tool in the browser, beside the command line
 """
 from __future__ import annotations
 

@@ -76,3 +76,23 @@ def ardupilot_sitl(tmp_path):
     finally:
         for sitl in started:
             sitl.stop()
+
+
+def pytest_configure(config):
+    """One screenshot folder per test run for the browser tests (tests/ui_browser.py), unless
+    APMCAL_UI_SCREENSHOTS names one; set before the xdist workers start, which inherit it."""
+    import os
+    import tempfile
+    import time
+
+    if not hasattr(config, "workerinput") and "APMCAL_UI_SCREENSHOTS" not in os.environ:
+        os.environ["APMCAL_UI_SCREENSHOTS"] = str(
+            Path(tempfile.gettempdir()) / f"apmcal-ui-screenshots-{time.strftime('%Y%m%d-%H%M%S')}")
+
+
+def pytest_terminal_summary(terminalreporter):
+    """Where the browser tests left their screenshots (tests/ui_browser.py), when they ran."""
+    from ui_browser import SHOTS
+
+    if SHOTS.is_dir() and any(SHOTS.glob("*.png")):
+        terminalreporter.write_line(f"apmcal ui screenshots: {SHOTS}")

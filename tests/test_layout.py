@@ -110,6 +110,15 @@ def test_the_library_never_imports_the_simulator():
     assert {m: ts for m, ts in offenders.items() if ts} == {}
 
 
+def test_the_browser_interface_calls_the_library_not_the_command_line():
+    """apmcal.ui sits beside the command line: the `ui` command starts it, and it never imports
+    a command module (their printing is for the terminal)."""
+    offenders = {m: sorted(t for t in ts if t.startswith("apmcal.cli"))
+                 for m, ts in GRAPH.items() if m.startswith("apmcal.ui")}
+    assert {m: ts for m, ts in offenders.items() if ts} == {}
+    assert "apmcal.ui.server" in GRAPH["apmcal.cli.ui"]
+
+
 def test_the_simulator_lives_in_sitl_under_a_name_that_cannot_clash():
     """sitl/ holds the simulator and the driver of ArduPilot's SITL; installed beside apmcal, the
     simulator keeps the import name apmcal_sim (a bare "sitl" could clash with another package),

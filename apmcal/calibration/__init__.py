@@ -17,4 +17,6 @@ preparation and the solvers, and builds each result once.
   logged, shared by ``apmcal log`` and ``apmcal fleet``: the flight compass check's figures per
   compass on a flight, the compass's sphere residual on a session that turns it, gyro bias and
   temperature, |specific force| − g, vibration.
+- :mod:`~apmcal.calibration.flight_proposal` — what of a flight's compass proposal may be
+  written, and the flight log's firmware it is judged for.
 """

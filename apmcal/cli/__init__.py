@@ -7,6 +7,7 @@
     apmcal tcal LOG [--param-file OUT] [--upload CONNECTION]
     apmcal gap FILE [--report DIR] [--json OUT] [--write-twin TWIN.json]
     apmcal fleet PATH... --out DIR [--workers N | --scheduler tcp://HOST:PORT]
+    apmcal ui [--port N] [--no-browser]
 
 Every failure the user can cause ends in one line on stderr and a non-zero exit status; Ctrl-C
 ends with one line and status 130 (128 + SIGINT, the shell's convention).
@@ -15,7 +16,7 @@ Modules: :mod:`~apmcal.cli.common` (the one-line parser, number options, console
 the upload step), then one per command, each with ``add_parser(subparsers)`` and ``run(args)``:
 :mod:`~apmcal.cli.log`, :mod:`~apmcal.cli.live`, :mod:`~apmcal.cli.upload`,
 :mod:`~apmcal.cli.restore`, :mod:`~apmcal.cli.gap`, :mod:`~apmcal.cli.tcal`,
-:mod:`~apmcal.cli.fleet`. A command module
+:mod:`~apmcal.cli.fleet`, :mod:`~apmcal.cli.ui`. A command module
 imports only argparse and :mod:`~apmcal.cli.common` when loaded, so that ``apmcal --help`` stays
 light; the library is imported when the command runs.
 """
@@ -26,7 +27,7 @@ import os
 import sys
 import warnings
 
-from apmcal.cli import fleet, gap, live, log, restore, tcal, upload
+from apmcal.cli import fleet, gap, live, log, restore, tcal, ui, upload
 from apmcal.cli.common import (
     EXIT_INTERNAL_ERROR,
     EXIT_INTERRUPTED,
@@ -39,7 +40,7 @@ from apmcal.core.errors import ApmcalError
 
 #: sub-command → its module, in the order ``apmcal --help`` lists them
 COMMANDS = {"log": log, "live": live, "upload": upload, "restore": restore, "gap": gap,
-            "tcal": tcal, "fleet": fleet}
+            "tcal": tcal, "fleet": fleet, "ui": ui}
 
 
 def build_parser():
@@ -84,11 +85,12 @@ def entry() -> None:
 
     After ``apmcal gap`` — whose files are all written and closed by then — the process ends
     without Python's own teardown, which would free the diagnosis's residuals object by object
-    (the operating system takes the memory back at once). The other commands (vehicle links,
-    parameter files) exit the ordinary way."""
+    (the operating system takes the memory back at once); so does ``apmcal ui``, which may have
+    run diagnoses, once it has closed the vehicle's link and its files. The other commands
+    (vehicle links, parameter files) exit the ordinary way."""
     code = main()
     command = next((a for a in sys.argv[1:] if not a.startswith("-")), None)
-    if command == "gap":
+    if command in ("gap", "ui"):
         logging.shutdown()
         for stream in (sys.stdout, sys.stderr):
             try:

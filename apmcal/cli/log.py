@@ -59,6 +59,8 @@ def run_flight(args) -> tuple[int | None, str | None]:
         console.print(line)
     console.print("IMU calibration: not attempted on a flight log (choose --method static, "
                   "ferraris, ... to calibrate the IMU from its still stretches)")
+    from apmcal.calibration.flight_proposal import flight_firmware, flight_writable
+
     log_params, generation = flight_firmware(args.file)
     writable = flight_writable(result, log_params, generation,
                                getattr(args, "accept_redo", False))
@@ -85,39 +87,6 @@ def run_flight(args) -> tuple[int | None, str | None]:
         result.save_json(args.json)
         console.print(f"wrote {args.json}")
     return writable.status, None
-
-
-def flight_writable(result, log_params: dict, generation: str, accept_redo: bool = False):
-    """What of a flight's compass proposal may be written (the one rule of
-    :class:`apmcal.ardupilot.limits.Writable`): a compass whose proposed calibration is graded
-    REDO is withheld unless --accept-redo, one with a value out of the firmware's limits
-    always, whole."""
-    from apmcal.ardupilot.limits import Writable, firmware_limit_violations
-
-    values, redo, refused = result.params(), {}, {}
-    for c in result.compasses:
-        names = [n for n in c.proposed if n in values]
-        grade = getattr(getattr(c, "health_proposed", None), "verdict", None)
-        if grade == "redo":
-            redo |= {n: f"compass {c.instance}'s proposed calibration is graded REDO"
-                     for n in names}
-        limits = firmware_limit_violations({n: values[n] for n in names},
-                                           {**log_params, **c.in_force}, generation)
-        if limits:
-            first = next(iter(limits))
-            refused |= {n: limits.get(n, f"withheld with the rest of compass {c.instance} "
-                                         f"({first} refused)") for n in names}
-    return Writable.sort(values, redo, refused, accept_redo)
-
-
-def flight_firmware(path) -> tuple[dict, str]:
-    """The parameters of a flight log (its COMPASS_OFFS_MAX for the firmware's limits) and its
-    firmware generation ("3.2" or "3.3+")."""
-    from apmcal.ardupilot.firmware import firmware_generation
-    from apmcal.sources import read_log
-
-    contents = read_log(path)
-    return dict(contents.params), firmware_generation(contents.params, contents.firmware)
 
 
 def summarise_and_calibrate(contents, args):

@@ -38,15 +38,21 @@ class Connection:
     announce : callable, optional
         Told (one str) that the heartbeat is awaited, and for how long, so that the wait is
         never a silent hang (the command line passes its console's print).
+    on_message : callable, optional
+        Called with every message received, whoever receives it (the browser interface
+        draws the vehicle's pose from them while a calibration reads the link).
     """
+
+    on_message = None       # (see above) a class default: links made without __init__ too
 
     def __init__(self, connection: str, timeout_s: float = 10.0,
                  record_to: str | Path | None = None, baud: int = DEFAULT_BAUD,
-                 announce=None):
+                 announce=None, on_message=None):
         from pymavlink import mavutil
 
         self.connection = connection
         self._mavutil = mavutil
+        self.on_message = on_message
         self.master = open_connection(connection, baud)
         self._tlog = None
         if announce is not None:
@@ -80,8 +86,26 @@ class Connection:
             if msg is None or msg.get_type() == "BAD_DATA":
                 continue
             self._record(msg)
+            if self.on_message is not None:
+                self.on_message(msg)
             if types is None or msg.get_type() in types:
                 return msg
+
+    def record_to(self, path: str | Path | None) -> None:
+        """Record every message received from now on to ``path`` (a new .tlog; None: stop
+        recording), the recording before closed: one file per session on one open link (a
+        serial link reopened can reset the board).
+
+        Raises
+        ------
+        OSError
+            When ``path`` cannot be created (the recording before is closed all the same).
+        """
+        if self._tlog is not None:
+            self._tlog.close()
+            self._tlog = None
+        if path is not None:
+            self._tlog = open(path, "wb")
 
     def _record(self, msg) -> None:
         if self._tlog is not None:

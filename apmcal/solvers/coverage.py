@@ -54,6 +54,35 @@ def direction_coverage(samples, offset, n_grid: int = 200, cone_deg: float = 20.
     return {"scatter_eig": eig, "spread_eig": spread, "fraction": share}
 
 
+def fibonacci_sphere(n_grid: int) -> np.ndarray:
+    """``n_grid`` points spread evenly over the unit sphere (a Fibonacci lattice), (n_grid, 3):
+    the grid :func:`direction_coverage` counts covered points on."""
+    k = np.arange(n_grid) + 0.5
+    z = 1 - 2 * k / n_grid
+    phi = np.pi * (1 + 5 ** 0.5) * k
+    return np.column_stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z])
+
+
+def covered_points(samples, offset, n_grid: int = 200, cone_deg: float = 20.0) -> np.ndarray:
+    """Which points of :func:`fibonacci_sphere` have a sample direction (seen from ``offset``)
+    within ``cone_deg``: bool (n_grid,), whose mean is :func:`direction_coverage`'s
+    ``fraction`` (for drawing the covered part of the sphere).
+
+    Parameters
+    ----------
+    samples : (n, 3) array
+        Samples [sensor units].
+    offset : (3,) array
+        The centre the directions are seen from [sensor units].
+    n_grid : int
+    cone_deg : float
+        Half-angle [deg] of the cone around a grid point.
+    """
+    c = np.asarray(samples, dtype=float) - offset
+    n = c / np.linalg.norm(c, axis=1, keepdims=True)
+    return _grid_points_near(n, n_grid, np.cos(np.radians(cone_deg)))
+
+
 def _grid_points_near(n: np.ndarray, n_grid: int, cos_cone: float,
                       chunk: int = 8192) -> np.ndarray:
     """Which of ``n_grid`` Fibonacci points have a unit direction of ``n`` (m, 3) within the
@@ -63,10 +92,7 @@ def _grid_points_near(n: np.ndarray, n_grid: int, cos_cone: float,
     ``grid @ n.T`` is an n_grid × m array (400 MB for 250 000 samples), while a covered
     sphere is usually settled by the first chunk. The answer is the same.
     """
-    k = np.arange(n_grid) + 0.5
-    z = 1 - 2 * k / n_grid
-    phi = np.pi * (1 + 5 ** 0.5) * k
-    grid = np.column_stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z])
+    grid = fibonacci_sphere(n_grid)
     # every k-th sample first (it spans the whole record, so it settles most points), then
     # the points still open against contiguous chunks of all samples
     near = (grid @ n[::max(1, len(n) // chunk)].T).max(axis=1) >= cos_cone

@@ -89,17 +89,24 @@ def main(argv=None) -> int:
 
 def start_operator_console(endpoint, keys=None, out=None) -> None:
     """Operator mode: you are the person at the vehicle. A pose typed here (level, left,
-    right, nose down, nose up, back) and Enter turns the simulated vehicle to it (3 s)."""
+    right, nose down, nose up, back) and Enter turns the simulated vehicle to it (3 s);
+    "tumble" turns it slowly through every direction (40 s), as a compass calibration asks."""
     import threading
 
     from apmcal_sim.vehicle import parse_pose_text
 
     keys, out = keys or sys.stdin, out or sys.stderr
     print("sitl operator: type a pose (level, left, right, nose down, nose up, back) and Enter "
-          "to turn the vehicle", file=out, flush=True)
+          "to turn the vehicle, or tumble to turn it through every direction", file=out,
+          flush=True)
 
     def read() -> None:
         for line in keys:
+            if line.strip().lower() == "tumble":
+                endpoint.call_soon(lambda v: v.tumble())
+                print("sitl operator: tumbling through every direction (40 s)", file=out,
+                      flush=True)
+                continue
             pose = parse_pose_text(line)
             if pose is None:
                 print(f"sitl operator: no pose in {line.strip()!r}", file=out, flush=True)

@@ -439,6 +439,20 @@ class SimVehicle:
         # the pose label continues through the implicit final hold
         m.hold(0.5, label or (pose if isinstance(pose, str) else "pose"))
 
+    def tumble(self, seconds: float = 40.0, step_s: float = 2.0) -> None:
+        """Operator mode: turn slowly through every direction, as a compass calibration asks:
+        turns of 90-180° about random body axes, ``step_s`` [s] each, for ``seconds`` [s] in
+        all, then rest; starting now, or when the turns asked for before are done."""
+        m = self.motion
+        if self.t > m.duration:
+            m.hold(self.t - m.duration, m.segments[-1].label if m.segments else "level")
+        self._tumbles = getattr(self, "_tumbles", 0) + 1
+        rng = np.random.default_rng(np.random.SeedSequence([self._tumbles, 0x70B1E]))
+        for _ in range(max(1, int(seconds // step_s))):
+            m.rotate(rng.standard_normal(3), rng.uniform(90, 180) * rng.choice([-1, 1]),
+                     step_s, "tumble")
+        m.hold(0.5, "tumble")
+
     def stay(self, seconds: float) -> None:
         """Operator mode: keep the current pose ``seconds`` longer before the next turn."""
         m = self.motion
