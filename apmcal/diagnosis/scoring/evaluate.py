@@ -49,6 +49,7 @@ ACC_TERM_ROUNDS = 2     # hold/move alternations of the accelerometer terms the 
 NOISE_ONLY = frozenset({"quantization", "lowpass_filter", "uniform_noise", "bias_random_walk"})
 NULL_SEEDS = 1 << 24    # noise seeds of the null sessions (the twins' are the evaluator's seed
                         # plus the fold: small numbers)
+TWIN_DRAWS = 1 << 20    # with a recorded twin: draw k's twin is draw k + TWIN_DRAWS
 REAL_MODELS_KEPT = 2    # real fits kept per process (each holds all its residuals: 44 MB
                         # for a 10-minute 400 Hz session), the two folds of one model
 
@@ -226,11 +227,18 @@ class Evaluator:
         The real session.
     seed : int
         Seed of the twins' noise (fold f uses ``seed + f``).
+    twin : Session, optional
+        A recorded twin on the real session's samples (:func:`apmcal.diagnosis.session.
+        twin_log.on_samples_of`): every model's twin is then this one recording, fitted with
+        the model as the real session is, instead of a session simulated from the model's fit;
+        its null sessions are pairs of sessions drawn from the nominal model, one as the real
+        session and one as the twin.
     """
 
-    def __init__(self, session, seed: int = 0):
+    def __init__(self, session, seed: int = 0, twin=None):
         self.session = session
         self.seed = seed
+        self.twin = twin
         # evidence [nats] each candidate must reach, where the null calibration set one
         # (apmcal.diagnosis.scoring.null); MIN_EVIDENCE_NATS elsewhere
         self.min_evidence: dict[str, float] = {}
@@ -254,6 +262,11 @@ class Evaluator:
     def reduced(self):
         """The session's hold blocks (:func:`apmcal.diagnosis.model.nominal.reduce_session`)."""
         return reduce_session(self.session)
+
+    @cached_property
+    def _twin_reduced(self):
+        """The recorded twin's hold blocks (with a recorded twin only)."""
+        return reduce_session(self.twin)
 
     @cached_property
     def _earth(self) -> tuple:
@@ -356,7 +369,8 @@ class Evaluator:
         noise = None
         if with_noise:
             train = session.pieces.select(fold=train_fold)
-            noise = fit_noise(holds, train, effects, self.fs_of, self.steps_for(effects))
+            noise = fit_noise(holds, train, effects, self.fs_of, self.steps_for(effects),
+                              truncated=self.session.truncated)
             if fit.hold_motion is not None:
                 kappa = self._hold_motion(train_fold if train_fold is not None else 0)[2]
                 noise["gyr"].tremor_deg, noise["gyr"].sway_deg = amplitudes(fit.hold_motion[0],
@@ -436,6 +450,13 @@ class Evaluator:
         session, _ = simulate(self.session, fit, noise, seed=NULL_SEEDS + draw,
                               motion_path=self._motion_path(fold))
         return session
+
+    def null_evaluator(self, effects, draw: int) -> "Evaluator":
+        """The evaluator of null session ``draw`` drawn from the model nominal + ``effects``
+        (:meth:`model_draw`); with a recorded twin, its twin is another session drawn from that
+        model (seeds :data:`TWIN_DRAWS` apart): two recordings of one process."""
+        twin = self.model_draw(effects, draw + TWIN_DRAWS) if self.twin is not None else None
+        return Evaluator(self.model_draw(effects, draw), self.seed, twin=twin)
 
     def _motion_path(self, fold: int):
         """The real poses and moves as the nominal model sees them: one path for all models."""
@@ -530,7 +551,7 @@ class Evaluator:
         use; (its nominal model's FoldSummary, the FoldSummaries of ``todo``)."""
         key = (effects, draw)
         if key not in self._nulls_here:
-            self._nulls_here[key] = (Evaluator(self.model_draw(effects, draw), self.seed), {})
+            self._nulls_here[key] = (self.null_evaluator(effects, draw), {})
         null, nominal = self._nulls_here[key]
         if fold not in nominal:
             nominal[fold] = null._nominal_fold(fold, True)[0]
@@ -595,7 +616,9 @@ class Evaluator:
         than that. Made once, in this process, so that forked workers inherit it."""
         if not self.decimates:
             return self
-        return Evaluator(decimated(self.session, block_factor(self.session.fs)), self.seed).facts()
+        k = block_factor(self.session.fs)
+        twin = decimated(self.twin, k) if self.twin is not None else None
+        return Evaluator(decimated(self.session, k), self.seed, twin=twin).facts()
 
     def _slow_nominal_fold(self, fold: int) -> tuple:
         """:meth:`_nominal_fold` of :attr:`slow` (a job: workers call methods of this one)."""
@@ -710,12 +733,16 @@ class Evaluator:
         fit, noise, real = self.fit(s, self.reduced, effects, fold, with_sigma=True)
         if not effects:     # the fold's nominal fit: its motion path starts here (no refit)
             self._motion.setdefault(("nominal", fold), (fit, noise))
-        # the same twin noise for every model (common random numbers): differences between
-        # models are not drowned in differences between noise draws
-        twin, _ = simulate(s, fit, noise, seed=self.seed + fold,
-                           motion_path=self._motion_path(fold))
-        _, _, tw = self.fit(twin, reduce_session(twin), effects, fold, start=fit,
-                            with_noise=False)
+        if self.twin is not None:       # a recording: the same one for every model
+            _, _, tw = self.fit(self.twin, self._twin_reduced, effects, fold, start=fit,
+                                with_noise=False)
+        else:
+            # the same twin noise for every model (common random numbers): differences between
+            # models are not drowned in differences between noise draws
+            twin, _ = simulate(s, fit, noise, seed=self.seed + fold,
+                               motion_path=self._motion_path(fold))
+            _, _, tw = self.fit(twin, reduce_session(twin), effects, fold, start=fit,
+                                with_noise=False)
         train, test = s.pieces.select(fold=fold), s.pieces.select(fold=1 - fold)
         return FoldResult(fold, fit, noise, real, tw,
                           compare(real, tw, train, in_sample=True, floors=self.floors),

@@ -167,6 +167,9 @@ class Session:
         Whether those integers are the format's truncation toward zero, undone by half a step
         (RAW_IMU, SCALED_IMU*: :func:`apmcal.preprocessing.resolution.undo_truncation`); the
         twin then truncates and undoes the same way.
+    block_length : int
+        Samples of the recording averaged into each of this session's (1: the recording's own
+        samples; more in block means, :func:`apmcal.diagnosis.session.decimate.decimated`).
     """
 
     source: str
@@ -188,6 +191,7 @@ class Session:
     integer_sensors: frozenset = frozenset()
     resolution: dict = field(default_factory=dict)     # sensor -> step of its integers
     truncated: bool = False     # integers truncated toward zero, then moved half a step out
+    block_length: int = 1       # recorded samples averaged into each sample (block means)
 
     @property
     def fs(self) -> float:
