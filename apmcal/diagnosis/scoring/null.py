@@ -184,8 +184,7 @@ class _Sessions:
 
     def __call__(self, k: int) -> Evaluator:
         if k not in self._made:
-            self._made[k] = Evaluator(self.evaluator.model_draw(self.drawn_from, k),
-                                      self.evaluator.seed)
+            self._made[k] = self.evaluator.null_evaluator(self.drawn_from, k)
         return self._made[k]
 
     def fetch(self):

@@ -297,6 +297,9 @@ def forward_selection(evaluator, ranked: list[EffectScore], max_rounds: int = MA
         beyond = {s.name: s.evidence for s in trials}
         best = simplest_best([s for s in trials if s.name not in dropped],
                              lambda s: beyond_chance(evaluator, s))
+        if best is not None and best.name in STOCHASTIC:
+            best = drifts_together(evaluator, base + tuple(selected),
+                                   [s for s in trials if s.name not in dropped], best) or best
         supported = best is not None and beyond_chance(evaluator, best)
         if any(not alone[s.name].supported for s in trials):
             continue        # refused alone by its null, drawn just now: the round again without
@@ -342,6 +345,35 @@ def simplest_best(trials: list[EffectScore], supported=None) -> EffectScore | No
     simpler = [s for s in trials if s.name not in STOCHASTIC
                and s.evidence >= (1.0 - SIMPLER_SHARE) * best.evidence and supported(s)]
     return max(simpler, key=lambda s: s.evidence) if simpler else best
+
+
+def drifts_together(evaluator, model: tuple, trials: list[EffectScore],
+                    stochastic: EffectScore) -> EffectScore | None:
+    """The drift of :data:`CONFOUNDED` to choose before the ``stochastic`` effect, when it and
+    a second one on top of it explain within :data:`SIMPLER_SHARE` as much as that (None:
+    none do).
+
+    :func:`simplest_best` prefers a deterministic effect that alone comes within that share of
+    the random walk; but a random walk bends to the sum of two drifts as well as to one — a
+    board warming up under ArduPilot SITL's triangle drift, whose gyro bias follows neither
+    the temperature nor the triangle alone — and would stand in for both. Each of ``trials``
+    (candidates on top of ``model``) of :data:`CONFOUNDED` is supported alone here; the best
+    of them is tried with each other one on top, and chosen when the two together reach
+    (1 − SIMPLER_SHARE) of the stochastic effect's evidence: the pair then joins in two
+    rounds, and the random walk only after them, on what they leave."""
+    drifts = sorted((s for s in trials if s.name in CONFOUNDED and s.supported),
+                    key=lambda s: -s.evidence)
+    if len(drifts) < 2 or not beyond_chance(evaluator, drifts[0]):
+        return None
+    first = drifts[0]
+    on_first = tuple(model) + (first.name,)
+    evaluator.prefetch([on_first + (s.name,) for s in drifts[1:]])
+    second = max((score(evaluator, on_first, s.name, draw=False) for s in drifts[1:]),
+                 key=lambda s: s.evidence)
+    if second.supported and first.evidence + second.evidence >= \
+            (1.0 - SIMPLER_SHARE) * stochastic.evidence:
+        return first
+    return None
 
 
 def confounded_effects(evaluator, ranked: list[EffectScore], base: tuple = ()) -> dict:
