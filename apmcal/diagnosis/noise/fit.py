@@ -85,7 +85,7 @@ class NoiseModel:
 
 
 def fit_noise(coefficient_sets: list, train: np.ndarray, effects, fs_of: dict,
-              steps: dict, truncated: bool = False) -> NoiseModel:
+              steps: dict, truncated: bool = False, origins: dict | None = None) -> NoiseModel:
     """Noise terms of each residual block (:class:`~apmcal.diagnosis.scoring.gap.BlockCoefficients`,
     named by its first channel's sensor) on the training pieces ``train``. ``fs_of`` gives each
     sensor's sample rate, ``steps`` the quantization step per axis of the sensors the model
@@ -108,6 +108,9 @@ def fit_noise(coefficient_sets: list, train: np.ndarray, effects, fs_of: dict,
         truncated toward zero (else rounded): below their step, the white noise is the one
         that makes them change as often as they do (:func:`apmcal.diagnosis.noise.dither.
         dither_sigma`), where the wavelet variances only see the rounding.
+    origins : dict, optional
+        The raw value of a count of 0 of each such sensor, (3,) [its unit] (0 by default:
+        :attr:`apmcal.diagnosis.session.log.Session.lattice`).
 
     Returns
     -------
@@ -127,7 +130,8 @@ def fit_noise(coefficient_sets: list, train: np.ndarray, effects, fs_of: dict,
                               pairs=MeanPairs.of(coeffs.block, train) if walk else None)
         if coeffs.block.readings is not None and steps.get(sensor) is not None:
             flicker[sensor] = _flicker_sigma(coeffs.block, train, steps[sensor], truncated,
-                                             "uniform_noise" in effects)
+                                             "uniform_noise" in effects,
+                                             (origins or {}).get(sensor, 0.0))
     filtered = [s for s in ("acc", "gyr") if s in inputs]
     cutoff = shared_cutoff([inputs[s] for s in filtered]) if "lowpass_filter" in effects \
         else None
@@ -145,14 +149,16 @@ def fit_noise(coefficient_sets: list, train: np.ndarray, effects, fs_of: dict,
 
 
 def _flicker_sigma(block, train: np.ndarray, step: np.ndarray, truncated: bool,
-                   uniform: bool) -> np.ndarray:
+                   uniform: bool, origin=0.0) -> np.ndarray:
     """:func:`~apmcal.diagnosis.noise.dither.dither_sigma` of a block that keeps its integer
-    readings, on the training pieces (the model's value: the readings minus the residuals)."""
+    readings, on the training pieces (the model's value: the readings minus the residuals),
+    counted from the count 0 at ``origin``."""
     from apmcal.diagnosis.noise.dither import dither_sigma
 
     keep = np.isin(block.piece, train)
-    return dither_sigma(block.readings, block.readings - block.values, block.i0[keep],
-                        block.i1[keep], np.asarray(step, float), truncated, uniform)
+    readings = block.readings - origin
+    return dither_sigma(readings, readings - block.values, block.i0[keep], block.i1[keep],
+                        np.asarray(step, float), truncated, uniform)
 
 
 @lru_cache(maxsize=512)

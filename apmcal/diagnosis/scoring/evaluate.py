@@ -370,7 +370,8 @@ class Evaluator:
         if with_noise:
             train = session.pieces.select(fold=train_fold)
             noise = fit_noise(holds, train, effects, self.fs_of, self.steps_for(effects),
-                              truncated=self.session.truncated)
+                              truncated=self.session.truncated,
+                              origins={s: o for s, (o, _) in self.session.lattice.items()})
             if fit.hold_motion is not None:
                 kappa = self._hold_motion(train_fold if train_fold is not None else 0)[2]
                 noise["gyr"].tremor_deg, noise["gyr"].sway_deg = amplitudes(fit.hold_motion[0],

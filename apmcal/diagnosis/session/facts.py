@@ -77,7 +77,8 @@ def lattice_steps(session) -> dict:
         out["mag"] = _axis_steps(np.concatenate([m.values[a:b] for a, b in zip(m.i0[ids], m.i1[ids])]))
     for sensor, step in getattr(session, "resolution", {}).items():
         if sensor in out and (out.get(sensor) is None or sensor in session.integer_sensors):
-            out[sensor] = np.full(3, float(step))
+            out[sensor] = session.format_of(sensor)[1] if sensor in session.integer_sensors \
+                else np.full(3, float(step))
     return out
 
 
