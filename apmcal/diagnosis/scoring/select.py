@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from apmcal.diagnosis.model.effects import BY_NAME, NAMES, unmet
+from apmcal.diagnosis.model.effects import NAMES
 from apmcal.diagnosis.model.plausible import implausible
 from apmcal.diagnosis.model.wald import MAX_P_VALUE, wald_p_value
 
@@ -140,7 +140,7 @@ def score(evaluator, base: tuple, name: str, draw: bool = True) -> EffectScore:
     """Effect ``name`` added to ``base``, scored against ``base`` alone; ``draw`` False: its
     support judged without drawing null sessions for it (:func:`required_evidence`), as
     :func:`beyond_chance` then does for the trial a decision turns on."""
-    reason = unmet(BY_NAME[name], evaluator.session, evaluator.context)
+    reason = evaluator.reason(name)
     if reason:
         return EffectScore(name, reason)
     before, after = evaluator.summary(base), evaluator.summary(base + (name,))
@@ -194,7 +194,7 @@ def candidates(names=None) -> tuple:
 
 def testable(evaluator, names) -> list[str]:
     """Those of ``names`` the evaluator's session can test."""
-    return [n for n in names if not unmet(BY_NAME[n], evaluator.session, evaluator.context)]
+    return [n for n in names if not evaluator.reason(n)]
 
 
 def rank_effects(evaluator, names=None, base: tuple = ()) -> list[EffectScore]:

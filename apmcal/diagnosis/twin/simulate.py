@@ -251,7 +251,9 @@ def _truncated_format(session, truth) -> dict:
     return out
 
 
-_CARRIED = reuse.Recent(8)     # the holds' vectors carried along a motion path, recent ones
+# the holds' vectors carried along a motion path, recent ones; an entry keeps its path alive
+# (rotations and rates: four times the carried vectors' size)
+_CARRIED = reuse.Recent(8, reuse.BUDGET, lambda key, value: 5 * np.asarray(value).nbytes)
 
 
 def _carried(traj, hold_rot, vectors: np.ndarray, still_holds: bool) -> np.ndarray:
