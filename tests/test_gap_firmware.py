@@ -10,12 +10,18 @@ mG / mrad/s truncated toward zero) and its dataflash log (IMU: floats) alike.
 - Both at once: both (a random walk bends to their sum; before, it was chosen instead).
 - SIM_GYR1_RND (which SITL adds only while the motors turn: a quad armed on the ground) with
   the firmware's filters off: uniform noise, from the dataflash log at the loop rate.
+- The twin's round trip: the warm-up's twin written as SIM_* parameters, SITL booted with
+  them records the session again, and the warm-up diagnosed against that recording leaves no
+  effect and no gap (docs/sitl-twin.md; three more configurations in
+  benchmarks/gap_sitl_roundtrip.py).
 
 The sessions are as short as their effects allow: the triangle turns 5 min after boot, and the
 .tlog needs two minutes of its fall (its fit of the truncated staircase is biased: the speed
 comes out about 12 % high, and with one minute the temperature curve fitted as well).
 """
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -59,18 +65,22 @@ def diagnosed(tmp_path_factory):
     root = tmp_path_factory.mktemp("firmware")
     logs, results = {}, {}
 
-    def get(name: str, kind: str) -> GapResult:
+    def log(name: str, kind: str) -> Path:
         if name not in logs:
             spec = dict(SESSIONS[name])
             until = spec.pop("until")
             logs[name] = record(root / name, [("until", until)], spec.pop("boot", None), **spec)
+        return logs[name].tlog if kind == "tlog" else logs[name].bin
+
+    def get(name: str, kind: str) -> GapResult:
         if (name, kind) not in results:
             path = root / f"{name}-{kind}.json"
-            log = logs[name].tlog if kind == "tlog" else logs[name].bin
-            assert main(["gap", str(log), "--json", str(path), "--quiet"]) == 0
+            assert main(["gap", str(log(name, kind)), "--json", str(path), "--quiet",
+                         "--write-twin", str(root / f"{name}-{kind}.parm")]) == 0
             results[(name, kind)] = GapResult.load(path)
         return results[(name, kind)]
 
+    get.log, get.root = log, root
     return get
 
 
@@ -126,3 +136,26 @@ def test_sitl_motor_noise_is_uniform(diagnosed):
     result = diagnosed("uniform", "bin")
     assert "uniform_noise" in result.selected, result.selected
     assert slow(result) == set(), result.selected
+
+
+def test_the_twin_round_trip_through_sitl_closes(diagnosed):
+    """--write-twin x.parm, SITL booted with it records the same warm-up, and the warm-up
+    against that recording: nothing left, and no more gap than the diagnosis promised."""
+    from gap_sitl_sessions import record
+
+    from apmcal.ardupilot.paramfile import read_param_file
+
+    result = diagnosed("warmup", "bin")
+    values = read_param_file(diagnosed.root / "warmup-bin.parm")
+    assert values["SIM_IMUT1_ENABLE"] == 1 and values["SIM_DRIFT_SPEED"] == 0
+    np.testing.assert_allclose([values[f"SIM_IMUT1_GYR1_{a}"] for a in "XYZ"],
+                               GYRO_COEF * 1e6, rtol=0.02)
+    twin = record(diagnosed.root / "warmup-twin",
+                  [("until", SESSIONS["warmup"]["until"] + 5)], values)
+    out = diagnosed.root / "roundtrip.json"
+    assert main(["gap", str(diagnosed.log("warmup", "bin")), "--twin-log", str(twin.bin),
+                 "--json", str(out), "--quiet"]) == 0
+    again = GapResult.load(out)
+    assert again.selected == [] and not any(e["significant"] for e in again.effects)
+    assert result.gap["heldout"] > 10     # the board against the simulator before ...
+    assert again.gap["heldout"] < max(result.after["heldout"], 0.0) + 0.05   # ... against
