@@ -1,6 +1,7 @@
 """Does ``apmcal gap`` still give the same result, byte for byte, as at an earlier commit?
 
-    python benchmarks/gap_identical.py [--before REV] [--no-real] [--numbers]
+    python benchmarks/gap_identical.py [--before REV] [--no-real] [--no-firmware] [--numbers]
+                                       [--only NAME ...]
 
 A speed change to the diagnosis must not change a single number it reports. This runs
 ``apmcal gap FILE --json OUT`` with this tree and with revision ``--before`` (its apmcal and its
@@ -9,7 +10,10 @@ speed work that began at 05:44 UTC on 2026-11-24) on:
 
 * the 400 Hz session of ``gap_speed.py`` (made by it, kept in ``benchmarks/_data/``);
 * six 100 Hz sitl sessions, each with other effects withheld from the twin (made here once);
-* the real recordings of the README's table, when ``../shared/data`` is there.
+* the 636 s 400 Hz session with every effect on of ``gap_cost.py``;
+* the real recordings of the README's table, when ``../shared/data`` is there;
+* logs of ArduPilot's own firmware (SITL, ``../shared/ardupilot-sitl``), recorded once: its
+  default drift held still (.tlog and dataflash) and a warm-up (.tlog), when it is there.
 
 and compares the two JSON files of each. Prints one line per session and exits 1 when any differs.
 
@@ -44,6 +48,12 @@ SITE = ["--lat", "47.4", "--lon", "8.5"]
 SITL_CASES = [(("gyro_scale", "mag_interference"), 3), (("lowpass_filter",), 4),
               (("motion_contamination",), 5), (("cross_axis",), 6), ((), 7),
               (("bias_random_walk",), 8)]
+# ArduPilot SITL sessions (name, simulated seconds from boot, SIM_* at boot)
+FIRMWARE = [("drift", 420, {}),
+            ("warmup", 240, {"SIM_DRIFT_SPEED": 0, "SIM_IMUT1_ENABLE": 1, "SIM_IMUT1_TMIN": -10,
+                             "SIM_IMUT1_TMAX": 80, "SIM_IMUT_TCONST": 100,
+                             "SIM_IMUT1_GYR1_X": 300, "SIM_IMUT1_GYR1_Y": -200,
+                             "SIM_IMUT1_GYR1_Z": 150})]
 REAL = [("ardupilot/pxf_copter_static_51.BIN", []),
         ("mpu6050/example_data_tinit_calc.csv", []),
         ("mpu6050/imu_static_test.csv", []),
@@ -51,7 +61,7 @@ REAL = [("ardupilot/pxf_copter_static_51.BIN", []),
         ("imucal/example_ferraris_session.csv", [])]
 
 
-def sessions(with_real: bool) -> list[tuple[Path, list[str]]]:
+def sessions(with_real: bool, with_firmware: bool = True) -> list[tuple[Path, list[str]]]:
     """(log, its extra arguments) of every session compared, made when missing."""
     from apmcal_sim.gap_benchmark import simulate_log
 
@@ -68,10 +78,48 @@ def sessions(with_real: bool) -> list[tuple[Path, list[str]]]:
             print(f"simulating {path.name} ...", flush=True)
             simulate_log(withheld, seed, path, 100.0, 100.0)
         out.append((path, SITE))
+    alleffects = DATA / "gap_alleffects_400hz.bin"     # gap_cost.py's, the same file
+    if not alleffects.exists():
+        print(f"simulating {alleffects.name} ...", flush=True)
+        subprocess.run([sys.executable, "-m", "apmcal_sim.makelog", "--script", "diagnosis",
+                        "--rate", "400", "--fs", "400", "--out", str(alleffects)],
+                       check=True, cwd=ROOT)
+    out.append((alleffects, []))
     if with_real and SHARED.is_dir():
         out += [(SHARED / name, extra) for name, extra in REAL if (SHARED / name).exists()]
     elif with_real:
         print(f"({SHARED} is not there: the real recordings are left out)")
+    if with_firmware:
+        out += firmware_logs()
+    return out
+
+
+def firmware_logs() -> list[tuple[Path, list[str]]]:
+    """Logs of ArduPilot's own firmware (SITL, ``../shared/ardupilot-sitl``), recorded once
+    into ``benchmarks/_data/gap_firmware_*``: SITL's default drift held still (.tlog and
+    dataflash) and a warm-up with SIM_IMUT1 coefficients (.tlog); none without the firmware."""
+    sys.path[:0] = [str(ROOT / "tests"), str(ROOT / "sitl")]
+    from ardupilot_sitl import unavailable_reason
+
+    if unavailable_reason():
+        print(f"({unavailable_reason()}: the firmware's logs are left out)")
+        return []
+    from gap_sitl_sessions import record
+
+    out = []
+    for name, until, boot in FIRMWARE:
+        folder = DATA / f"gap_firmware_{name}"
+        if not (folder / "done").exists():
+            print(f"recording {folder.name} on ArduPilot SITL ...", flush=True)
+            import shutil
+
+            shutil.rmtree(folder, ignore_errors=True)
+            rec = record(folder, [("until", until)], boot)
+            shutil.copy(rec.bin, folder / "dataflash.bin")
+            (folder / "done").write_text("")
+        out.append((folder / "sitl.tlog", []))
+        if name == "drift":
+            out.append((folder / "dataflash.bin", []))
     return out
 
 
@@ -125,12 +173,18 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--before", default=BEFORE, help=f"revision to compare with (default {BEFORE})")
     ap.add_argument("--no-real", action="store_true", help="leave out the real recordings")
+    ap.add_argument("--no-firmware", action="store_true",
+                    help="leave out the logs of ArduPilot's own firmware (SITL)")
+    ap.add_argument("--only", nargs="+", default=None, metavar="NAME",
+                    help="only the sessions whose file name contains one of these")
     ap.add_argument("--numbers", action="store_true",
                     help="accept numbers moved by rounding when every non-number is equal")
     args = ap.parse_args(argv)
     before = export_tree(args.before)
     differ = 0
-    for log, extra in sessions(not args.no_real):
+    for log, extra in sessions(not args.no_real, not args.no_firmware):
+        if args.only and not any(part in str(log) for part in args.only):
+            continue
         now, was = DATA / "gap_identical_now.json", DATA / "gap_identical_before.json"
         gap_json(ROOT, log, extra, now)
         gap_json(before, log, extra, was)

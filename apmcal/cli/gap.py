@@ -34,6 +34,11 @@ def add_parser(sub) -> None:
                      help="write the selected effects as a simulator configuration "
                           "(python -m apmcal_sim --twin TWIN.json), or with .parm/.param as "
                           "ArduPilot SITL parameters (docs/sitl-twin.md)")
+    gap.add_argument("--twin-log", default=None, metavar="TWIN",
+                     help="a recorded twin instead of the simulated one: the same session "
+                          "recorded again by a simulator set up with --write-twin (e.g. "
+                          "ArduPilot SITL), in the log's format and rate; says what is left "
+                          "between the board and that recording (docs/sitl-twin.md)")
     gap.add_argument("--quiet", action="store_true", help="print nothing but errors")
 
 
@@ -141,6 +146,24 @@ def diagnose_file(args, names, console):
         console.print(line, soft_wrap=True)
     if error is not None:
         raise error
+    twin = recorded_twin(args.twin_log, session, opts) if args.twin_log else None
     with console.status("diagnosing") as status:
-        return diagnose(session, names, seed=args.seed,
+        return diagnose(session, names, seed=args.seed, twin=twin,
                         progress=lambda msg: status.update(f"diagnosing: {msg}"))
+
+
+def recorded_twin(path: str, session, opts):
+    """The twin log read, cut and put on ``session``'s samples
+    (:func:`apmcal.diagnosis.session.twin_log.on_samples_of`).
+
+    Raises
+    ------
+    ApmcalError
+        When the twin log cannot be read or cut, or does not match the real session."""
+    from apmcal.diagnosis.reading import LogReading
+    from apmcal.diagnosis.session.twin_log import on_samples_of
+
+    twin, _, error = LogReading(path, opts).session()
+    if error is not None:
+        raise error
+    return on_samples_of(session, twin, path)

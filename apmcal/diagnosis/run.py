@@ -42,8 +42,9 @@ class Diagnosis:
 
 def session_summary(session, evaluator: Evaluator) -> dict:
     """What the session holds, for the result: "duration_s" [s], "rate_hz" [Hz], counts of
-    holds, moves, pieces and orientations, the sensors, those the log stores as integers, and
-    the ranges "temperature_c" [°C] and "current_a" [A] when logged."""
+    holds, moves, pieces and orientations, the sensors, those the log stores as integers, the
+    ranges "temperature_c" [°C] and "current_a" [A] when logged, and "twin_log" (the recorded
+    twin's file) when the twin is a recording."""
     moves = int(np.sum(~session.pieces.is_hold))
     out = {"duration_s": session.duration, "rate_hz": session.fs, "holds": len(session.holds),
            "moves": moves, "pieces": len(session.pieces),
@@ -55,10 +56,12 @@ def session_summary(session, evaluator: Evaluator) -> dict:
     if session.current is not None:
         out["current_a"] = [float(np.nanmin(session.current)),
                             float(np.nanmax(session.current))]
+    if evaluator.twin is not None:
+        out["twin_log"] = str(evaluator.twin.source)
     return out
 
 
-def diagnose(session, names=None, *, seed: int = 0, progress=None) -> Diagnosis:
+def diagnose(session, names=None, *, seed: int = 0, progress=None, twin=None) -> Diagnosis:
     """Diagnose one session (``names``: the candidate effects, default all).
 
     Parameters
@@ -70,6 +73,10 @@ def diagnose(session, names=None, *, seed: int = 0, progress=None) -> Diagnosis:
         Seed of the twins' noise.
     progress : callable, optional
         Called with a short text at each stage.
+    twin : Session, optional
+        A recorded twin on the session's samples (:func:`apmcal.diagnosis.session.twin_log.
+        on_samples_of`), in place of the simulated one: what is left between the board and
+        that recording.
 
     Returns
     -------
@@ -82,12 +89,12 @@ def diagnose(session, names=None, *, seed: int = 0, progress=None) -> Diagnosis:
     # busy two-core machine than with one
     reuse.forget()     # what the last session's models left can only take memory
     with threadpool_limits(limits=1):
-        return _diagnose(session, names, seed, progress)
+        return _diagnose(session, names, seed, progress, twin)
 
 
-def _diagnose(session, names, seed: int, progress) -> Diagnosis:
+def _diagnose(session, names, seed: int, progress, twin=None) -> Diagnosis:
     say = progress or (lambda _msg: None)
-    ev = Evaluator(session, seed)
+    ev = Evaluator(session, seed, twin=twin)
     say("nominal model")
     nominal = _score_nominal(ev)
     ranked, selection = _rank_and_select(ev, names, say)

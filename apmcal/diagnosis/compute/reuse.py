@@ -18,7 +18,9 @@ from collections import OrderedDict
 
 import numpy as np
 
-KEPT = 24           # blocks kept of each kind (at 400 Hz a hold block is about 6 MB)
+KEPT = 24           # blocks kept of each kind (at 400 Hz a hold block is about 6 MB) ...
+BUDGET = 48 << 20   # ... within this many bytes of arrays per kind: a longer session keeps
+                    # fewer blocks, not more memory (a one-hour 400 Hz block is 35 MB)
 STRIDE = 251        # the quick check reads every STRIDE-th value
 
 
@@ -30,6 +32,7 @@ def forget() -> None:
     kept is hundreds of MB at 400 Hz)."""
     for store in _ALL:
         store.entries.clear()
+        store._bytes.clear()
 
 
 class Recent:
@@ -39,11 +42,19 @@ class Recent:
     ----------
     size : int
         Entries kept.
+    budget : int, optional
+        Bytes the entries may hold together, as ``weigh(key, value)`` counts them; the oldest
+        are forgotten beyond it (the newest is kept whatever its size).
+    weigh : callable, optional
+        (key, value) -> bytes (default: :func:`array_bytes` of both).
     """
 
-    def __init__(self, size: int):
+    def __init__(self, size: int, budget: int | None = None, weigh=None):
         self.size = size
+        self.budget = budget
+        self.weigh = weigh or array_bytes
         self.entries: OrderedDict = OrderedDict()
+        self._bytes: dict = {}
         self._next = 0
         _ALL.append(self)
 
@@ -59,14 +70,31 @@ class Recent:
         """Keep ``value`` under ``key`` (what ``match`` reads), forgetting the oldest beyond
         the size."""
         self.entries[self._next] = (key, value)
+        if self.budget is not None:
+            self._bytes[self._next] = self.weigh(key, value)
         self._next += 1
-        while len(self.entries) > self.size:
-            self.entries.popitem(last=False)
+        while len(self.entries) > self.size or (
+                self.budget is not None and len(self.entries) > 1
+                and sum(self._bytes.values()) > self.budget):
+            token, _ = self.entries.popitem(last=False)
+            self._bytes.pop(token, None)
 
 
-_COEFFICIENTS = Recent(KEPT)
-_CELLS = Recent(KEPT)
-_DERIVED = Recent(2 * KEPT)
+def array_bytes(*objects) -> int:
+    """Bytes of the numpy arrays among ``objects`` and the items of those that are tuples or
+    lists (one level down: what a store's keys and values hold directly)."""
+    total = 0
+    for o in objects:
+        items = o if isinstance(o, (tuple, list)) else (o,)
+        total += sum(x.nbytes for x in items if isinstance(x, np.ndarray))
+    return total
+
+
+# a block's coefficients are about as large as its values (levels and piece means), its cells
+# hold a share per coefficient and a piece and centre for each
+_COEFFICIENTS = Recent(KEPT, BUDGET, lambda key, value: 2 * key[1].nbytes)
+_CELLS = Recent(KEPT, BUDGET, lambda key, value: sum(3 * c.nats.nbytes for c in value))
+_DERIVED = Recent(2 * KEPT)     # statistics of a few numbers per level and channel
 
 
 def _same_values(a: np.ndarray, b: np.ndarray) -> bool:

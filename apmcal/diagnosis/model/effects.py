@@ -13,6 +13,8 @@ import numpy as np
 MIN_TEMPERATURE_RANGE_K = 1.0     # a smaller spread cannot separate a temperature term
 MIN_DRIFT_SPAN_S = 60.0           # a shorter record cannot see a drift beside the noise
 MIN_GEOMETRY_HOLDS = 6            # distinct still orientations for the geometric terms
+MIN_HELD_OUT_PIECES = 3           # still pieces each half needs for its piece means to be scored
+TOO_SHORT = "too short"           # how a reason of the session's length begins
 
 
 @dataclass(frozen=True)
@@ -27,14 +29,14 @@ class Effect:
 
 CATALOGUE = (
     Effect("temperature_drift", ("acc", "gyr"),
-           "bias changing linearly with the board temperature", ("temperature",)),
+           "bias changing linearly with the board temperature", ("temperature", "pieces")),
     Effect("bias_drift", ("gyr",), "gyro bias drifting linearly in time ([Oppong] eq. 5)",
-           ("duration",)),
+           ("duration", "pieces")),
     Effect("triangle_drift", ("gyr",),
            "ArduPilot SITL's triangle-wave gyro drift (SIM_DRIFT_SPEED, SIM_DRIFT_TIME)",
-           ("duration",)),
+           ("duration", "pieces")),
     Effect("bias_random_walk", ("gyr",), "gyro bias wandering as a random walk",
-           ("duration",)),
+           ("duration", "pieces")),
     Effect("g_sensitivity", ("gyr",), "gyro output proportional to specific force",
            ("orientations",)),
     Effect("earth_rate", ("gyr",), "the Earth's rotation seen by the gyro in each pose",
@@ -85,7 +87,19 @@ def _temperature(session, context):
 
 def _duration(session, context):
     if session.duration < MIN_DRIFT_SPAN_S:
-        return f"{session.duration:.0f} s of data (needs {MIN_DRIFT_SPAN_S:.0f} s)"
+        return f"{TOO_SHORT}: {session.duration:.0f} s of data (needs {MIN_DRIFT_SPAN_S:.0f} s)"
+    return None
+
+
+def _pieces(session, context):
+    """A bias that changes in time differs from a constant one across the still pieces: the
+    held-out half's piece means are its evidence (and its null sessions'), scored only when
+    that half has :data:`MIN_HELD_OUT_PIECES` of them."""
+    pc = session.pieces
+    per_half = [int(np.sum(pc.is_hold & (pc.fold == fold))) for fold in (0, 1)]
+    if min(per_half) < MIN_HELD_OUT_PIECES:
+        return (f"{TOO_SHORT}: {min(per_half)} still piece(s) in a half (needs "
+                f"{MIN_HELD_OUT_PIECES}: longer or more still poses)")
     return None
 
 
@@ -131,6 +145,7 @@ def _current(session, context):
     return None
 
 
-_CHECKS = {"temperature": _temperature, "duration": _duration, "orientations": _orientations,
+_CHECKS = {"temperature": _temperature, "duration": _duration, "pieces": _pieces,
+           "orientations": _orientations,
            "geometry": _geometry, "latitude": _latitude, "moves": _moves,
            "lattice": _lattice, "compass": _compass, "current": _current}

@@ -23,6 +23,7 @@ from apmcal.diagnosis.scoring.gap import ResidualBlock
 
 AXES = ("x", "y", "z")
 DRIFT_TIMES_MIN = np.arange(0.5, 30.01, 0.25)   # SIM_DRIFT_TIME grid of the triangle drift
+SAME_RSS = 1e-6         # relative residual difference below which two drift times fit alike
 
 
 @dataclass
@@ -360,20 +361,27 @@ def _fit_gyro_part(fit: ModelFit, reduced: Reduced, train) -> None:
 
 
 def _best_drift_time(fit: ModelFit, blocks: Blocks, groups) -> References:
-    """SIM_DRIFT_TIME by grid search: the triangle period that leaves the least residual."""
+    """SIM_DRIFT_TIME by grid search: the triangle period that leaves the least residual, the
+    longest of those that leave the same (within :data:`SAME_RSS`).
+
+    A stretch of data shorter than a turn of the wave cannot tell a triangle from one of half
+    the period and the opposite speed: between 150 and 450 s after boot, rising for 5 min then
+    falling is falling for 2.5 min then rising, less a constant. The fewest turns inside the
+    data is the simplest reading of it, and the two folds then agree (the parameters reported
+    are their mean: +0.05 and −0.05 °/s per minute made a drift of nothing)."""
     from dataclasses import replace
 
     best, best_rss = fit.refs, np.inf
     # a half period beyond the record's end is a plain ramp there: one such value suffices
     last = float(np.max(blocks.t)) / 60.0
     grid = [m for m in DRIFT_TIMES_MIN if m <= last] + [float(DRIFT_TIMES_MIN[-1])]
-    for minutes in grid:
+    for minutes in reversed(grid):
         fit.refs = replace(fit.refs, drift_time_min=float(minutes))
         cols, vec, _, _ = gyro_regressors(fit, blocks.t, blocks.temp, groups)
         g = fit_gyro(blocks, cols, vec)
         rss = float((((blocks.values - g.predict(cols, vec)) ** 2).sum(axis=1)
                      * blocks.count).sum())
-        if rss < best_rss:
+        if rss < best_rss * (1.0 - SAME_RSS):
             best, best_rss = fit.refs, rss
     return best
 
@@ -546,10 +554,10 @@ def hold_residuals(session, fit: ModelFit) -> list[ResidualBlock]:
     if fit.hold_motion is not None:
         gyr_pred = gyr_pred + np.take(fit.hold_motion[0], hs.index, axis=0)
     # rows gathered with np.take: about 3× faster than fancy indexing of (n, 3) arrays
-    acc = _block("acc", np.take(session.acc, hs.index, axis=0) - acc_pred, hs, t, temp)
+    acc = _block("acc", np.take(session.acc, hs.index, axis=0), acc_pred, hs, t, temp, session)
     _geometric(acc, fit.acc, fit.up[groups[ids]],
                sum(len(v) for v in fit.acc.params.values()), session)
-    gyr = _block("gyr", np.take(session.gyr, hs.index, axis=0) - gyr_pred, hs, t, temp)
+    gyr = _block("gyr", np.take(session.gyr, hs.index, axis=0), gyr_pred, hs, t, temp, session)
     gyr.mean_dof = 1 + cols.shape[1] + int(np.ceil(vec.shape[1] / 3))
     blocks = [acc, gyr]
     if session.mag is not None and fit.mag is not None:
@@ -584,8 +592,12 @@ def _geometric(block: ResidualBlock, geo: GeometryFit, directions: np.ndarray, n
         block.mean_dof = block.mean_nuisance = len(session.holds)
 
 
-def _block(sensor, values, hs: HoldSamples, t, temp) -> ResidualBlock:
-    return ResidualBlock([f"{sensor}_{a}" for a in AXES], values, hs.i0, hs.i1, hs.piece, t, temp)
+def _block(sensor, readings, predicted, hs: HoldSamples, t, temp, session) -> ResidualBlock:
+    """The residual block of ``sensor``'s hold ``readings`` under the model's ``predicted``
+    values, keeping the readings of a sensor the log stores as integers."""
+    kept = readings if sensor in session.integer_sensors and session.block_length == 1 else None
+    return ResidualBlock([f"{sensor}_{a}" for a in AXES], readings - predicted, hs.i0, hs.i1,
+                         hs.piece, t, temp, readings=kept)
 
 
 def _mag_block(session, fit: ModelFit, ids, groups) -> ResidualBlock:
@@ -596,9 +608,10 @@ def _mag_block(session, fit: ModelFit, ids, groups) -> ResidualBlock:
     pred = _hold_prediction(fit.mag, fit.mag_dirs, hs.group, fit,
                             lambda: np.clip(np.searchsorted(session.t, t), 0, len(session.t) - 1),
                             fit.mag_columns(t, cur))
-    block = ResidualBlock([f"mag_{a}" for a in AXES], np.take(m.values, hs.index, axis=0) - pred,
-                          hs.i0, hs.i1,
-                          hs.piece, t, None)
+    readings = np.take(m.values, hs.index, axis=0)
+    block = ResidualBlock([f"mag_{a}" for a in AXES], readings - pred, hs.i0, hs.i1, hs.piece, t,
+                          None, readings=readings if "mag" in session.integer_sensors
+                          and session.block_length == 1 else None)
     n_params = sum(len(v) for v in fit.mag.params.values())
     _geometric(block, fit.mag, _unit(fit.mag_dirs)[groups[ids]], n_params, session)
     return block

@@ -85,7 +85,7 @@ class NoiseModel:
 
 
 def fit_noise(coefficient_sets: list, train: np.ndarray, effects, fs_of: dict,
-              steps: dict) -> NoiseModel:
+              steps: dict, truncated: bool = False, origins: dict | None = None) -> NoiseModel:
     """Noise terms of each residual block (:class:`~apmcal.diagnosis.scoring.gap.BlockCoefficients`,
     named by its first channel's sensor) on the training pieces ``train``. ``fs_of`` gives each
     sensor's sample rate, ``steps`` the quantization step per axis of the sensors the model
@@ -103,12 +103,20 @@ def fit_noise(coefficient_sets: list, train: np.ndarray, effects, fs_of: dict,
         Sample rate of each sensor [Hz].
     steps : dict
         Quantization step (3,) of each sensor [its unit], or None.
+    truncated : bool
+        Whether the integer readings of the blocks that keep them (``readings``) are
+        truncated toward zero (else rounded): below their step, the white noise is the one
+        that makes them change as often as they do (:func:`apmcal.diagnosis.noise.dither.
+        dither_sigma`), where the wavelet variances only see the rounding.
+    origins : dict, optional
+        The raw value of a count of 0 of each such sensor, (3,) [its unit] (0 by default:
+        :attr:`apmcal.diagnosis.session.log.Session.lattice`).
 
     Returns
     -------
     NoiseModel
     """
-    inputs = {}
+    inputs, flicker = {}, {}
     for coeffs in coefficient_sets:
         if not coeffs.block.shape:         # moves: scored, but the noise is the holds'
             continue
@@ -120,17 +128,57 @@ def fit_noise(coefficient_sets: list, train: np.ndarray, effects, fs_of: dict,
         inputs[sensor] = dict(v=v, n=n, fs=fs_of[sensor], step=steps.get(sensor),
                               random_walk=walk, floor=floor,
                               pairs=MeanPairs.of(coeffs.block, train) if walk else None)
+        if coeffs.block.readings is not None and steps.get(sensor) is not None:
+            flicker[sensor] = _flicker_sigma(coeffs.block, train, steps[sensor], truncated,
+                                             "uniform_noise" in effects,
+                                             (origins or {}).get(sensor, 0.0))
     filtered = [s for s in ("acc", "gyr") if s in inputs]
     cutoff = shared_cutoff([inputs[s] for s in filtered]) if "lowpass_filter" in effects \
         else None
     out = {}
     for sensor, kw in inputs.items():
         sigma, q, _ = fit_channels(**kw, cutoff_hz=cutoff if sensor in filtered else None)
+        if sensor in flicker:   # the noise's own level where the rounding hides it
+            gain = marginal_gain(kw["fs"], cutoff if sensor in filtered else None)
+            sigma = np.fmax(sigma, flicker[sensor] / np.sqrt(gain))
         out[sensor] = SensorNoise(sigma=sigma, rw_q=q,
                                   cutoff_hz=cutoff if sensor in filtered else None,
                                   step=kw["step"], uniform="uniform_noise" in effects,
                                   levels={"v": kw["v"].tolist(), "n": kw["n"].tolist()})
     return NoiseModel(out)
+
+
+def _flicker_sigma(block, train: np.ndarray, step: np.ndarray, truncated: bool,
+                   uniform: bool, origin=0.0) -> np.ndarray:
+    """:func:`~apmcal.diagnosis.noise.dither.dither_sigma` of a block that keeps its integer
+    readings, on the training pieces (the model's value: the readings minus the residuals),
+    counted from the count 0 at ``origin``."""
+    from apmcal.diagnosis.noise.dither import dither_sigma
+
+    keep = np.isin(block.piece, train)
+    readings = block.readings - origin
+    return dither_sigma(readings, readings - block.values, block.i0[keep], block.i1[keep],
+                        np.asarray(step, float), truncated, uniform)
+
+
+@lru_cache(maxsize=512)
+def marginal_gain(fs: float, cutoff_hz: float | None) -> float:
+    """Variance of unit white noise after the low-pass, per sample (1 without it).
+
+    Parameters
+    ----------
+    fs : float
+        Sample rate [Hz].
+    cutoff_hz : float or None
+        Low-pass cut-off [Hz].
+
+    Returns
+    -------
+    float
+    """
+    if cutoff_hz is None or cutoff_hz >= fs / 2:
+        return 1.0
+    return float(np.trapezoid(_filter_power_gain(cutoff_hz, fs), _omega()) / np.pi)
 
 
 def shared_cutoff(sensors: list) -> float | None:
@@ -348,7 +396,9 @@ def ml_variances(v: np.ndarray, n: np.ndarray, design: np.ndarray, fixed: np.nda
         w = np.sqrt(n) / m
         c_new, _ = nnls(d * w[:, None], (v - fixed) * w)
         m = np.maximum(fixed + d @ c_new, floor)
-        if np.allclose(c_new, c, rtol=1e-9, atol=1e-300):
+        # np.allclose(c_new, c, rtol=1e-9, atol=1e-300) for finite c, without its checks
+        # and broadcasting: a sixth of the diagnosis's time went into them
+        if np.all(np.abs(c_new - c) <= 1e-300 + 1e-9 * np.abs(c)):
             c = c_new
             break
         c = c_new

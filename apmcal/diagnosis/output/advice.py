@@ -4,14 +4,19 @@ Each sentence says the cause, the evidence in physical units (the fitted paramet
 result, mean of the two folds), the action on the vehicle, and what to set in the simulator —
 ``apmcal_sim`` (the truth key a ``--write-twin`` JSON file holds) and, where it has one,
 ArduPilot's own SITL (the SIM_* parameter a ``--write-twin FILE.parm`` file holds; mapping and
-sources in docs/sitl-twin.md). With nothing selected the answer is that there is nothing to add.
+sources in docs/sitl-twin.md). With nothing selected the answer is that there is nothing to add
+— or that the session was too short to tell, when an effect could not be tested for its length.
 Works from the saved result alone (:class:`~apmcal.diagnosis.output.result.GapResult`).
 """
 from __future__ import annotations
 
 import numpy as np
 
+from apmcal.diagnosis.model.effects import TOO_SHORT
+
 NOTHING = "Nothing to add: the simulator matches this board"
+NOTHING_LEFT = "Nothing left: the recorded twin matches this board"
+SHORT = "Too short to tell"
 MRAD = 1e3          # rad → mrad
 MG = 1e3 / 9.80665  # m/s² → mg
 
@@ -213,6 +218,24 @@ def advice(result) -> list[str]:
         out.append(SENTENCES[name](entry, result) if name in SENTENCES else
                    f"Model {name}; simulator: {name}.")
     if not out:
-        out.append(f"{NOTHING} (no candidate effect explains the gap between it and its "
-                   f"simulated twin).")
+        out.append(_nothing(result))
     return out
+
+
+def _nothing(result) -> str:
+    """The answer with nothing selected: too short to tell when an effect could not be tested
+    for the session's length, else nothing to add (against the simulated twin, or the
+    recorded one)."""
+    short = [e for e in result.effects
+             if str(e.get("not_tested") or "").startswith(TOO_SHORT)]
+    if short:
+        names = ", ".join(e["name"] for e in short)
+        why = short[0]["not_tested"][len(TOO_SHORT):].lstrip(": ")
+        return (f"{SHORT}: {names} not tested — {why}. Nothing else explains the gap; record "
+                f"a longer session before concluding that the simulator matches this board.")
+    twin = result.session.get("twin_log")
+    if twin:
+        return (f"{NOTHING_LEFT} (no candidate effect explains the gap between the board and "
+                f"its recorded twin {twin}).")
+    return (f"{NOTHING} (no candidate effect explains the gap between it and its simulated "
+            f"twin).")

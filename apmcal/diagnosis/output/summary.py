@@ -55,7 +55,9 @@ def print_summary(result, console) -> None:
                   f"sensors {', '.join(s['sensors'])}{temp}")
     _say(console, Text(verdict(result), style="bold"))
     g = result.gap
-    _say(console, f"Gap of the nominal model (real vs its simulated twin): in-sample "
+    against = f"the recorded twin {s['twin_log']}" if s.get("twin_log") else \
+        "its simulated twin"
+    _say(console, f"Gap of the nominal model (real vs {against}): in-sample "
                   f"{g['total']:.2e}, held-out {g['heldout']:.2e} nats/sample")
     b, total = g["breakdown_heldout"], g["heldout"]
     for key, what in (("sensor", "by sensor"), ("kind", "holds / moves"),

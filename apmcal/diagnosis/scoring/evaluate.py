@@ -16,6 +16,7 @@ import numpy as np
 
 from apmcal.diagnosis.compute import workers
 from apmcal.diagnosis.model.dynamics import Moves, fit_dynamics, move_residuals
+from apmcal.diagnosis.model.effects import BY_NAME, NAMES, unmet
 from apmcal.diagnosis.model.nominal import (
     ModelFit,
     calibrated_rate,
@@ -49,6 +50,7 @@ ACC_TERM_ROUNDS = 2     # hold/move alternations of the accelerometer terms the 
 NOISE_ONLY = frozenset({"quantization", "lowpass_filter", "uniform_noise", "bias_random_walk"})
 NULL_SEEDS = 1 << 24    # noise seeds of the null sessions (the twins' are the evaluator's seed
                         # plus the fold: small numbers)
+TWIN_DRAWS = 1 << 20    # with a recorded twin: draw k's twin is draw k + TWIN_DRAWS
 REAL_MODELS_KEPT = 2    # real fits kept per process (each holds all its residuals: 44 MB
                         # for a 10-minute 400 Hz session), the two folds of one model
 
@@ -226,11 +228,20 @@ class Evaluator:
         The real session.
     seed : int
         Seed of the twins' noise (fold f uses ``seed + f``).
+    twin : Session, optional
+        A recorded twin on the real session's samples (:func:`apmcal.diagnosis.session.
+        twin_log.on_samples_of`): every model's twin is then this one recording, fitted with
+        the model as the real session is, instead of a session simulated from the model's fit;
+        its null sessions are pairs of sessions drawn from the nominal model, one as the real
+        session and one as the twin.
     """
 
-    def __init__(self, session, seed: int = 0):
-        self.session = session
+    def __init__(self, session, seed: int = 0, twin=None, redraw=None):
+        self._session = session
+        self._redraw = redraw       # a null session's: (session, twin) drawn again on demand
         self.seed = seed
+        self.twin = twin
+        self._reasons: dict[str, str | None] = {}   # why each candidate is not testable here
         # evidence [nats] each candidate must reach, where the null calibration set one
         # (apmcal.diagnosis.scoring.null); MIN_EVIDENCE_NATS elsewhere
         self.min_evidence: dict[str, float] = {}
@@ -245,6 +256,43 @@ class Evaluator:
         self._kept = None               # workers kept per fold (workers_kept), while kept
         self._nulls_here: dict = {}     # in such a worker: the null sessions it drew
 
+    @property
+    def session(self):
+        """The session (a null session shed after use is drawn again here: :meth:`shed`)."""
+        if self._session is None:
+            self._session, self.twin = self._redraw()
+        return self._session
+
+    def reason(self, name: str) -> str | None:
+        """Why candidate ``name`` cannot be tested on this session (None: it can), found once
+        (:func:`apmcal.diagnosis.model.effects.unmet`)."""
+        if name not in self._reasons:
+            self._reasons[name] = unmet(BY_NAME[name], self.session, self.context)
+        return self._reasons[name]
+
+    def reasons(self) -> dict:
+        """:meth:`reason` of every candidate (what a worker sends back with a null session's
+        summaries, so that the process keeping them need not draw the session itself)."""
+        return {name: self.reason(name) for name in NAMES}
+
+    def shed(self) -> None:
+        """Forget everything of a null session but its summaries, its testability and its
+        nominal fits: its samples, block means, motion paths, fitted residuals and cached
+        evaluations, all found again from the model it is drawn from when a later candidate
+        needs them (the null sessions of a long 400 Hz session are a few hundred MB each).
+        The real session keeps everything."""
+        if self._redraw is None:
+            return
+        self._session = self.twin = None
+        for name in ("reduced", "_twin_reduced", "_earth", "steps", "floors", "context",
+                     "sample_sigma", "fs_of", "move_rows", "slow"):
+            self.__dict__.pop(name, None)
+        self._cache.clear()
+        self._real_models.clear()
+        self._nulls_here.clear()
+        self._motion = {key: value for key, value in self._motion.items()
+                        if isinstance(key, tuple) and key[0] == "nominal"}
+
     # What the session offers every model, each found from the session alone on first use: an
     # evaluator made only for its block means (:attr:`slow`, e.g. a null session's scored on
     # them) never needs those of the recorded rate. :meth:`facts` finds them all before work
@@ -254,6 +302,11 @@ class Evaluator:
     def reduced(self):
         """The session's hold blocks (:func:`apmcal.diagnosis.model.nominal.reduce_session`)."""
         return reduce_session(self.session)
+
+    @cached_property
+    def _twin_reduced(self):
+        """The recorded twin's hold blocks (with a recorded twin only)."""
+        return reduce_session(self.twin)
 
     @cached_property
     def _earth(self) -> tuple:
@@ -356,7 +409,9 @@ class Evaluator:
         noise = None
         if with_noise:
             train = session.pieces.select(fold=train_fold)
-            noise = fit_noise(holds, train, effects, self.fs_of, self.steps_for(effects))
+            noise = fit_noise(holds, train, effects, self.fs_of, self.steps_for(effects),
+                              truncated=self.session.truncated,
+                              origins={s: o for s, (o, _) in self.session.lattice.items()})
             if fit.hold_motion is not None:
                 kappa = self._hold_motion(train_fold if train_fold is not None else 0)[2]
                 noise["gyr"].tremor_deg, noise["gyr"].sway_deg = amplitudes(fit.hold_motion[0],
@@ -437,6 +492,19 @@ class Evaluator:
                               motion_path=self._motion_path(fold))
         return session
 
+    def null_evaluator(self, effects, draw: int) -> "Evaluator":
+        """The evaluator of null session ``draw`` drawn from the model nominal + ``effects``
+        (:meth:`model_draw`), drawn when first read (and again after :meth:`shed`); with a
+        recorded twin, its twin is another session drawn from that model (seeds
+        :data:`TWIN_DRAWS` apart): two recordings of one process."""
+        effects, recorded = tuple(effects), self.twin is not None
+
+        def redraw():
+            twin = self.model_draw(effects, draw + TWIN_DRAWS) if recorded else None
+            return self.model_draw(effects, draw), twin
+
+        return Evaluator(None, self.seed, redraw=redraw)
+
     def _motion_path(self, fold: int):
         """The real poses and moves as the nominal model sees them: one path for all models."""
         if fold not in self._motion:
@@ -492,8 +560,17 @@ class Evaluator:
     def _cold_lane(self, fold: int, todo: list) -> list:
         """Fold ``fold`` of the nominal model (summary and state, :meth:`_nominal_fold`) and
         then of every model of ``todo``, in this process: what one worker of
-        :meth:`_prefetch_by_fold` does."""
-        return [self._nominal_fold(fold, True)] + [self.fold_summary(key, fold) for key in todo]
+        :meth:`_prefetch_by_fold` does. A null session (one that can be drawn again) sends
+        back no state but its nominal fit and its candidates' testability, and is shed."""
+        nominal = self._nominal_fold(fold, True)
+        lane = [nominal] + [self.fold_summary(key, fold) for key in todo]
+        if self._redraw is not None:
+            summary, (motion, _) = nominal
+            kept = {key: value for key, value in motion.items() if key == ("nominal", fold)}
+            lane[0] = (summary, (kept, {}))
+            lane.append(self.reasons())
+            self.shed()
+        return lane
 
     def prefetch_nulls(self, work: list) -> None:
         """:meth:`prefetch` on null sessions drawn from this evaluator's models, in the
@@ -520,27 +597,33 @@ class Evaluator:
         for null, todo in kept:
             folds = [next(results) for _ in FOLDS]
             null._summaries.setdefault(frozenset(),
-                                       Summary.of_folds(frozenset(), [n for n, _ in folds]))
+                                       Summary.of_folds(frozenset(), [n for n, _, _ in folds]))
+            null._reasons.update(folds[0][2])
             for i, key in enumerate(todo):
-                null._summaries[key] = Summary.of_folds(key, [parts[i] for _, parts in folds])
+                null._summaries[key] = Summary.of_folds(key, [parts[i] for _, parts, _ in folds])
 
     def _null_fold(self, effects: tuple, draw: int, fold: int, todo: list) -> tuple:
         """A job of a worker kept per fold (:meth:`prefetch_nulls`): fold ``fold`` of the
-        null session ``model_draw(effects, draw)``, drawn and kept in this worker on first
-        use; (its nominal model's FoldSummary, the FoldSummaries of ``todo``)."""
+        null session ``model_draw(effects, draw)``, drawn in this worker on first use and
+        shed after each job (:meth:`shed`); (its nominal model's FoldSummary, the
+        FoldSummaries of ``todo``, its candidates' testability)."""
         key = (effects, draw)
         if key not in self._nulls_here:
-            self._nulls_here[key] = (Evaluator(self.model_draw(effects, draw), self.seed), {})
+            self._nulls_here[key] = (self.null_evaluator(effects, draw), {})
         null, nominal = self._nulls_here[key]
         if fold not in nominal:
             nominal[fold] = null._nominal_fold(fold, True)[0]
-        return nominal[fold], [null.fold_summary(k, fold) for k in todo]
+        out = nominal[fold], [null.fold_summary(k, fold) for k in todo], null.reasons()
+        null.shed()
+        return out
 
     def _keep_lanes(self, todo: list, lanes: list) -> None:
         """Keep what :meth:`_cold_lane` gave for each fold (``lanes``, in fold order)."""
         self.keep_nominal_folds([lane[0] for lane in lanes])
         for i, key in enumerate(todo):
             self._summaries[key] = Summary.of_folds(key, [lane[1 + i] for lane in lanes])
+        if self._redraw is not None:
+            self._reasons.update(lanes[0][-1])
 
     def _prefetch_by_fold(self, todo: list) -> None:
         """:meth:`prefetch` on a cold evaluator with no more cores than folds: one worker per
@@ -595,7 +678,9 @@ class Evaluator:
         than that. Made once, in this process, so that forked workers inherit it."""
         if not self.decimates:
             return self
-        return Evaluator(decimated(self.session, block_factor(self.session.fs)), self.seed).facts()
+        k = block_factor(self.session.fs)
+        twin = decimated(self.twin, k) if self.twin is not None else None
+        return Evaluator(decimated(self.session, k), self.seed, twin=twin).facts()
 
     def _slow_nominal_fold(self, fold: int) -> tuple:
         """:meth:`_nominal_fold` of :attr:`slow` (a job: workers call methods of this one)."""
@@ -710,12 +795,16 @@ class Evaluator:
         fit, noise, real = self.fit(s, self.reduced, effects, fold, with_sigma=True)
         if not effects:     # the fold's nominal fit: its motion path starts here (no refit)
             self._motion.setdefault(("nominal", fold), (fit, noise))
-        # the same twin noise for every model (common random numbers): differences between
-        # models are not drowned in differences between noise draws
-        twin, _ = simulate(s, fit, noise, seed=self.seed + fold,
-                           motion_path=self._motion_path(fold))
-        _, _, tw = self.fit(twin, reduce_session(twin), effects, fold, start=fit,
-                            with_noise=False)
+        if self.twin is not None:       # a recording: the same one for every model
+            _, _, tw = self.fit(self.twin, self._twin_reduced, effects, fold, start=fit,
+                                with_noise=False)
+        else:
+            # the same twin noise for every model (common random numbers): differences between
+            # models are not drowned in differences between noise draws
+            twin, _ = simulate(s, fit, noise, seed=self.seed + fold,
+                               motion_path=self._motion_path(fold))
+            _, _, tw = self.fit(twin, reduce_session(twin), effects, fold, start=fit,
+                                with_noise=False)
         train, test = s.pieces.select(fold=fold), s.pieces.select(fold=1 - fold)
         return FoldResult(fold, fit, noise, real, tw,
                           compare(real, tw, train, in_sample=True, floors=self.floors),
@@ -758,8 +847,11 @@ def prefetch_cold(work: list) -> None:
     work = [(ev, [frozenset(m) for m in models]) for ev, models in work]
     if len(work) < 2 or not workers.parallel() or (os.cpu_count() or 1) > len(FOLDS) or \
             any(not ev._cold() or frozenset() not in models for ev, models in work):
-        for ev, models in work:
+        for ev, models in work:     # one at a time: a null session shed before the next
             ev.prefetch(models)
+            if ev._redraw is not None:
+                ev.reasons()
+                ev.shed()
         return
     _by_fold([ev for ev, _ in work], [_slowest_first(m for m in models if m)
                                       for _, models in work])
@@ -771,7 +863,8 @@ def _by_fold(evaluators: list, todos: list) -> None:
     evaluator, one after the other (:meth:`Evaluator._cold_lane`). The same numbers: every
     fold's computation is the same wherever it runs."""
     for ev in evaluators:
-        ev.facts()
+        if ev._redraw is None:      # a null session is drawn in the workers, not here
+            ev.facts()
     lanes = workers.run_lanes(_Cold(evaluators, todos), [[("lane", (fold,))] for fold in FOLDS])
     for i, (ev, todo) in enumerate(zip(evaluators, todos)):
         ev._keep_lanes(todo, [lane[0][i] for lane in lanes])

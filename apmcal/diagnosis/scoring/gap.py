@@ -33,6 +33,7 @@ from scipy.special import digamma, ndtr
 
 from apmcal.diagnosis.compute import reuse
 from apmcal.diagnosis.scoring.haar import Coefficients, details, piece_means
+from apmcal.diagnosis.session.facts import MEANS
 
 LEVEL_MEANS = 0          # cell code of the piece means ("across pieces")
 MIN_CELL = 8             # coarse levels are pooled until a cell has this many coefficients
@@ -74,6 +75,10 @@ class ResidualBlock:
     mean_nuisance : int
         Of those, the ones refitted on whichever fold is scored (a free mean per hold), which
         lower the degrees of freedom held-out as well.
+    readings : (n, c) array or None
+        The readings themselves, for a sensor the log stores as integers (the noise below
+        their step shows in how often they change: :mod:`apmcal.diagnosis.noise.dither`);
+        None otherwise.
     """
 
     names: list
@@ -87,6 +92,7 @@ class ResidualBlock:
     radial: np.ndarray | None = None     # (p, 3) unit vectors: score the piece means along them
     mean_dof: int = 0                    # parameters fitted to the piece means of a channel
     mean_nuisance: int = 0               # ... of them refitted on every fold (orientations)
+    readings: np.ndarray | None = None   # (n, c) the integer-format readings themselves
 
     def n_samples(self, keep: np.ndarray | None = None) -> int:
         """Residual samples in the kept pieces, counted once per channel.
@@ -410,7 +416,8 @@ def shape_shares(real: np.ndarray, twin: np.ndarray, floor: float = 0.0) -> np.n
         Share of each real coefficient [nats].
     """
     twin_sorted = np.sort(twin)     # the quantiles and the twin's bin counts both read it
-    edges = np.unique(sorted_quantiles(twin_sorted, np.arange(1, SHAPE_BINS) / SHAPE_BINS))
+    edges = resolved_edges(sorted_quantiles(twin_sorted, np.arange(1, SHAPE_BINS) / SHAPE_BINS),
+                           floor)
     bins = len(edges) + 1
     b_r = bin_index(edges, real)
     # twin values at or below each edge, hence per bin (the bins of searchsorted(edges, twin))
@@ -424,6 +431,41 @@ def shape_shares(real: np.ndarray, twin: np.ndarray, floor: float = 0.0) -> np.n
     q = (1.0 - SHAPE_SMOOTHING) * q + SHAPE_SMOOTHING * g
     expected = 0.5 * (bins - 1) * (1.0 + n_r / n_t)
     return np.log(p / q)[b_r] - expected / n_r
+
+
+def resolved_edges(edges: np.ndarray, floor: float) -> np.ndarray:
+    """Histogram edges no finer than the readings resolve: each moved to the middle between
+    two points of the grid of half the finest coefficients' rounding step, then deduplicated.
+
+    A reading rounded to a step Δ (``floor`` = Δ²/12) makes level-1 Haar coefficients
+    (y₁ − y₀)/√2 on a grid of Δ/√2, and of Δ/(2√2) where the reader moved truncated readings
+    half a step out; what the fitted model adds between two samples (a slope, a temperature
+    term) shifts them by far less. Quantile edges of such a twin fall inside those clusters, at
+    the model's sub-step offsets, and a histogram binned there compares how the real and twin
+    residuals straddle zero by a millionth of a step — thousands of nats on an int16 gyro that
+    no reading can show (an ArduPilot RAW_IMU log: 5e4 nats against a triangle drift that
+    describes it). Edges between the grid points never split a cluster. On float readings
+    (Δ a float32's spacing) the grid is far below any quantile spacing and nothing moves.
+
+    Parameters
+    ----------
+    edges : (k,) array
+        Sorted candidate edges (the twin's quantiles), in the coefficients' unit.
+    floor : float
+        The readings' rounding variance Δ²/12 [unit²] (0: no rounding).
+
+    Returns
+    -------
+    (j,) array
+        Sorted unique edges, j ≤ k.
+    """
+    grid = np.sqrt(12.0 * floor) / (2.0 * np.sqrt(2.0)) if floor > 0 else 0.0
+    if not grid > 0:
+        return np.unique(edges)
+    point, ties = np.unique(np.floor(edges / grid + 0.5), return_counts=True)
+    # a grid point that several quantiles fall on holds a cluster of the twin's mass: bounded
+    # on both sides, so that coefficients just below it are not binned with it either
+    return np.unique(np.concatenate([point + 0.5, point[ties > 1] - 0.5]) * grid)
 
 
 def sorted_quantiles(x_sorted: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -515,6 +557,7 @@ def _block_cells(rc: BlockCoefficients, tc: BlockCoefficients, keep, in_sample, 
     score_means = block.shape and block.radial is None and mean_mask.sum() - loss > 2
     # every channel's variance cells at once, per group of levels
     floor = _floors_of(block.names, floors)
+    means_floor = _floors_of([name + MEANS for name in block.names], floors)
     group_shares = [variance_shares_by_row(
         np.concatenate([real_lv[j - 1] for j in group], axis=1),
         np.concatenate([twin_lv[j - 1] for j in group], axis=1), floors=floor)
@@ -533,7 +576,7 @@ def _block_cells(rc: BlockCoefficients, tc: BlockCoefficients, keep, in_sample, 
         if score_means:
             real = rc.means.values[mean_mask, col]
             share, v_r, v_t = variance_shares(real, tc.means.values[mean_mask, col], loss,
-                                              floor[col])
+                                              means_floor[col])
             yield CellShare(name, LEVEL_MEANS, (LEVEL_MEANS,), len(real), v_r, v_t, share,
                             block.piece[rc.means.piece[mean_mask]], rc.means.center[mean_mask],
                             block)
@@ -550,7 +593,7 @@ def _radial_cell(rc: BlockCoefficients, tc: BlockCoefficients, keep, in_sample, 
     real = np.sum(rc.means.values[mask] * along, axis=1)
     twin = np.sum(tc.means.values[mask] * along, axis=1)
     name = block.names[0].split("_")[0] + "_norm"
-    share, v_r, v_t = variance_shares(real, twin, loss, (floors or {}).get(name, 0.0))
+    share, v_r, v_t = variance_shares(real, twin, loss, (floors or {}).get(name + MEANS, 0.0))
     yield CellShare(name, LEVEL_MEANS, (LEVEL_MEANS,), len(real), v_r, v_t, share,
                     block.piece[rc.means.piece[mask]], rc.means.center[mask], block)
 

@@ -140,6 +140,7 @@ def _draw(draws: dict, real: dict, session_of, base: tuple, say=None, fetch=None
         for n in pending:
             draws[n].evidence.append(score(null_ev, base, n).evidence if n in names
                                      else float("nan"))
+        null_ev.shed()      # its summaries stay; the rest is drawn again if needed
 
 
 def calibrate(evaluator, ranked: list, family: int, base: tuple = (), say=None,
@@ -184,8 +185,7 @@ class _Sessions:
 
     def __call__(self, k: int) -> Evaluator:
         if k not in self._made:
-            self._made[k] = Evaluator(self.evaluator.model_draw(self.drawn_from, k),
-                                      self.evaluator.seed)
+            self._made[k] = self.evaluator.null_evaluator(self.drawn_from, k)
         return self._made[k]
 
     def fetch(self):

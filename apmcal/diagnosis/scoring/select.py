@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from apmcal.diagnosis.model.effects import BY_NAME, NAMES, unmet
+from apmcal.diagnosis.model.effects import NAMES
 from apmcal.diagnosis.model.plausible import implausible
 from apmcal.diagnosis.model.wald import MAX_P_VALUE, wald_p_value
 
@@ -140,7 +140,7 @@ def score(evaluator, base: tuple, name: str, draw: bool = True) -> EffectScore:
     """Effect ``name`` added to ``base``, scored against ``base`` alone; ``draw`` False: its
     support judged without drawing null sessions for it (:func:`required_evidence`), as
     :func:`beyond_chance` then does for the trial a decision turns on."""
-    reason = unmet(BY_NAME[name], evaluator.session, evaluator.context)
+    reason = evaluator.reason(name)
     if reason:
         return EffectScore(name, reason)
     before, after = evaluator.summary(base), evaluator.summary(base + (name,))
@@ -194,7 +194,7 @@ def candidates(names=None) -> tuple:
 
 def testable(evaluator, names) -> list[str]:
     """Those of ``names`` the evaluator's session can test."""
-    return [n for n in names if not unmet(BY_NAME[n], evaluator.session, evaluator.context)]
+    return [n for n in names if not evaluator.reason(n)]
 
 
 def rank_effects(evaluator, names=None, base: tuple = ()) -> list[EffectScore]:
@@ -297,6 +297,9 @@ def forward_selection(evaluator, ranked: list[EffectScore], max_rounds: int = MA
         beyond = {s.name: s.evidence for s in trials}
         best = simplest_best([s for s in trials if s.name not in dropped],
                              lambda s: beyond_chance(evaluator, s))
+        if best is not None and best.name in STOCHASTIC:
+            best = drifts_together(evaluator, base + tuple(selected),
+                                   [s for s in trials if s.name not in dropped], best) or best
         supported = best is not None and beyond_chance(evaluator, best)
         if any(not alone[s.name].supported for s in trials):
             continue        # refused alone by its null, drawn just now: the round again without
@@ -342,6 +345,35 @@ def simplest_best(trials: list[EffectScore], supported=None) -> EffectScore | No
     simpler = [s for s in trials if s.name not in STOCHASTIC
                and s.evidence >= (1.0 - SIMPLER_SHARE) * best.evidence and supported(s)]
     return max(simpler, key=lambda s: s.evidence) if simpler else best
+
+
+def drifts_together(evaluator, model: tuple, trials: list[EffectScore],
+                    stochastic: EffectScore) -> EffectScore | None:
+    """The drift of :data:`CONFOUNDED` to choose before the ``stochastic`` effect, when it and
+    a second one on top of it explain within :data:`SIMPLER_SHARE` as much as that (None:
+    none do).
+
+    :func:`simplest_best` prefers a deterministic effect that alone comes within that share of
+    the random walk; but a random walk bends to the sum of two drifts as well as to one — a
+    board warming up under ArduPilot SITL's triangle drift, whose gyro bias follows neither
+    the temperature nor the triangle alone — and would stand in for both. Each of ``trials``
+    (candidates on top of ``model``) of :data:`CONFOUNDED` is supported alone here; the best
+    of them is tried with each other one on top, and chosen when the two together reach
+    (1 − SIMPLER_SHARE) of the stochastic effect's evidence: the pair then joins in two
+    rounds, and the random walk only after them, on what they leave."""
+    drifts = sorted((s for s in trials if s.name in CONFOUNDED and s.supported),
+                    key=lambda s: -s.evidence)
+    if len(drifts) < 2 or not beyond_chance(evaluator, drifts[0]):
+        return None
+    first = drifts[0]
+    on_first = tuple(model) + (first.name,)
+    evaluator.prefetch([on_first + (s.name,) for s in drifts[1:]])
+    second = max((score(evaluator, on_first, s.name, draw=False) for s in drifts[1:]),
+                 key=lambda s: s.evidence)
+    if second.supported and first.evidence + second.evidence >= \
+            (1.0 - SIMPLER_SHARE) * stochastic.evidence:
+        return first
+    return None
 
 
 def confounded_effects(evaluator, ranked: list[EffectScore], base: tuple = ()) -> dict:

@@ -100,7 +100,8 @@ def decimated(session: Session, k: int) -> Session:
         temp=block_means(session.temp, k), current=block_means(session.current, k),
         notes=list(session.notes),
         resolution={s: step / (1 if s == "mag" and _own_axis(session) else k)
-                    for s, step in session.resolution.items()}, truncated=False)
+                    for s, step in session.resolution.items()}, truncated=False,
+        block_length=session.block_length * k)
     if session.mag is not None:
         out.mag = _mag(session, out, k)
     return out

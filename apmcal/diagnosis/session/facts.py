@@ -54,8 +54,11 @@ def lattice_steps(session) -> dict:
     """Quantization step per axis of each sensor's hold samples (None: not on a lattice). In
     block means of rounded readings it is the step over the block length, which the twin's
     rounding then reproduces (apmcal.diagnosis.session.decimate). A sensor the log stores as
-    integers has the format's step (``session.resolution``) even where its samples hardly
-    change (a gyro at rest under a 1 mrad/s step: too few differences to see a lattice in).
+    integers has the format's step (``session.resolution``), which the twin's formatting uses:
+    also where its samples hardly change (a gyro at rest under a 1 mrad/s step: too few
+    differences to see a lattice in), and where they only move between 0 and ±1.5 steps (an
+    accelerometer at rest whose noise hardly reaches a step, truncated and moved half a step
+    out: its smallest difference is 1.5 steps).
 
     Returns
     -------
@@ -73,8 +76,9 @@ def lattice_steps(session) -> dict:
         m = session.mag
         out["mag"] = _axis_steps(np.concatenate([m.values[a:b] for a, b in zip(m.i0[ids], m.i1[ids])]))
     for sensor, step in getattr(session, "resolution", {}).items():
-        if out.get(sensor) is None and sensor in out:
-            out[sensor] = np.full(3, float(step))
+        if sensor in out and (out.get(sensor) is None or sensor in session.integer_sensors):
+            out[sensor] = session.format_of(sensor)[1] if sensor in session.integer_sensors \
+                else np.full(3, float(step))
     return out
 
 
@@ -90,7 +94,9 @@ def variance_floors(session, steps: dict) -> dict:
     for the real readings and for the twin, which is rounded the same way. A variance below
     that is the rounding's, not the sensor's, and a ratio of two such variances is noise: a
     twin whose reading does not change in a cell would otherwise have a variance of zero and
-    a gap of 1e+293.
+    a gap of 1e+293. The piece means add the rounding errors of a piece's samples up, and
+    where the readings are not dithered they do so coherently: their floor is raised by
+    :func:`coherent_runs` (the channel's name + :data:`MEANS`).
 
     Parameters
     ----------
@@ -102,22 +108,74 @@ def variance_floors(session, steps: dict) -> dict:
     -------
     dict
         {channel ("acc_x", ..., "mag_z", and "acc_norm", "mag_norm" for the piece means along
-        the field): variance floor [unit²]}.
+        the field), and each channel + :data:`MEANS` for its piece means: variance floor
+        [unit²]}.
     """
-    samples = {"acc": session.acc, "gyr": session.gyr}
+    pc = session.pieces
+    ids = pc.select(hold=True)
+    samples = {"acc": (session.acc, pc.i0[ids], pc.i1[ids]),
+               "gyr": (session.gyr, pc.i0[ids], pc.i1[ids])}
     if session.mag is not None:
-        samples["mag"] = session.mag.values
+        samples["mag"] = (session.mag.values, session.mag.i0[ids], session.mag.i1[ids])
     out = {}
-    for sensor, x in samples.items():
+    for sensor, (x, i0, i1) in samples.items():
         top = np.max(np.abs(x), axis=0) if len(x) else np.zeros(3)
         spacing = FLOAT32_SPACING * 2.0 ** np.floor(np.log2(np.maximum(top, 1e-30)))
         step = steps.get(sensor)
         step = np.maximum(spacing, step) if step is not None else spacing
         floors = step ** 2 / 12.0
-        for axis, floor in zip("xyz", floors):
+        coherent = floors * coherent_runs(x, i0, i1)
+        for axis, floor, means in zip("xyz", floors, coherent):
             out[f"{sensor}_{axis}"] = float(floor)
+            out[f"{sensor}_{axis}{MEANS}"] = float(means)
         out[f"{sensor}_norm"] = float(np.mean(floors))
+        out[f"{sensor}_norm{MEANS}"] = float(np.mean(coherent))
     return out
+
+
+MEANS = ":means"    # suffix of a channel's floor for its piece means (variance_floors)
+
+
+def coherent_runs(x: np.ndarray, i0: np.ndarray, i1: np.ndarray) -> np.ndarray:
+    """How many samples' rounding errors a piece mean adds up coherently, per axis: the mean
+    over the pieces ``[i0, i1)`` of Σ L²/n, the L the lengths of the runs of equal readings in
+    a piece of n samples.
+
+    The rounding error of a reading is white only where noise of a step or more dithers it;
+    a reading that stays on one lattice value for a run of L samples carries one error for all
+    of them (the signal moves less than a step meanwhile), and √n times the piece mean (the
+    Haar piece-mean coefficient) then holds that error L/√n times per run: its variance is
+    Σ L²/n · Δ²/12 instead of Δ²/12. On an ArduPilot RAW_IMU gyro at rest (int16 mrad/s,
+    noise a fifth of a step) a 30-s piece is one or two runs: differences between piece means
+    far below a step are not what the readings show. Float readings, and readings dithered by
+    their noise, change at (nearly) every sample: 1.
+
+    Parameters
+    ----------
+    x : (n, 3) array
+        Readings.
+    i0, i1 : (p,) int arrays
+        Half-open sample ranges of the pieces.
+
+    Returns
+    -------
+    (3,) array
+        ≥ 1 (1 without a piece).
+    """
+    factors = []
+    for a, b in zip(i0, i1):
+        if b - a < 1:
+            continue
+        change = np.diff(x[a:b], axis=0) != 0
+        factors.append([_squared_runs(change[:, k]) / (b - a) for k in range(x.shape[1])])
+    return np.maximum(np.mean(factors, axis=0), 1.0) if factors else np.ones(x.shape[1])
+
+
+def _squared_runs(change: np.ndarray) -> float:
+    """Σ L² of the runs a sequence of n samples splits into where ``change`` (n − 1,) is
+    True (a new reading)."""
+    edges = np.concatenate([[0], np.flatnonzero(change) + 1, [len(change) + 1]])
+    return float(np.sum(np.diff(edges).astype(float) ** 2))
 
 
 def _axis_steps(x: np.ndarray) -> np.ndarray | None:

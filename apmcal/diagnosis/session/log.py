@@ -10,6 +10,7 @@ orientation and every stretch of time: a model fitted on one fold is scored on t
 """
 from __future__ import annotations
 
+import dataclasses
 import re
 from dataclasses import dataclass, field
 
@@ -167,6 +168,15 @@ class Session:
         Whether those integers are the format's truncation toward zero, undone by half a step
         (RAW_IMU, SCALED_IMU*: :func:`apmcal.preprocessing.resolution.undo_truncation`); the
         twin then truncates and undoes the same way.
+    block_length : int
+        Samples of the recording averaged into each of this session's (1: the recording's own
+        samples; more in block means, :func:`apmcal.diagnosis.session.decimate.decimated`).
+    lattice : dict
+        For a sensor the log stores as integers: (origin, step), each (3,) [unit], the raw
+        value of a count of 0 and the raw size of one count per axis — the firmware rounds
+        its *corrected* output, so with offsets and scales in force the raw readings sit on a
+        lattice shifted by the offsets (a gyro offset of −2.98 mrad/s puts the count 0 at
+        −2.98). Absent: origin 0, step ``resolution``.
     """
 
     source: str
@@ -188,6 +198,16 @@ class Session:
     integer_sensors: frozenset = frozenset()
     resolution: dict = field(default_factory=dict)     # sensor -> step of its integers
     truncated: bool = False     # integers truncated toward zero, then moved half a step out
+    block_length: int = 1       # recorded samples averaged into each sample (block means)
+    lattice: dict = field(default_factory=dict)    # sensor -> (origin (3,), step (3,)) raw
+
+    def format_of(self, sensor: str) -> tuple[np.ndarray, np.ndarray]:
+        """(origin, step), each (3,) [unit]: the raw value of a count of 0 and of one count
+        of ``sensor``'s integer format (:attr:`lattice`; origin 0 and ``resolution`` when the
+        lattice is not known)."""
+        if sensor in self.lattice:
+            return self.lattice[sensor]
+        return np.zeros(3), np.full(3, float(self.resolution[sensor]))
 
     @property
     def fs(self) -> float:
@@ -457,6 +477,7 @@ def session_from_log(contents, opts) -> Session:
     integer = set(raw.sensors) if recording.message in INT16_TELEMETRY else set()
     session.resolution = {s: float(prepared.steps[s]) for s in integer if s in prepared.steps}
     session.truncated = bool(integer)
+    session.lattice = format_lattice(recording, session.resolution, opts.generation)
     if has_live_magnetometer(raw):
         session.mag = MagAxis(t, raw.xyz("mag"), pieces.i0, pieces.i1, session.current)
     elif mag_recording is not None and has_live_magnetometer(mag_recording):
@@ -469,6 +490,38 @@ def session_from_log(contents, opts) -> Session:
             session.resolution["mag"] = 1.0     # int16 mGauss
     session.integer_sensors = frozenset(integer)
     return session
+
+
+def format_lattice(recording, resolution: dict, generation) -> dict:
+    """Where the counts of each integer sensor of ``recording`` sit in raw units: {sensor:
+    (origin, step)}, each (3,), for the sensors whose correction is one offset and one scale
+    per axis (a board rotation that mixes axes leaves a lattice that is not per axis: left
+    out). The firmware's correction undone on a count of 0 and on one count per axis, exactly
+    as the reader undoes it on the readings (:func:`apmcal.ardupilot.firmware.uncorrect`)."""
+    if not resolution or not (recording.corrected or recording.frame == "body"):
+        return {}
+    import pandas as pd
+
+    from apmcal.ardupilot.firmware import uncorrect
+    from apmcal.core.recording import SENSOR_COLUMNS
+
+    sensors = [s for s in resolution if s in ("acc", "gyr")]
+    probe = {"t": np.arange(4.0)}
+    for sensor in sensors:
+        for k, col in enumerate(SENSOR_COLUMNS[sensor]):
+            probe[col] = np.r_[0.0, np.eye(3)[k] * resolution[sensor]]
+    try:
+        raw = uncorrect(dataclasses.replace(recording, data=pd.DataFrame(probe)),
+                        generation=generation)
+    except ApmcalError:
+        return {}
+    out = {}
+    for sensor in sensors:
+        x = raw.data[SENSOR_COLUMNS[sensor]].to_numpy(dtype=float)
+        origin, m = x[0], x[1:] - x[0]      # row k: one count on axis k
+        if np.all(np.abs(m - np.diag(np.diag(m))) <= 1e-9 * np.abs(np.diag(m)).max()):
+            out[sensor] = (origin, np.abs(np.diag(m)))
+    return out
 
 
 def _column(recording, name: str) -> np.ndarray | None:

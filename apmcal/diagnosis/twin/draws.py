@@ -14,7 +14,8 @@ from collections import OrderedDict
 
 import numpy as np
 
-MAX_DRAWS = 24          # cached arrays (a 400 Hz session's are ~6 MB each)
+MAX_DRAWS = 24          # cached arrays (a 400 Hz session's are ~6 MB each) ...
+BUDGET = 32 << 20       # ... within this many bytes: a longer session keeps fewer draws
 _DRAWS: OrderedDict = OrderedDict()
 
 
@@ -61,9 +62,13 @@ class ReplayedGenerator:
         if isinstance(out, np.ndarray):
             out.flags.writeable = False     # shared by every later replay
         _DRAWS[self._history] = out
-        while len(_DRAWS) > MAX_DRAWS:
+        while len(_DRAWS) > MAX_DRAWS or (len(_DRAWS) > 1 and _cached_bytes() > BUDGET):
             _DRAWS.popitem(last=False)
         return out
+
+
+def _cached_bytes() -> int:
+    return sum(v.nbytes for v in _DRAWS.values() if isinstance(v, np.ndarray))
 
 
 def replayed(generators: dict, seed) -> dict:

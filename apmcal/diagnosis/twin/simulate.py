@@ -198,9 +198,11 @@ def simulate(session, fit: ModelFit, noise, seed: int = 0, motion_path=None):
     acc = model.accel(t, f_acc, temperature=session.temp)
     gyr = model.gyro(t, w_body, f_body, temperature=session.temp)
     if "acc" in formatted:
-        acc = truncated_reading(acc, formatted["acc"])
+        origin, step = formatted["acc"]
+        acc = truncated_reading(acc, step, origin)
     if "gyr" in formatted:
-        gyr = truncated_reading(gyr, formatted["gyr"])
+        origin, step = formatted["gyr"]
+        gyr = truncated_reading(gyr, step, origin)
     twin = replace(session, acc=acc, gyr=gyr)
     if session.mag is not None and fit.mag is not None:
         twin.mag = replace(session.mag, values=_mag(session, traj, hold_rot, b_hold, model, noise,
@@ -208,7 +210,7 @@ def simulate(session, fit: ModelFit, noise, seed: int = 0, motion_path=None):
     return twin, truth
 
 
-def truncated_reading(x: np.ndarray, step: float) -> np.ndarray:
+def truncated_reading(x: np.ndarray, step, origin=0.0) -> np.ndarray:
     """Readings as an int16 telemetry log holds them, after the reader's correction: counts
     truncated toward zero (C's float → int16 cast), then moved half a step away from zero
     (:func:`apmcal.preprocessing.resolution.undo_truncation`; a count of 0 stays 0).
@@ -217,25 +219,29 @@ def truncated_reading(x: np.ndarray, step: float) -> np.ndarray:
     ----------
     x : array
         Readings [unit].
-    step : float
-        The format's step [unit].
+    step : float or (3,) array
+        The format's step [unit] (per axis, in raw units: :attr:`~apmcal.diagnosis.session.
+        log.Session.lattice`).
+    origin : float or (3,) array
+        The raw value of a count of 0 [unit]: the firmware truncates its corrected output,
+        which the reader turns back into raw units (offsets and scales undone).
 
     Returns
     -------
     array
         The same shape, on the lattice the real session's readings are on.
     """
-    counts = np.clip(np.trunc(x / step), -32768, 32767)
-    return (counts + 0.5 * np.sign(counts)) * step
+    counts = np.clip(np.trunc((x - origin) / step), -32768, 32767)
+    return origin + (counts + 0.5 * np.sign(counts)) * step
 
 
 def _truncated_format(session, truth) -> dict:
-    """The sensors whose real readings are truncated integers ({sensor: step}): the twin is
-    formatted the same way (:func:`truncated_reading`) instead of rounded to nearest by the
+    """The sensors whose real readings are truncated integers ({sensor: (origin, step)}): the
+    twin is formatted the same way (:func:`truncated_reading`) instead of rounded to nearest by the
     error model, whose own rounding of them is switched off here."""
     if not getattr(session, "truncated", False):
         return {}
-    out = {s: step for s, step in session.resolution.items() if s in ("acc", "gyr")}
+    out = {s: session.format_of(s) for s in session.resolution if s in ("acc", "gyr")}
     q = dict(truth.quantization)
     if "acc" in out:
         q["acc_lsb_per_g"] = 0.0
@@ -245,7 +251,9 @@ def _truncated_format(session, truth) -> dict:
     return out
 
 
-_CARRIED = reuse.Recent(8)     # the holds' vectors carried along a motion path, recent ones
+# the holds' vectors carried along a motion path, recent ones; an entry keeps its path alive
+# (rotations and rates: four times the carried vectors' size)
+_CARRIED = reuse.Recent(8, reuse.BUDGET, lambda key, value: 5 * np.asarray(value).nbytes)
 
 
 def _carried(traj, hold_rot, vectors: np.ndarray, still_holds: bool) -> np.ndarray:
