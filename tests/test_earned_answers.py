@@ -66,23 +66,60 @@ def verdict_of(argv, tmp_path) -> dict:
 
 
 # -- 1: REDO never written without the flag ------------------------------------------------
-def test_a_flight_whose_compasses_are_redo_writes_none_of_them(tmp_path, capsys):
-    """pixhawk_3imu_log171.bin: every compass's proposed calibration is graded REDO and the
-    third is out of the firmware's limits (|COMPASS_OFS3| 1374 mGauss): nothing is written, the
-    command says why and exits 1; --accept-redo writes the REDO compasses, never the third."""
+def test_a_flight_writes_only_its_compasses_not_graded_redo(tmp_path, capsys):
+    """pixhawk_3imu_log171.bin: compass 0's proposed calibration is USABLE, compasses 1 and 2
+    are graded REDO: only compass 0 is written, with the COMPASS_MOTCT its COMPASS_MOT needs
+    (one for all compasses), the command says why the rest is not and exits 1;
+    --accept-redo writes them all and exits 0."""
     log = str(real("pixhawk_3imu_log171.bin"))
     param = tmp_path / "cal.param"
     assert main(["log", log, "--param-file", str(param)]) == 1
-    out = capsys.readouterr().out
-    assert not param.exists()
-    assert "graded REDO; --accept-redo writes them anyway" in out
-    assert "COMPASS_OFS3_X: offset vector length" in out and "out of the firmware's limits" in out
-    assert main(["log", log, "--param-file", str(param), "--accept-redo"]) == 1
+    out = " ".join(capsys.readouterr().out.split())
     written = read_param_file(param)
-    assert "COMPASS_OFS_X" in written and "COMPASS_OFS2_Z" in written
-    assert not [n for n in written if n.startswith(("COMPASS_OFS3", "COMPASS_DIA3",
-                                                    "COMPASS_ODI3"))]
-    assert "written to" in capsys.readouterr().out
+    assert "COMPASS_OFS_X" in written and written["COMPASS_MOTCT"] == 2
+    assert not [n for n in written if n[:-2].endswith(("2", "3"))], written
+    assert "compass 1's proposed calibration is graded REDO; --accept-redo writes them" in out
+    assert "compass 2's proposed calibration is graded REDO" in out
+    assert f"wrote {param} without the 22 values withheld above; exit status 1" in out
+    assert main(["log", log, "--param-file", str(param), "--accept-redo"]) == 0
+    written = read_param_file(param)
+    assert "COMPASS_OFS2_X" in written and "COMPASS_MOT3_Z" in written
+
+
+class _Compass:
+    """What flight_writable reads of a compass fit (apmcal.calibration.flight.CompassFit)."""
+
+    def __init__(self, instance, proposed, verdict):
+        self.instance, self.proposed, self.in_force = instance, proposed, {}
+        self.health_proposed = type("Health", (), {"verdict": verdict})()
+
+
+class _Flight:
+    def __init__(self, *compasses):
+        self.compasses = compasses
+
+    def params(self):
+        return {n: v for c in self.compasses for n, v in c.proposed.items()}
+
+
+def test_a_flight_compass_out_of_limits_is_withheld_whole_and_keeps_no_shared_value():
+    """Worked by hand: compass 1's offsets are 2000 mGauss long (COMPASS_OFFS_MAX 1800): all
+    of compass 1 is withheld, even with --accept-redo; COMPASS_MOTCT stays, compass 0 needs it.
+    With compass 0 graded REDO too, COMPASS_MOTCT goes with the two of them."""
+    from apmcal.calibration.flight_proposal import flight_writable
+
+    good = _Compass(0, {"COMPASS_OFS_X": 50.0, "COMPASS_MOT_X": 1.0, "COMPASS_MOTCT": 2}, "good")
+    far = _Compass(1, {"COMPASS_OFS2_X": 2000.0, "COMPASS_OFS2_Y": 0.0, "COMPASS_OFS2_Z": 0.0,
+                       "COMPASS_MOT2_X": 3.0, "COMPASS_MOTCT": 2}, "usable")
+    params = {"COMPASS_OFFS_MAX": 1800.0}
+    w = flight_writable(_Flight(good, far), params, "3.3+", accept_redo=True)
+    assert set(w.values) == {"COMPASS_OFS_X", "COMPASS_MOT_X", "COMPASS_MOTCT"}
+    assert set(w.withheld) == {"COMPASS_OFS2_X", "COMPASS_OFS2_Y", "COMPASS_OFS2_Z",
+                               "COMPASS_MOT2_X"}
+    assert "COMPASS_OFFS_MAX" in w.withheld["COMPASS_OFS2_X"] and w.status == 1
+    redo = _Compass(0, dict(good.proposed), "redo")
+    w = flight_writable(_Flight(redo, far), params, "3.3+")
+    assert w.values == {} and "COMPASS_MOTCT" in w.withheld
 
 
 def test_a_gyro_graded_redo_is_not_written_unless_accepted(tmp_path, capsys):

@@ -75,10 +75,12 @@ def run_flight(args) -> tuple[int | None, str | None]:
                          f"apmcal flight compass fit of {Path(args.file).name}",
                          fmt=getattr(args, "param_format", "param"),
                          generation=generation)
-        console.print(f"wrote {args.param_file}")
+        withheld = len(writable.withheld)
+        console.print(f"wrote {args.param_file}" + (f" without the {withheld} values withheld "
+                                                    "above; exit status 1" if withheld else ""))
     elif args.param_file:
         console.print(f"nothing written to {args.param_file}: every value proposed is withheld "
-                      "(above)")
+                      "(above); exit status 1")
     if getattr(args, "report", None):
         from apmcal.report.html import write_flight_html
 
