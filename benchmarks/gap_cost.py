@@ -25,7 +25,9 @@ the machine. Printed as a Markdown table with the ratios to the peer.
 With ``--stages``, where the memory goes instead: each session diagnosed once in a fresh
 process as ``apmcal gap`` does it (read, cut, diagnose, its workers forked as the command forks
 them), the same PSS sampler on that process tree, and for each stage the diagnosis announces
-the peak PSS of the tree and of its largest process while the stage ran, and the wall seconds.
+the peak PSS of the tree and of its largest process while the stage ran, and the seconds from
+its first to its last sample (the diagnosis comes back to a stage after others announced in it:
+those later stages then lie within its span).
 """
 from __future__ import annotations
 
@@ -192,7 +194,7 @@ def main(argv=None) -> int:
     names = ["alleffects"] + (["hour"] if args.hour else [])
     if args.stages:
         for name in names:
-            print(f"\n{name}: | stage | wall [s] | peak PSS of all processes [MB] | "
+            print(f"\n{name}: | stage | span [s] | peak PSS of all processes [MB] | "
                   "largest process [MB] |\n|---|---|---|---|")
             for stage, wall, tree, top in stage_memory(session(name)):
                 print(f"| {stage} | {wall:.1f} | {tree / 2**20:.0f} | {top / 2**20:.0f} |",
