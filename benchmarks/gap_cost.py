@@ -1,7 +1,7 @@
 """What ``apmcal gap`` costs — wall time, CPU time and peak memory — on a board with many faults,
 and on an hour of it, against pymavlink's DFReader reading the same file, in the same run.
 
-    python benchmarks/gap_cost.py [--runs 2] [--before REV] [--hour] [--sessions ...]
+    python benchmarks/gap_cost.py [--runs 2] [--before REV] [--hour] [--stages]
 
 Sessions (simulated once, kept in ``benchmarks/_data/``):
 
@@ -21,6 +21,13 @@ everything it forked), the largest resident set of any one process, and the peak
 of the proportional set sizes (PSS: shared pages split between the processes sharing them) of
 the process and all its descendants, sampled every 50 ms — the memory the command needs of
 the machine. Printed as a Markdown table with the ratios to the peer.
+
+With ``--stages``, where the memory goes instead: each session diagnosed once in a fresh
+process as ``apmcal gap`` does it (read, cut, diagnose, its workers forked as the command forks
+them), the same PSS sampler on that process tree, and for each stage the diagnosis announces
+the peak PSS of the tree and of its largest process while the stage ran, and the seconds from
+its first to its last sample (the diagnosis comes back to a stage after others announced in it:
+those later stages then lie within its span).
 """
 from __future__ import annotations
 
@@ -108,6 +115,54 @@ def measured(cmd: list[str], env=None, cwd=None) -> dict:
             "rss": usage.ru_maxrss * 1024, "pss": peak[0]}
 
 
+STAGES = """
+import json, os, sys, threading, time
+sys.path.insert(0, sys.argv[2])
+from gap_cost import _descendants, _pss
+from apmcal.calibration.log import Options
+from apmcal.diagnosis.run import diagnose
+from apmcal.diagnosis.session.log import session_from_log
+from apmcal.sources import read_log
+
+me, stage, peaks, t0 = os.getpid(), ["read and cut"], {}, time.perf_counter()
+done = threading.Event()
+
+def sample():
+    while not done.is_set():
+        pss = {p: _pss(p) for p in [me] + _descendants(me)}
+        name = stage[0]
+        tree, top, first, last = peaks.get(name, (0, 0, time.perf_counter() - t0, 0))
+        peaks[name] = (max(tree, sum(pss.values())), max(top, max(pss.values())), first,
+                       time.perf_counter() - t0)
+        time.sleep(0.05)
+
+threading.Thread(target=sample, daemon=True).start()
+session = session_from_log(read_log(sys.argv[1]), Options(lat_deg=47.4, lon_deg=8.5))
+stage[0] = "(session read, before the diagnosis)"
+time.sleep(0.2)
+
+def progress(announced):
+    if not announced.startswith("null session ") or announced.startswith("null sessions"):
+        stage[0] = announced
+diagnose(session, progress=progress)
+done.set()
+time.sleep(0.1)
+print(json.dumps(peaks))
+"""
+
+
+def stage_memory(path: Path) -> list[tuple[str, float, float, float]]:
+    """(stage, wall [s], peak PSS of the process tree [bytes], of its largest process
+    [bytes]) per stage of one diagnosis of ``path`` in a fresh process."""
+    import json
+
+    env = dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{ROOT}/sitl")
+    out = subprocess.run([sys.executable, "-c", STAGES, str(path), str(Path(__file__).parent)],
+                         env=env, cwd=DATA, check=True, capture_output=True, text=True).stdout
+    peaks = json.loads(out.strip().splitlines()[-1])
+    return [(name, last - first, tree, top) for name, (tree, top, first, last) in peaks.items()]
+
+
 def gap_command(path: Path, tree: Path = ROOT) -> dict:
     env = dict(os.environ, PYTHONPATH=f"{tree}{os.pathsep}{tree}/sitl")
     return measured([sys.executable, "-m", "apmcal", "gap", str(path)], env=env, cwd=DATA)
@@ -133,8 +188,18 @@ def main(argv=None) -> int:
     ap.add_argument("--before", default="none",
                     help="also the command of revision REV ('none': not)")
     ap.add_argument("--hour", action="store_true", help="also the one-hour session")
+    ap.add_argument("--stages", action="store_true",
+                    help="the peak memory of each stage of the diagnosis instead")
     args = ap.parse_args(argv)
     names = ["alleffects"] + (["hour"] if args.hour else [])
+    if args.stages:
+        for name in names:
+            print(f"\n{name}: | stage | span [s] | peak PSS of all processes [MB] | "
+                  "largest process [MB] |\n|---|---|---|---|")
+            for stage, wall, tree, top in stage_memory(session(name)):
+                print(f"| {stage} | {wall:.1f} | {tree / 2**20:.0f} | {top / 2**20:.0f} |",
+                      flush=True)
+        return 0
     before = None if args.before == "none" else export_tree(args.before)
     lines = ["| command | wall [s] | CPU [s] | largest process [MB] | peak PSS of all "
              "processes [MB] | / the peer (wall / CPU) |", "|---|---|---|---|---|---|"]
