@@ -125,3 +125,22 @@ def test_a_session_too_short_for_the_slow_effects_says_so(tmp_path, seconds, why
     print_summary(GapResult.load(tmp_path / "short.json"), console)
     first = console.export_text().splitlines()[0]
     assert first.startswith(SHORT) and not first.startswith(NOTHING)
+
+
+def test_a_still_twin_recorded_longer_is_not_stretched():
+    """One still hold from a little after boot to the log's end, the twin recorded 5 s longer
+    (as the round trip records it): the hold's end is where each recording stopped, not the
+    script's, so the times are not warped (as that end's knot, it stretched the board's
+    240 s onto the twin's 245 s and put the board's first samples before the twin's start:
+    "the twin log covers 243 s ... record the whole session again" on 3 of 5 SITL warm-ups)."""
+    from types import SimpleNamespace
+
+    from apmcal.diagnosis.session.twin_log import twin_times
+
+    def still(seconds: float, hold_from: float):
+        t = 2.5 + np.arange(0.0, seconds, 0.04)
+        hold = SimpleNamespace(i0=int(np.searchsorted(t, hold_from)), i1=len(t))
+        return SimpleNamespace(t=t, holds=[hold])
+
+    real, twin = still(236.0, 9.1), still(243.0, 8.8)
+    np.testing.assert_array_equal(twin_times(real, twin), real.t - real.t[0])

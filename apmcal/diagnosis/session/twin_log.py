@@ -6,7 +6,9 @@ TWIN``).
 Each real sample takes the twin's sample nearest to it in time: time since the start of each
 log, warped piecewise so that the still holds of the two coincide when both have as many (a
 replay of the same script runs on nearly the same schedule, but each command to the simulator
-can shift what follows by a fraction of a second — enough to put a turn inside a real hold).
+can shift what follows by a fraction of a second — enough to put a turn inside a real hold);
+a hold's start at its log's start, or end at its log's end, is where a recording began or
+stopped, not part of the schedule, and sets no knot.
 At the same rate this is one-to-one. The twin must be as fast as the real log, cover it, and be
 written in its format (integers where the real log has integers: the rounding is part of what
 is compared).
@@ -82,9 +84,16 @@ def twin_times(real, twin) -> np.ndarray:
     t = real.t - real.t[0]
     if len(real.holds) != len(twin.holds) or not real.holds:
         return t
-    knots_real = [real.t[[h.i0, h.i1 - 1]] - real.t[0] for h in real.holds]
-    knots_twin = [twin.t[[h.i0, h.i1 - 1]] - twin.t[0] for h in twin.holds]
-    x, y = np.concatenate(knots_real), np.concatenate(knots_twin)
+    # a hold that ends where its log ends was cut by the recording's end, not by the script:
+    # the twin is recorded a little longer, and that end as a knot stretched a still warm-up
+    # by 2-3 % (and put its start before the twin's); likewise a hold from the log's start
+    ends = [(h.i0 > 0 and g.i0 > 0, h.i1 < len(real.t) and g.i1 < len(twin.t))
+            for h, g in zip(real.holds, twin.holds)]
+    keep = np.array(ends).ravel()
+    x = np.concatenate([real.t[[h.i0, h.i1 - 1]] - real.t[0] for h in real.holds])[keep]
+    y = np.concatenate([twin.t[[h.i0, h.i1 - 1]] - twin.t[0] for h in twin.holds])[keep]
+    if len(x) < 2:
+        return t        # no schedule to warp by: a still session is one hold from boot on
     dx, dy = np.diff(x), np.diff(y)
     if np.any(dx <= 0) or np.any(dy <= 0) or \
             np.any(np.abs(dy - dx) > np.maximum(MAX_STRETCH * dx, 1.0)):
