@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from apmcal.diagnosis.compute import reuse, workers
+from apmcal.diagnosis.compute import reuse
 from apmcal.diagnosis.model.params import white_noise_of_folds
 from apmcal.diagnosis.noise.structure import merged as merged_structure
 from apmcal.diagnosis.noise.terms import prepare as prepare_noise_terms
@@ -88,7 +88,6 @@ def diagnose(session, names=None, *, seed: int = 0, progress=None, twin=None) ->
     # contend — an (n, 3) @ (3, 3) product ran 10-25× slower with two OpenBLAS threads on a
     # busy two-core machine than with one
     reuse.forget()     # what the last session's models left can only take memory
-    workers.give_back_large_blocks()    # a freed full-rate array leaves its process
     with threadpool_limits(limits=1):
         return _diagnose(session, names, seed, progress, twin)
 

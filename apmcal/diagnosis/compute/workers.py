@@ -25,8 +25,6 @@ from dataclasses import dataclass
 from apmcal.diagnosis.compute import memo
 
 SHIP_BY_FILE_BYTES = 1 << 20    # results at least this large [bytes] travel through a file
-MMAP_THRESHOLD = 128 << 10      # blocks at least this large [bytes] malloc maps from the system
-M_MMAP_THRESHOLD = -3           # glibc's mallopt parameter number for it (malloc.h)
 
 _TARGET = None                  # the object a forked worker inherits
 _SHIP_DIR: str | None = None    # where a worker leaves a large result
@@ -36,26 +34,6 @@ _IN_WORKER = False              # True in a forked worker: it must not fork agai
 def parallel() -> bool:
     """Whether work may be spread over forked workers (more than one core, not in a worker)."""
     return not _IN_WORKER and (os.cpu_count() or 1) >= 2
-
-
-def give_back_large_blocks() -> None:
-    """Have glibc's malloc map every block of :data:`MMAP_THRESHOLD` or more from the system
-    and unmap it when freed, for the rest of this process and the workers it forks.
-
-    By default glibc raises that threshold (up to 32 MB) each time a large mapped block is
-    freed, after which the diagnosis's full-rate arrays come from its heap, which keeps their
-    pages when they are freed: each process stays at its peak and a worker forked later
-    starts from it. Setting the threshold once turns that off. Where / how a block is
-    allocated changes no number (``benchmarks/gap_identical.py``). Nothing happens where the
-    C library is not glibc."""
-    import ctypes
-    import ctypes.util
-
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        libc.mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD)
-    except (OSError, AttributeError):       # not glibc: its own allocator's ways
-        return
 
 
 def run(target, jobs: list[tuple[str, tuple]]) -> list:
