@@ -109,8 +109,9 @@ WALK_JOINS = known_failure("6-7 of 10", "a random walk of q ≈ 0 joins on the d
 
 
 @pytest.mark.parametrize("kind", [
-    pytest.param("tlog", marks=known_failure("9 of 10", "bias_drift chosen over the triangle "
-                                             "when the .tlog starts 25 s after boot")),
+    pytest.param("tlog", marks=known_failure("0 of 11 test runs", "the two folds place the "
+                                             "turn on the staircase's flat top differently "
+                                             "and the temperature curve wins (docs/gap-trust.md)")),
     "bin"])
 def test_sitl_default_drift_is_the_triangle(diagnosed, kind):
     """The triangle, not the temperature curve (which the .tlog's staircase once chose), at

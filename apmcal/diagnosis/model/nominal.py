@@ -216,7 +216,7 @@ def fit_model(session, reduced: Reduced, effects, fold: int | None, *,
                    declination_rad=declination_rad, acc_terms_in_moves=in_moves)
     if reduced.mag is not None:
         _fit_mag(fit, reduced, train, field_mgauss, start, with_sigma)
-    _fit_gyro_part(fit, reduced, train, session.pieces.select(fold=None))
+    _fit_gyro_part(fit, reduced, train)
     return fit
 
 
@@ -351,17 +351,11 @@ def gyro_regressors(fit: ModelFit, t, temp, groups) -> tuple[np.ndarray, np.ndar
     return np.column_stack(col_list), vec, names, vnames
 
 
-def _fit_gyro_part(fit: ModelFit, reduced: Reduced, train, every) -> None:
-    """The gyro's part of the model fitted on the pieces ``train``; the triangle's drift time on
-    ``every`` piece of the session (its one shape, as a hold's orientation is one): a fold of a
-    .tlog's staircase leaves the turn anywhere on its flat top step (±0.4 min at SITL's default
-    speed), and two folds that place it 4.75 and 5.25 min scored each other's turn as a gap the
-    temperature curve did not leave. The null sessions choose it the same way."""
+def _fit_gyro_part(fit: ModelFit, reduced: Reduced, train) -> None:
     blocks = reduced.gyr.select(train)
     groups = reduced.gyr.group[np.isin(reduced.gyr.piece, train)]
     if "triangle_drift" in fit.effects:
-        fit.refs = _best_drift_time(fit, reduced.gyr.select(every),
-                                    reduced.gyr.group[np.isin(reduced.gyr.piece, every)])
+        fit.refs = _best_drift_time(fit, blocks, groups)
     cols, vec, names, vnames = gyro_regressors(fit, blocks.t, blocks.temp, groups)
     fit.gyr, fit.gyr_columns, fit.gyr_vectors = fit_gyro(blocks, cols, vec), names, vnames
 
