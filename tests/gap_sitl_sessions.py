@@ -50,26 +50,6 @@ class Recorded:
     wall_s: float
 
 
-def fetch_params(sitl: ArduPilotSitl, timeout_s: float = 60.0) -> int:
-    """The firmware's whole parameter table sent (PARAM_REQUEST_LIST, the missing indices asked
-    for again), so that the .tlog carries the parameters the reader needs; their count."""
-    got: set[int] = set()
-    count = None
-    deadline = time.monotonic() + timeout_s
-    sitl.master.mav.param_request_list_send(sitl.master.target_system, 1)
-    while count is None or len(got) < count:
-        if time.monotonic() > deadline:
-            raise SitlError(f"parameter list incomplete: {len(got)} of {count}")
-        msg = sitl.recv({"PARAM_VALUE"}, timeout_s=1.0)
-        if msg is not None:
-            count = msg.param_count
-            got.add(msg.param_index)
-        elif count is not None:
-            for index in sorted(set(range(count)) - got)[:20]:
-                sitl.master.mav.param_request_read_send(sitl.master.target_system, 1, b"", index)
-    return count
-
-
 def run_script(sitl: ArduPilotSitl, script) -> None:
     """The steps of ``script`` (module docstring) on a started vehicle."""
     for step in script:
@@ -124,7 +104,7 @@ def record(workdir, script, boot_params: dict | None = None, *, model: str = "ca
     start = time.monotonic()
     params = dict(BOOT, **(MOTORS if motors else {}), **(boot_params or {}))
     with ArduPilotSitl(Path(workdir), model=model, speedup=speedup, boot_params=params) as sitl:
-        fetch_params(sitl)
+        sitl.all_params()       # the whole table sent, so that the .tlog carries it
         if motors:      # both logs from the motors' start on: one noise level throughout
             sitl.arm(force=True)
         sitl.request_message(RAW_IMU, telemetry_hz)
