@@ -80,24 +80,10 @@ def accelerometer_frame(run: dict) -> dict:
     return truth
 
 
-def z_scores(estimate, truth, sigma) -> np.ndarray:
-    err = np.abs(np.asarray(estimate, float) - np.asarray(truth, float))
-    sigma = np.asarray(sigma, float)
-    return np.where(sigma > 0, err / np.where(sigma > 0, sigma, 1), err * 1e12)
-
-
 def assert_within_sigma(run: dict, sensors=("acc", "gyr", "mag")) -> None:
-    est, truth = run["est"], accelerometer_frame(run)
-    for sensor in sensors:
-        offset, matrix = truth[sensor]
-        s = est[sensor]
-        z_off = z_scores(s["offset"], offset, s["sigma"]["offset"])
-        z_mat = z_scores(s["matrix"], matrix, s["sigma"]["matrix"])
-        assert z_off.max() < K_SIGMA, f"{sensor} offset {z_off.round(1)}"
-        assert z_mat.max() < K_SIGMA, f"{sensor} matrix {z_mat.round(1)}"
-    z_g = z_scores(est["gyr"]["g_sensitivity"], truth["g_sensitivity"],
-                   est["gyr"]["sigma"]["g_sensitivity"])
-    assert z_g.max() < K_SIGMA, f"g-sensitivity {z_g.round(1)}"
+    from test_joint import assert_within_sigma as check
+
+    check(run["est"], accelerometer_frame(run), sensors)
 
 
 def test_hand_held_session_recovers_the_injected_parameters_within_sigma(realistic):
@@ -112,6 +98,7 @@ def test_the_datum_scaling_above_is_needed_near_a_laptop(realistic):
     """Must fail without the datum's scaling: the laptop's field changed the magnitude the
     board sat in by a few per cent, far more than the compass matrix's σ."""
     from test_joint import accelerometer_frame as frame
+    from test_joint import z_scores
     est = realistic["est"]["mag"]
     z = z_scores(est["matrix"], frame(realistic["truth"])["mag"][1], est["sigma"]["matrix"])
     assert z.max() > 3 * K_SIGMA
