@@ -246,6 +246,10 @@ def test_guided_calibration_upload_and_undo_against_the_simulator(page, sim, ui,
     second = page.d.current_window_handle
     page.d.get(ui.base + "/#live")
     page.d.switch_to.window(first)
+    # the parameter list at a telemetry radio's pace (40 a simulated second, 3 s here), so the
+    # tab is closed while the upload still writes: at the simulator's network pace the whole
+    # upload can end before the page has shown it under way
+    sim.act(lambda v: setattr(v, "param_list_rate_hz", 40.0))
     page.click("#upload")
     page.wait(lambda: "writing" in page.text("#upload-result"), "the upload under way")
     page.d.close()
