@@ -101,7 +101,7 @@ def _pool(target, workers: int):
             threadpool_limits(limits=1):
         _TARGET, _SHIP_DIR = target, ship_dir
         try:
-            with multiprocessing.get_context("fork").Pool(workers, _ignore_ctrl_c) as pool:
+            with _fork_pool(multiprocessing.get_context("fork"), workers) as pool:
                 yield pool
         finally:
             _TARGET = _SHIP_DIR = None
@@ -139,7 +139,7 @@ def per_fold(target, folds):
         pools = {}
         try:
             for fold in folds:
-                pools[fold] = context.Pool(1, _ignore_ctrl_c)
+                pools[fold] = _fork_pool(context, 1)
             _TARGET = _SHIP_DIR = None      # the workers keep theirs
             yield FoldWorkers(pools)
         finally:
@@ -149,10 +149,30 @@ def per_fold(target, folds):
                 pool.join()
 
 
-def _ignore_ctrl_c() -> None:
+def _fork_pool(context, workers: int):
+    """A pool of ``workers`` forked workers, forked with SIGTERM held back (and so pending in a
+    worker until it is ready for it, :func:`_worker_start`).
+
+    Why: a worker inherits this process's Python-level SIGTERM handler (``apmcal ui``'s job
+    process has one, to exit cleanly). A SIGTERM from the pool's ``terminate()`` that reaches a
+    worker while it is still setting itself up after the fork runs that handler inside
+    CPython's after-fork hooks, which ignore its SystemExit: the worker lives on, waits
+    forever for a task, and ``terminate()`` waits forever for it (seen as a hung gap job in the
+    ui; ``tests/test_workers.py`` forks such pools and stops them at once)."""
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})
+    try:
+        return context.Pool(workers, _worker_start)
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
+
+
+def _worker_start() -> None:
     """A worker leaves Ctrl-C to the main process, which stops the pool and says so in one
-    line (a worker's own KeyboardInterrupt would print its traceback on the terminal)."""
+    line (a worker's own KeyboardInterrupt would print its traceback on the terminal); a
+    SIGTERM ends it at once (the default action), one that came during its start included."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGTERM})
 
 
 @dataclass(frozen=True)
