@@ -158,7 +158,7 @@ def _fork_pool(context, workers: int):
     worker while it is still setting itself up after the fork runs that handler inside
     CPython's after-fork hooks, which ignore its SystemExit: the worker lives on, waits
     forever for a task, and ``terminate()`` waits forever for it (seen as a hung gap job in the
-    ui; ``tests/test_workers.py`` forks such pools and stops them at once)."""
+    ui; ``tests/test_workers.py`` sends a starting worker that SIGTERM)."""
     held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})
     try:
         return context.Pool(workers, _worker_start)
