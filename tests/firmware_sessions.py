@@ -61,6 +61,28 @@ def calibration_in_force(seed: int) -> dict[str, float]:
     return params
 
 
+def at_rest_reading_range(seed: int, gravity_ms2: float = 9.80665) -> tuple[float, float]:
+    """The smallest and largest |specific force| [m/s²] the accelerometer reads at rest with
+    :func:`calibration_in_force` over :func:`injected_errors` (``seed``), over every attitude:
+    the firmware's sensor is f ⊘ SIM_ACC1_SCAL + SIM_ACC1_BIAS, the calibration in force
+    (sensor − INS_ACCOFFS) ⊙ INS_ACCSCAL (docs/ardupilot-facts.md); |f| the firmware's gravity."""
+    errors, in_force = injected_errors(seed), calibration_in_force(seed)
+
+    def per_axis(prefix: str) -> np.ndarray:
+        table = errors if prefix.startswith("SIM") else in_force
+        return np.array([table[f"{prefix}_{axis}"] for axis in "XYZ"])
+
+    # directions spread evenly over the sphere (a Fibonacci lattice)
+    k = np.arange(20_000) + 0.5
+    z = 1 - 2 * k / len(k)
+    phi = np.pi * (1 + 5 ** 0.5) * k
+    f = gravity_ms2 * np.column_stack([np.sqrt(1 - z * z) * np.cos(phi),
+                                       np.sqrt(1 - z * z) * np.sin(phi), z])
+    sensor = f / per_axis("SIM_ACC1_SCAL") + per_axis("SIM_ACC1_BIAS")
+    reading = np.linalg.norm((sensor - per_axis("INS_ACCOFFS")) * per_axis("INS_ACCSCAL"), axis=1)
+    return float(reading.min()), float(reading.max())
+
+
 # the Earth field's magnitude the firmware simulates at its default home, from its own tables
 # (AP_Declination; the firmware README's "Facts measured on this build") [mGauss]
 SITL_FIELD_MGAUSS = 579.3

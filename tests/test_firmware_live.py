@@ -2,13 +2,15 @@
 ardupilot6 --auto` and a compass turning session, with accelerometer, gyro and compass errors
 injected through SIM_* and a different calibration already in force (COMPASS_SCALE ≠ 1 among
 it). Every proposed parameter lands within 3σ of the exact answer the firmware's README gives
-for the injection, on several seeds, and the verdict is GOOD.
+for the injection, on several seeds, and the verdict is GOOD (a compass session that held
+still somewhere also reports the wrong accelerometer calibration in force, as it reads).
 """
 from __future__ import annotations
 
 import pymavlink_ref as ref
 import pytest
 from firmware_sessions import (
+    at_rest_reading_range,
     calibration_in_force,
     compass_turns,
     errors_in_sigma,
@@ -94,7 +96,17 @@ def test_compass_turns_on_the_firmware_propose_the_exact_compass_calibration(
     proposed = [name for name in exact if name in result["params"]]
     off = errors_in_sigma(result, exact, proposed)
     assert max(off.values()) < within_3_sigma_bound(len(off)), off
-    assert result["verdict"]["mag"]["grade"] == "good", result["verdict"]
-    assert result["verdict"]["overall"]["grade"] == "good", result["verdict"]
+    verdict = result["verdict"]
+    assert verdict["mag"]["grade"] == "good", verdict
+    if verdict.get("acc", {}).get("grade") == "redo":
+        # the session held still somewhere (the turns start late on a busy machine): the wrong
+        # calibration in force is then seen at rest, and must read as the truth makes it read
+        at_rest = result["report"]["at_rest"]
+        low, high = at_rest_reading_range(seed)
+        assert low - 0.02 <= at_rest["acc_ms2"] <= high + 0.02, (at_rest, low, high)
+        assert abs(at_rest["acc_ms2"] - at_rest["gravity_ms2"]) >= 0.3, at_rest
+        assert verdict["acc"]["reason"].startswith("at rest it reads"), verdict
+    else:
+        assert verdict["overall"]["grade"] == "good", verdict
     # the scale in force was undone: the proposal holds the whole gain in DIA/ODI
     assert result["params"].get("COMPASS_SCALE", 1.0) in (0.0, 1.0)
