@@ -737,6 +737,17 @@ class ArduPilotSitl:
                                                   *([0] * 5))
 
     # -- what it recorded ---------------------------------------------------------------------
+    def flush_logs(self, wall_s: float = 1.0) -> None:
+        """Let the dataflash logger catch up with the simulation before the logs are taken: at
+        a high speedup its writer runs seconds of simulated time behind (measured: a log of a
+        245 s session covered 237 s on a busy machine), and what it has not written when the
+        firmware stops is lost. The simulation runs at real time (SIM_SPEEDUP 1) for ``wall_s``
+        wall seconds, so the logs end that far past the session instead of short of it."""
+        self.set_params({"SIM_SPEEDUP": 1})
+        deadline = time.monotonic() + wall_s
+        while time.monotonic() < deadline:
+            self.recv(timeout_s=0.1)
+
     def dataflash_logs(self) -> list[Path]:
         """The dataflash logs the firmware wrote in its scratch folder, oldest first."""
         return sorted((self.workdir / "logs").glob("*.BIN"), key=lambda p: p.stat().st_mtime)

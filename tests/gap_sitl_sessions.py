@@ -110,6 +110,7 @@ def record(workdir, script, boot_params: dict | None = None, *, model: str = "ca
         sitl.request_message(RAW_IMU, telemetry_hz)
         run_script(sitl, script)
         seconds = sitl.time_boot_s
+        sitl.flush_logs()
         logs = sitl.dataflash_logs()
     if not logs:
         raise SitlError(f"no dataflash log in {workdir}")

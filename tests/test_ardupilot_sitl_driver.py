@@ -69,6 +69,23 @@ def test_a_fresh_vehicle_takes_parameters_by_name_and_poses_where_told(ardupilot
     assert 5.0 <= sitl.time_boot_s - before < 6.0
 
 
+def test_flushed_logs_cover_the_session_once_the_firmware_stops(ardupilot_sitl):
+    """At 400× the dataflash writer runs behind the simulation and the firmware's stop loses
+    what it has not written: after flush_logs the log reaches the session's end."""
+    from pymavlink import DFReader
+
+    sitl = ardupilot_sitl(speedup=400, boot_params={"LOG_DISARMED": 1})
+    sitl.run_for(60.0)
+    end_s = sitl.time_boot_s
+    sitl.flush_logs()
+    log = sitl.dataflash_logs()[-1]
+    sitl.stop()
+    reader, last_s = DFReader.DFReader_binary(str(log)), None
+    while (msg := reader.recv_match(type="IMU")) is not None:
+        last_s = msg.TimeUS * 1e-6
+    assert last_s is not None and last_s >= end_s, (last_s, end_s)
+
+
 def test_a_second_vehicle_gets_its_own_instance_and_ports(ardupilot_sitl):
     a, b = ardupilot_sitl(speedup=50), ardupilot_sitl(speedup=50)
     assert a.instance != b.instance and a.port != b.port and a.pid != b.pid
