@@ -742,7 +742,7 @@ class ArduPilotSitl:
         a high speedup its writer runs seconds of simulated time behind (measured: a log of a
         245 s session covered 237 s on a busy machine), and what it has not written when the
         firmware stops is lost. The simulation runs at real time (SIM_SPEEDUP 1) for ``wall_s``
-        wall seconds, so the logs end that far past the session instead of short of it."""
+        wall seconds (and stays at it), so the logs end past the session, not short of it."""
         self.set_params({"SIM_SPEEDUP": 1})
         deadline = time.monotonic() + wall_s
         while time.monotonic() < deadline:

@@ -99,7 +99,7 @@ def test_compass_turns_on_the_firmware_propose_the_exact_compass_calibration(
     verdict = result["verdict"]
     assert verdict["mag"]["grade"] == "good", verdict
     if verdict.get("acc", {}).get("grade") == "redo":
-        # the session held still somewhere (the turns start late on a busy machine): the wrong
+        # the session held still somewhere (seen on a busy machine): the wrong
         # calibration in force is then seen at rest, and must read as the truth makes it read
         at_rest = result["report"]["at_rest"]
         low, high = at_rest_reading_range(seed)
