@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 from ardupilot_sitl import ACCELCAL_ATTITUDES
 
 from apmcal.calibration.guided import FACES
@@ -132,6 +133,13 @@ def parameter_sigmas(result: dict) -> dict[str, float]:
                 sig[f"COMPASS_ODI_{axis}"] = s["matrix"][i][j]
         del prefix
     return sig
+
+
+def known_failure(rate: str, why: str):
+    """An open defect, with how often the claim holds over fresh SITL recordings (for the gap,
+    ``python benchmarks/gap_firmware_rates.py --runs 10``; docs/gap-trust.md, "One recording
+    per test run"): the claim is still checked, and reported as XPASS where it holds."""
+    return pytest.mark.xfail(strict=False, reason=f"holds on {rate} recordings: {why}")
 
 
 def within_3_sigma_bound(n: int) -> float:

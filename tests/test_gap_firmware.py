@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from firmware_sessions import known_failure
 
 from apmcal.cli import main
 from apmcal.diagnosis.output.result import GapResult
@@ -97,22 +98,18 @@ def z_scores(entry: dict, key: str, truth) -> np.ndarray:
     return (np.asarray(p["value"], float) - truth) / np.asarray(p["sigma"], float)
 
 
-def known_failure(rate: str, why: str):
-    """An open defect of the diagnosis, with how often the claim holds over ten fresh SITL
-    recordings (``python benchmarks/gap_firmware_rates.py --runs 10``; docs/gap-trust.md, "One
-    recording per test run"): the claim is still checked, and reported as XPASS where it holds."""
-    return pytest.mark.xfail(strict=False, reason=f"holds on {rate} recordings: {why}")
+def tlog_known_failure(rate: str, why: str) -> list:
+    """Both logs, the .tlog's claim a :func:`known_failure` (its int16 staircase)."""
+    return [pytest.param("tlog", marks=known_failure(rate, why)), "bin"]
 
 
 WALK_JOINS = known_failure("6-7 of 10", "a random walk of q ≈ 0 joins on the dataflash log, by "
                                         "the white level it lowers (fix measured, not merged)")
 
 
-@pytest.mark.parametrize("kind", [
-    pytest.param("tlog", marks=known_failure("0 of 11 test runs", "the two folds place the "
-                                             "turn on the staircase's flat top differently "
-                                             "and the temperature curve wins (docs/gap-trust.md)")),
-    "bin"])
+@pytest.mark.parametrize("kind", tlog_known_failure(
+    "0 of 11 test runs", "the two folds place the turn on the staircase's flat top differently "
+                         "and the temperature curve wins (docs/gap-trust.md)"))
 def test_sitl_default_drift_is_the_triangle(diagnosed, kind):
     """The triangle, not the temperature curve (which the .tlog's staircase once chose), at
     SITL's speed and period."""
@@ -151,19 +148,16 @@ def test_a_warm_up_without_drift_is_the_temperature_drift(diagnosed, kind):
         np.testing.assert_allclose(acc, ACC_COEF, rtol=0.2)
 
 
-@pytest.mark.xfail(strict=False, reason="held on 10 of 10 recordings of gap_firmware_rates.py, "
-                   "failed in a CI run (2026-11-29): the random walk of q ≈ 0 that joins on "
-                   "the dataflash log (WALK_JOINS; docs/gap-trust.md)")
+@known_failure("10 of 10 benchmark", "on two test runs' (2026-11-29) the random walk of q ≈ 0 "
+                                     "joined, as on the other dataflash logs (WALK_JOINS)")
 def test_a_warm_up_without_drift_is_the_temperature_drift_alone(diagnosed):
     result = diagnosed("warmup", "bin")
     assert slow(result) == {"temperature_drift"}, result.selected
 
 
-@pytest.mark.parametrize("kind", [
-    pytest.param("tlog", marks=known_failure("0 of 10 (2 of 6 test runs)", "on the staircase "
-                                             "the triangle is not beyond chance on top of the "
-                                             "temperature unless the .tlog starts near boot")),
-    "bin"])
+@pytest.mark.parametrize("kind", tlog_known_failure(
+    "0 of 10 (2 of 6 test runs)", "on the staircase the triangle is not beyond chance on top "
+                                  "of the temperature unless the .tlog starts near boot"))
 def test_a_warm_up_under_the_drift_is_both(diagnosed, kind):
     result = diagnosed("both", kind)
     assert {"temperature_drift", "triangle_drift"} <= slow(result), result.selected

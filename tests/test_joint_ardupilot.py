@@ -19,6 +19,7 @@ import random
 
 import numpy as np
 import pytest
+from firmware_sessions import known_failure
 
 from apmcal.ardupilot.paramfile import read_param_file
 from apmcal.cli import main
@@ -105,9 +106,9 @@ def test_the_firmware_gyro_has_no_scale_error_and_the_fit_finds_none(recorded):
     assert np.abs(np.diag(gyr) - 1).max() < 2e-3
 
 
-@pytest.mark.xfail(strict=False, reason="holds on 8 of 10 recordings: a cross-axis term of "
-                   "±2.2e-3 kept on the others, 4.3σ on one (the σ of the gyro matrix is too small "
-                   "on the firmware's 25 Hz IMU log; docs/joint-validation.md)")
+@known_failure("8 of 10", "a cross-axis term of ±2.2e-3 kept on the others, 4.3σ on one (the σ "
+                         "of the gyro matrix is too small on the firmware's 25 Hz IMU log; "
+                         "docs/joint-validation.md)")
 def test_the_firmware_gyro_has_no_cross_axis_terms_and_the_fit_finds_none(recorded):
     """Its cross-axis terms are zero too, and the accelerometer frame the joint's gyro matrix
     is taken in has no rotation here (SIM_ACC1 has only bias and scale)."""
